@@ -1,0 +1,136 @@
+"""workflow_config.yaml: loading, schema validation and resolution of one scene's settings.
+
+A scene's settings are `defaults` deep-merged with `scenes.<name>`, after the active profile's overlay has been
+merged over the whole config. The result must hold every key the schema knows, so that each stage reads all
+of its settings from one place (the resolved `settings.json` the Snakefile writes per scene).
+
+CLI: `python -m pipeline.config CONFIG.yaml SCENE OUT.json [--profile P] [--device D]` writes resolved settings.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Sequence
+
+import jsonschema
+import yaml
+
+from pipeline import cli
+from pipeline.errors import PipelineError
+
+SCHEMA_PATH = Path(__file__).resolve().parent.parent / "workflow" / "config.schema.yaml"
+
+
+def load_schema() -> dict:
+    return yaml.safe_load(SCHEMA_PATH.read_text())
+
+
+def load_config(path: str | os.PathLike) -> dict:
+    """Read and validate a workflow config file."""
+    path = Path(path)
+    if not path.is_file():
+        raise PipelineError(f"{path}: config file does not exist")
+    try:
+        config = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise PipelineError(f"{path}: not valid YAML ({err})") from None
+    validate_config(config, str(path))
+    return config
+
+
+def validate_config(config: Any, source: str = "config") -> None:
+    """Check `config` against the schema; the first problem becomes one error naming the key."""
+    validator = jsonschema.Draft202012Validator(load_schema())
+    error = jsonschema.exceptions.best_match(validator.iter_errors(config))
+    if error is not None:
+        raise PipelineError(f"{source}: {_describe(error)}")
+
+
+def _describe(error: jsonschema.ValidationError) -> str:
+    where = ".".join(str(p) for p in error.absolute_path) or "top level"
+    if error.validator == "additionalProperties":
+        unknown = sorted(set(error.instance) - set(error.schema.get("properties", {})))
+        if unknown:
+            return f"unknown key '{unknown[0]}' in {where}"
+    if error.validator == "required":
+        missing = [k for k in error.validator_value if k not in error.instance]
+        return f"missing key '{missing[0]}' in {where}"
+    return f"{where}: {error.message}"
+
+
+def deep_merge(base: dict, overlay: dict) -> dict:
+    """A copy of `base` with `overlay` merged in; nested dicts merge, anything else is replaced."""
+    merged = copy.deepcopy(base)
+    for key, value in overlay.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def resolve_scene(config: dict, scene: str, profile: str | None = None, device: str | None = None,
+                  source: str = "config") -> dict:
+    """The complete settings of `scene`: profile overlay, then defaults + scene. Adds `scene`, `profile`,
+    `device`. Raises PipelineError for an unknown scene or profile, or a key missing after the merge."""
+    validate_config(config, source)
+    profile = profile or config["profile"]
+    overlays = config.get("profiles", {})
+    if profile not in overlays:
+        raise PipelineError(f"{source}: unknown profile '{profile}' (known: {', '.join(sorted(overlays)) or 'none'})")
+    merged = deep_merge({k: v for k, v in config.items() if k != "profiles"}, overlays[profile])
+    if scene not in merged["scenes"]:
+        raise PipelineError(f"{source}: unknown scene '{scene}' (known: {', '.join(sorted(merged['scenes']))})")
+    settings = deep_merge(merged["defaults"], merged["scenes"][scene])
+    _require_complete(settings, load_schema()["$defs"]["scene_settings"], f"scenes.{scene}", source)
+    settings.update(scene=scene, profile=profile, device=device or merged["device"])
+    return settings
+
+
+def _require_complete(settings: dict, schema: dict, where: str, source: str) -> None:
+    for key, sub in schema.get("properties", {}).items():
+        if key not in settings:
+            raise PipelineError(f"{source}: missing key '{key}' in {where} (set it there or in defaults)")
+        if sub.get("type") == "object" and "properties" in sub:
+            _require_complete(settings[key], sub, f"{where}.{key}", source)
+
+
+def write_settings(settings: dict, path: str | os.PathLike) -> None:
+    """Write resolved settings as JSON, atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        json.dump(settings, f, indent=2, sort_keys=True)
+    os.replace(tmp, path)
+
+
+def read_settings(path: str | os.PathLike) -> dict:
+    """Settings written by `write_settings` (the per-scene settings.json)."""
+    path = Path(path)
+    if not path.is_file():
+        raise PipelineError(f"{path}: settings file does not exist")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise PipelineError(f"{path}: not valid JSON ({err})") from None
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.config", description=__doc__.splitlines()[0])
+    parser.add_argument("config", help="workflow_config.yaml")
+    parser.add_argument("scene")
+    parser.add_argument("out", help="resolved settings (JSON)")
+    parser.add_argument("--profile", help="overlay to apply (default: the config's `profile`)")
+    parser.add_argument("--device", help="override the device (cpu, cuda:0)")
+    args = parser.parse_args(argv)
+    config = load_config(args.config)
+    write_settings(resolve_scene(config, args.scene, args.profile, args.device, args.config), args.out)
+
+
+if __name__ == "__main__":
+    cli.run(main)

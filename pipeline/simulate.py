@@ -1,0 +1,141 @@
+"""Simulate stage: the low-res XPBD run, and the high-res run held to it by harmonic test functions.
+
+CLI:
+  python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [--device D] [--quiet]
+  python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [--device D] [--quiet]
+The high-res run is driven by the same rigid driver (pins carried over through the subdivision) and holds the hard
+constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al. 2011).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+import warp as wp
+from tqdm import tqdm
+
+from pipeline import cli
+from pipeline.artifacts import atomic_h5, open_artifact, read, read_csr
+from pipeline.config import read_settings
+from pipeline.errors import PipelineError
+from sim.cloth import apply_rigid
+from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, harmonic_constraint
+
+
+def solver_settings(settings: dict) -> SolverSettings:
+    solver = dict(settings["solver"], gravity=tuple(settings["solver"]["gravity"]))
+    try:
+        return SolverSettings(**solver, bending=settings["physics"]["bending"])
+    except ValueError as err:
+        raise PipelineError(f"scene '{settings['scene']}': {err}") from None
+
+
+def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray) -> np.ndarray:
+    """High-res vertices that follow the low-res pins: the even copies of pinned vertices (Loop subdivision keeps
+    old vertices first, in order) and every vertex whose stencil touches pinned vertices only."""
+    pinned = np.zeros(S.shape[1], dtype=bool)
+    pinned[low_pins] = True
+    free_weight = np.asarray(abs(S) @ (~pinned).astype(np.float64)).ravel()
+    return np.union1d(low_pins, np.flatnonzero(free_weight == 0.0)).astype(np.int64)
+
+
+def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s arguments for frame f."""
+    positions = np.empty((n_frames, *solver.x.shape, 3), dtype=np.float32)
+    positions[0] = solver.positions()
+    solve_ms = np.zeros(n_frames)
+    for f in tqdm(range(1, n_frames), desc=label, disable=quiet, unit="frame"):
+        start = time.perf_counter()
+        try:
+            solver.step(*inputs(f))
+        except UnstableSimulation as err:
+            raise PipelineError(f"{label}: simulation blew up (NaN or speed > max_speed) at frame {f}, {err}") from None
+        positions[f] = solver.x.numpy()
+        solve_ms[f] = (time.perf_counter() - start) * 1e3
+    return positions, solve_ms
+
+
+def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool):
+    with open_artifact(scene_path) as f:
+        rest, faces = read(f, "rest/vertices", np.float64), read(f, "rest/faces", np.int64)
+        pins, targets = read(f, "pins/ids", np.int64), read(f, "pins/targets", np.float64)
+    if len(targets) != settings["frames"]:
+        raise PipelineError(f"{scene_path}: has {len(targets)} frames of pin targets, settings ask for {settings['frames']}")
+    solver = ClothSolver(rest, faces, solver_settings(settings), device, pins)
+    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: (targets[fr],),
+                                     f"{settings['scene']} low-res", quiet)
+    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": pins,
+            "solve_ms": solve_ms}, {"n_constraints": solver.n_constraints}
+
+
+def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str, quiet: bool):
+    with open_artifact(scene_path) as f:
+        low_pins = read(f, "pins/ids", np.int64)
+        rotation, translation = read(f, "driver/rotation"), read(f, "driver/translation")
+        pivot = read(f, "driver/pivot")
+    with open_artifact(subdiv_path) as f:
+        S = read_csr(f, "S")
+        rest, faces = read(f, "vertices", np.float64), read(f, "faces", np.int64)
+        basis, mass = read(f, "harmonics/basis", np.float64), read(f, "harmonics/mass", np.float64)
+    with open_artifact(low_path) as f:
+        x_low = read(f, "positions", np.float64)
+    if S.shape != (len(rest), x_low.shape[1]):
+        raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
+                            f"{low_path} has {x_low.shape[1]}")
+    if len(x_low) != settings["frames"]:
+        raise PipelineError(f"{low_path}: has {len(x_low)} frames, settings ask for {settings['frames']}")
+    pins = subdivided_pins(S, low_pins)
+    targets = apply_rigid(rotation, translation, pivot, rest[pins])
+    try:
+        constraint = harmonic_constraint(basis, mass, pins)
+    except ValueError as err:
+        raise PipelineError(f"{subdiv_path}: {err}") from None
+    # B^T M (S x_low) per frame: the low-frequency content the high-res run must reproduce.
+    mass_basis_t = (mass[:, None] * basis).T
+    harmonic_targets = np.einsum("kv,fvc->fkc", mass_basis_t, np.stack([S @ x for x in x_low]))
+    solver = ClothSolver(rest, faces, solver_settings(settings), device, pins, initial_positions=S @ x_low[0],
+                         harmonic=constraint, harmonic_target=harmonic_targets[0])
+    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: (targets[fr], harmonic_targets[fr]),
+                                     f"{settings['scene']} high-res", quiet)
+    high_content = np.einsum("kv,fvc->fkc", mass_basis_t, positions.astype(np.float64))
+    residual = (np.linalg.norm((high_content - harmonic_targets).reshape(len(positions), -1), axis=1)
+                / np.linalg.norm(high_content.reshape(len(positions), -1), axis=1))
+    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": pins,
+            "solve_ms": solve_ms, "harmonic_residual": residual}, \
+        {"n_constraints": solver.n_constraints, "n_harmonics": basis.shape[1]}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.simulate", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="level", required=True)
+    low = sub.add_parser("low", help="the low-res run")
+    low.add_argument("settings"), low.add_argument("scene"), low.add_argument("out")
+    high = sub.add_parser("high", help="the high-res run, constrained to the low-res one")
+    for name in ("settings", "scene", "subdiv", "sim_low", "out"):
+        high.add_argument(name)
+    for p in (low, high):
+        p.add_argument("--device", help="Warp device (cpu, cuda:0); default: the settings' device")
+        cli.add_quiet(p)
+    args = parser.parse_args(argv)
+    settings = read_settings(args.settings)
+    device = args.device or settings["device"]
+    if device.startswith("cuda") and not wp.get_cuda_device_count():
+        raise PipelineError(f"device '{device}' requested but Warp finds no CUDA device (use --device cpu)")
+    if args.level == "low":
+        arrays, attrs = simulate_low(settings, args.scene, device, args.quiet)
+    else:
+        arrays, attrs = simulate_high(settings, args.scene, args.subdiv, args.sim_low, device, args.quiet)
+    with atomic_h5(args.out, f"simulate_{args.level}", settings) as f:
+        for name, data in arrays.items():
+            f.create_dataset(name, data=data)
+        f.attrs.update(attrs, level=args.level, device=device, frames=settings["frames"])
+        f["solve_ms"].attrs["meaning"] = "wall time of each frame's solve in ms (frame 0: initial state, 0)"
+        if "harmonic_residual" in f:
+            f["harmonic_residual"].attrs["meaning"] = "|B^T M (x_high - S x_low)| / |B^T M x_high| per frame"
+
+
+if __name__ == "__main__":
+    cli.run(main)
