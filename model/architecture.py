@@ -71,3 +71,16 @@ def parse_architecture(text: str, letter: str) -> Architecture:
             raise ArchitectureError(f"token {position} '{token}' of '{text}': channel and repeat counts must be >= 1")
         blocks.extend([channels] * repeat)
     return Architecture(letter, tuple(blocks))
+
+
+CONV_KINDS = ("RC", "EC", "SP", "SPD")
+_CONV = re.compile(r"^(?P<kind>RC|EC|SPD|SP)(?P<size>\d+)$")
+
+
+def parse_conv(name: str) -> tuple[str, int]:
+    """'RC13' → ('RC', 13): the operator kind (RC, EC, SP, SPD) and filter length L (the vertex included)."""
+    match = _CONV.match(name)
+    if match is None or int(match["size"]) < 1:
+        raise ArchitectureError(f"convolution '{name}' is not one of {', '.join(CONV_KINDS)} followed by a "
+                                f"filter size, e.g. RC13 or SP9")
+    return match["kind"], int(match["size"])

@@ -12,7 +12,7 @@ import dataclasses
 import torch
 from torch import nn
 
-from model.architecture import Architecture, ArchitectureError
+from model.architecture import Architecture, ArchitectureError, parse_architecture, parse_conv
 from model.hierarchy import MeshHierarchy
 from model.layers import POOLING, MeshConv, instance_norm, leaky_relu, unpool
 
@@ -195,3 +195,34 @@ class NormalizedRegressor(nn.Module):
 
     def forward(self, x: torch.Tensor, mesh: MeshHierarchy) -> torch.Tensor:
         return self.net((x - self.input_offset) / self.input_scale, mesh) * self.output_scale
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkSpec:
+    """Everything needed to rebuild a network (stored in model.pt). The architecture's letter picks the network:
+    D tokens an encoder-decoder on `in_channels` per-vertex inputs, U tokens a decoder from `in_channels` scalars,
+    which also needs the vertex count of its coarsest level."""
+
+    arch: str
+    conv: str = "RC13"
+    pool: str = "avg"
+    width: float = 1.0
+    in_channels: int = 3
+    out_channels: int = 3
+    coarse_vertices: int | None = None
+
+    @property
+    def letter(self) -> str:
+        return self.arch.strip()[:1]
+
+
+def build_network(spec: NetworkSpec) -> MeshNetwork:
+    """The network a spec describes; raises ArchitectureError naming what is wrong with it."""
+    _, size = parse_conv(spec.conv)
+    if spec.letter == "U":
+        arch = parse_architecture(spec.arch, "U").scaled(spec.width, keep_last=True)
+        if spec.coarse_vertices is None:
+            raise ArchitectureError("a decoder needs the vertex count of its coarsest mesh level")
+        return Decoder(arch, size, spec.in_channels, spec.coarse_vertices, spec.out_channels)
+    arch = parse_architecture(spec.arch, "D").scaled(spec.width)
+    return EncoderDecoder(arch, size, spec.pool, spec.in_channels, spec.out_channels)

@@ -1,6 +1,6 @@
 """Stage `subdivide`: Loop-subdivide the low-res rest mesh and compute the high-res harmonic test functions.
 
-    python -m pipeline.subdivide MESH OUT.h5 [--levels 2] [--quiet]
+    python -m pipeline.subdivide MESH OUT.h5 [--levels 2] [--vertices-per-harmonic 40] [--quiet]
 
 MESH is an OBJ/PLY mesh or an HDF5 artifact holding one (e.g. scene.h5's `rest/`). OUT.h5 holds the subdivision
 matrix S (high-res = S @ low-res), the subdivided rest mesh and the harmonic basis; docs/artifacts_subdiv.md
@@ -16,23 +16,28 @@ from tqdm import tqdm
 
 from pipeline.artifacts import atomic_h5, write_csr
 from pipeline.cli import add_quiet, run
+from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
 from sim.harmonics import harmonic_basis, harmonic_count
 from sim.loop import loop_subdivide
 
 
-def _levels(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+def _int_at_least(minimum: int):
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+    return parse
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.subdivide", description=__doc__.splitlines()[0])
     parser.add_argument("mesh", help="low-res rest mesh: .obj/.ply or an .h5 artifact")
     parser.add_argument("out", help="output subdiv.h5")
-    parser.add_argument("--levels", type=_levels, default=2, help="Loop subdivision levels (paper: 2)")
+    parser.add_argument("--levels", type=_int_at_least(0), default=2, help="Loop subdivision levels (paper: 2)")
+    parser.add_argument("--vertices-per-harmonic", type=_int_at_least(1), default=40,
+                        help="K = ceil(high-res vertices / this) harmonic test functions (paper: 40)")
     add_quiet(parser)
     args = parser.parse_args(argv)
 
@@ -43,17 +48,21 @@ def main(argv: Sequence[str] | None = None) -> None:
         subdivision, high_faces = loop_subdivide(low_vertices, low_faces, args.levels)
         high_vertices = subdivision @ low_vertices
         progress.update()
-        n_harmonics = harmonic_count(len(high_vertices))
+        n_harmonics = harmonic_count(len(high_vertices), args.vertices_per_harmonic)
         progress.set_postfix_str(f"{n_harmonics} harmonics of {len(high_vertices)} vertices")
-        basis, eigenvalues, mass = harmonic_basis(high_vertices, high_faces, n_harmonics)
+        try:
+            basis, eigenvalues, mass = harmonic_basis(high_vertices, high_faces, n_harmonics)
+        except ValueError as err:  # only a count the mesh cannot supply gets here: the mesh was validated
+            raise PipelineError(f"{args.mesh}: {err} (--vertices-per-harmonic {args.vertices_per_harmonic})") from None
         progress.update()
         progress.set_postfix_str("writing")
-        config = {"mesh": str(args.mesh), "levels": args.levels}
+        config = {"mesh": str(args.mesh), "levels": args.levels, "vertices_per_harmonic": args.vertices_per_harmonic}
         with atomic_h5(args.out, "subdivide", config) as f:
             f.attrs["levels"] = args.levels
             f.attrs["n_low_vertices"] = len(low_vertices)
             f.attrs["n_high_vertices"] = len(high_vertices)
             f.attrs["n_harmonics"] = n_harmonics
+            f.attrs["vertices_per_harmonic"] = args.vertices_per_harmonic
             write_csr(f, "S", subdivision)
             f.create_dataset("vertices", data=high_vertices.astype(np.float64))
             f.create_dataset("faces", data=high_faces.astype(np.int32))

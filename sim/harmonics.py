@@ -53,11 +53,13 @@ def lumped_mass(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(vertices))
 
 
-def harmonic_count(n_vertices: int) -> int:
-    """Number of harmonic test functions for a mesh of `n_vertices` vertices: ceil(V / 40), as in the paper."""
+def harmonic_count(n_vertices: int, vertices_per_harmonic: int = 40) -> int:
+    """Number of harmonic test functions for a mesh of `n_vertices` vertices: ceil(V / 40) in the paper."""
     if n_vertices < 0:
         raise ValueError(f"vertex count must be >= 0, got {n_vertices}")
-    return math.ceil(n_vertices / 40)
+    if vertices_per_harmonic < 1:
+        raise ValueError(f"vertices per harmonic must be >= 1, got {vertices_per_harmonic}")
+    return math.ceil(n_vertices / vertices_per_harmonic)
 
 
 def harmonic_basis(vertices: np.ndarray, faces: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -42,6 +42,7 @@ def test_writes_subdivision_and_harmonics(tmp_path):
     n_harmonics = math.ceil(n_high / 40)
     with h5py.File(out, "r") as f:
         assert f.attrs["stage"] == "subdivide" and config_of(f)["levels"] == 2
+        assert config_of(f)["vertices_per_harmonic"] == f.attrs["vertices_per_harmonic"] == 40
         assert (f.attrs["levels"], f.attrs["n_low_vertices"], f.attrs["n_high_vertices"], f.attrs["n_harmonics"]) \
             == (2, len(vertices), n_high, n_harmonics)
         subdivision = read_csr(f, "S")
@@ -65,12 +66,13 @@ def test_reads_rest_mesh_of_a_scene_artifact(tmp_path):
     scene, out = tmp_path / "scene.h5", tmp_path / "subdiv.h5"
     with h5py.File(scene, "w") as f:
         f["rest/vertices"], f["rest/faces"] = vertices, faces.astype(np.int32)
-    result = run_stage(scene, out, "--levels", "1")
+    result = run_stage(scene, out, "--levels", "1", "--vertices-per-harmonic", "20")
     assert result.returncode == 0, result.stderr
     assert "subdivide" in result.stderr  # tqdm progress without --quiet
     expected_s, _ = loop_subdivide(vertices, faces, 1)
     with h5py.File(out, "r") as f:
-        assert f.attrs["levels"] == 1
+        assert f.attrs["levels"] == 1 and f.attrs["vertices_per_harmonic"] == 20
+        assert f.attrs["n_harmonics"] == math.ceil(expected_s.shape[0] / 20) == f["harmonics/basis"].shape[1]
         np.testing.assert_allclose(f["vertices"][()], expected_s @ vertices, rtol=0, atol=1e-15)
 
 
@@ -90,3 +92,13 @@ def test_bad_input_fails_cleanly(tmp_path, content, problem):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {mesh_path}: ") and problem in lines[0]
     assert not out.exists() and not (out.parent.exists() and any(out.parent.iterdir()))
+
+
+def test_too_many_harmonics_fails_cleanly(tmp_path):
+    mesh_path, out = tmp_path / "cloth.obj", tmp_path / "subdiv.h5"
+    trimesh.Trimesh(*cloth_patch(), process=False).export(mesh_path)
+    result = run_stage(mesh_path, out, "--vertices-per-harmonic", "1", "--quiet")  # K = V: one too many
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {mesh_path}: ") and "--vertices-per-harmonic" in lines[0]
+    assert not out.exists()

@@ -118,8 +118,11 @@ def test_basis_is_deterministic():
 
 def test_harmonic_count_is_ceil_of_v_over_40():
     assert [harmonic_count(v) for v in (0, 1, 40, 41, 80, 15000, 15001)] == [0, 1, 1, 2, 2, 375, 376]
+    assert [harmonic_count(v, 20) for v in (20, 21, 15000)] == [1, 2, 750]
     with pytest.raises(ValueError):
         harmonic_count(-1)
+    with pytest.raises(ValueError):
+        harmonic_count(100, 0)
 
 
 def test_rejects_impossible_count():

@@ -1,0 +1,101 @@
+"""Solver speed: ms per frame for low- and high-res cloth, CPU and CUDA, at the paper's 8 substeps x 75 iterations.
+
+Median over measured frames after warm-up frames (the first frame compiles kernels and, on CUDA, captures the frame
+graph). Each row's ratio is against the stretch-only run of the same mesh and device in the same invocation, so the
+price of bending and of the harmonic constraint is visible. Usage:
+  python bench/sim.py [--devices cpu,cuda:0] [--cases flag,15k] [--frames 10] [--warmup 3] [--substeps 8]
+  [--iterations 75] [--out table.md]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from sim.cloth import first_row_pins, grid_cloth  # noqa: E402
+from sim.harmonics import harmonic_basis, harmonic_count  # noqa: E402
+from sim.loop import loop_subdivide  # noqa: E402
+from sim.xpbd import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
+
+# Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
+CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
+
+
+def build(max_edge: float):
+    low, low_faces = grid_cloth(1.0, 1.0, max_edge, plane="xy", origin=(-0.5, 1.5, 0.0))
+    S, faces = loop_subdivide(low, low_faces, levels=2)
+    high = S @ low
+    return (low, low_faces), (high, faces)
+
+
+def time_run(vertices, faces, settings, device, pins, frames, warmup, harmonic=None):
+    target = None
+    if harmonic is not None:
+        constraint, basis, mass = harmonic
+        target = (mass[:, None] * basis).T @ vertices
+    solver = ClothSolver(vertices, faces, settings, device, pins, harmonic=harmonic and harmonic[0],
+                         harmonic_target=target)
+    sway = np.array([0.05, 0.0, 0.03])
+    times = []
+    for f in range(warmup + frames):
+        pin_targets = vertices[pins] + sway * math.sin(f / 10)
+        start = time.perf_counter()
+        solver.step(pin_targets, target)
+        solver.x.numpy()  # the positions a stage stores each frame; also synchronises the device
+        times.append((time.perf_counter() - start) * 1e3)
+    return float(np.median(times[warmup:]))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--devices", default="cpu")
+    parser.add_argument("--cases", default="flag-cpu,flag,15k")
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--substeps", type=int, default=8)
+    parser.add_argument("--iterations", type=int, default=75)
+    parser.add_argument("--skip-cpu-high", action="store_true", help="skip high-res runs on the CPU (slow)")
+    parser.add_argument("--out", help="also write the table here")
+    args = parser.parse_args()
+    rows = ["| mesh | level | V | K | device | variant | ms/frame | x stretch-only |", "|---|---|---|---|---|---|---|---|"]
+    for case in args.cases.split(","):
+        (low, low_faces), (high, high_faces) = build(CASES[case])
+        k = harmonic_count(len(high))
+        t0 = time.perf_counter()
+        basis, _, mass = harmonic_basis(high, high_faces, k)
+        print(f"{case}: {len(low)} low / {len(high)} high vertices, K={k}, eigensolve {time.perf_counter() - t0:.1f} s",
+              flush=True)
+        for device in args.devices.split(","):
+            for level, (verts, faces) in (("low", (low, low_faces)), ("high", (high, high_faces))):
+                if level == "high" and device == "cpu" and args.skip_cpu_high:
+                    continue
+                pins = first_row_pins(verts, "xy", "top_edge")
+                base = dict(substeps=args.substeps, iterations=args.iterations)
+                variants = [("stretch only", SolverSettings(**base, bending=False), None),
+                            ("stretch+bending", SolverSettings(**base), None)]
+                if level == "high":
+                    variants.append(("+harmonic each iteration", SolverSettings(**base),
+                                     (harmonic_constraint(basis, mass, pins), basis, mass)))
+                baseline = None
+                for name, settings, harmonic in variants:
+                    ms = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, harmonic)
+                    baseline = baseline or ms
+                    row = (f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | {name} | "
+                           f"{ms:.2f} | {ms / baseline:.2f} |")
+                    rows.append(row)
+                    print(row, flush=True)
+    table = "\n".join(rows)
+    print(f"\n{args.substeps} substeps x {args.iterations} iterations, median of {args.frames} frames after "
+          f"{args.warmup} warm-up frames\n{table}")
+    if args.out:
+        Path(args.out).write_text(table + "\n")
+
+
+if __name__ == "__main__":
+    main()
