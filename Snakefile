@@ -7,10 +7,12 @@ sys.path.insert(0, workflow.basedir)
 
 from snakemake.utils import validate
 
-from pipeline.config import resolve_scene, write_settings
+from pipeline.config import resolve_scene, validate_config, write_settings
 
 configfile: "workflow_config.yaml"
 
+# Our validator first: it names the offending key in one line; Snakemake's then records the schema check.
+validate_config(config, "workflow config")
 validate(config, "workflow/config.schema.yaml")
 
 # Resolving every scene now turns a bad or missing key into one error before any job starts.

@@ -21,6 +21,7 @@ from pipeline import cli
 from pipeline.artifacts import atomic_h5, open_artifact, read, read_csr
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
+from pipeline.meshio import check_mesh
 from sim.cloth import apply_rigid
 from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, harmonic_constraint
 
@@ -62,6 +63,7 @@ def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool):
     with open_artifact(scene_path) as f:
         rest, faces = read(f, "rest/vertices", np.float64), read(f, "rest/faces", np.int64)
         pins, targets = read(f, "pins/ids", np.int64), read(f, "pins/targets", np.float64)
+    check_mesh(scene_path, rest, faces)
     if len(targets) != settings["frames"]:
         raise PipelineError(f"{scene_path}: has {len(targets)} frames of pin targets, settings ask for {settings['frames']}")
     solver = ClothSolver(rest, faces, solver_settings(settings), device, pins)

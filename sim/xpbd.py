@@ -173,7 +173,7 @@ class ClothSolver:
         self.unstable.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                wp.load_module(device=self.device)
+                wp.load_module(k, device=self.device)  # compile before capture: no JIT inside a graph
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
                 self._graph = capture.graph

@@ -4,6 +4,8 @@ All are consistently oriented counter-clockwise seen from outside; y is up.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.spatial
 
@@ -90,8 +92,8 @@ def pants(n: int) -> tuple[np.ndarray, np.ndarray]:
     """A stretched sphere with three holes cut (waist on top, two legs below): three boundary loops."""
     vertices, faces = cube_sphere(n)
     holes = [(np.array([0.0, 1.0, 0.0]), np.cos(np.radians(40))),
-             (np.array([0.55, -1.0, 0.0]), np.cos(np.radians(28))),
-             (np.array([-0.55, -1.0, 0.0]), np.cos(np.radians(28)))]
+             (np.array([0.7, -1.0, 0.0]), np.cos(np.radians(22))),
+             (np.array([-0.7, -1.0, 0.0]), np.cos(np.radians(22)))]
     inside = np.zeros(len(vertices), dtype=bool)
     for direction, cos_radius in holes:
         inside |= vertices @ (direction / np.linalg.norm(direction)) > cos_radius
@@ -120,8 +122,31 @@ def irregular_disk(n_points: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray
         inner.append(candidate)
     plane = np.concatenate([rim, np.asarray(inner)])
     triangles = scipy.spatial.Delaunay(plane).simplices.astype(np.int64)
-    p = plane[triangles]
-    clockwise = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
+    u, v = plane[triangles[:, 1]] - plane[triangles[:, 0]], plane[triangles[:, 2]] - plane[triangles[:, 0]]
+    clockwise = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0] < 0
     triangles[clockwise] = triangles[clockwise][:, ::-1]
     vertices = np.stack([plane[:, 0], plane[:, 1], 0.15 * np.sin(3 * plane[:, 0]) * np.cos(2 * plane[:, 1])], 1)
     return _checked(vertices, triangles)
+
+
+# The test meshes of issue #3, small enough that the whole operator build of each takes well under a second.
+TEST_MESHES = {
+    "square": lambda: grid_patch(24, 20, 1.2, 1.0),
+    "sphere": lambda: cube_sphere(10),
+    "torus": lambda: torus(36, 14),
+    "pants": lambda: pants(12),
+    "irregular": lambda: irregular_disk(500),
+    "two_triangles": two_triangles,
+}
+
+
+@functools.lru_cache(maxsize=None)
+def mesh_of(name: str) -> tuple[np.ndarray, np.ndarray]:
+    return TEST_MESHES[name]()
+
+
+@functools.lru_cache(maxsize=None)
+def operators_of(name: str) -> list:
+    """Default operators (RC13, EC13, SP13, SPD13, 10 pooling steps) of a test mesh, built once per session."""
+    from meshops import build_operators
+    return build_operators(*mesh_of(name))

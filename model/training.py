@@ -1,0 +1,146 @@
+"""Training loop (paper section 4: Adam, lr 1e-3, betas 0.9/0.999, eps 1e-8, batch size 3) with per-epoch
+checkpoints that a killed run resumes from, ending where an uninterrupted run with the same seed ends.
+
+Everything random after the network's initialisation is the epoch shuffle, drawn from its own generator whose
+state travels in the checkpoint; with `torch.use_deterministic_algorithms` a resumed run repeats the same
+arithmetic as an uninterrupted one.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import torch
+
+from model.hierarchy import MeshHierarchy
+from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
+from model.networks import NormalizedRegressor
+
+CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-1"
+TERMS = ("total", "l1", "l2", "normal")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainSettings:
+    epochs: int
+    batch_size: int = 3
+    lr: float = 1e-3
+    weights: LossWeights = LossWeights()
+    seed: int = 0
+
+
+@dataclasses.dataclass
+class History:
+    """Per-epoch mean losses on the training frames (as seen during the epoch) and on the test frames (after
+    it), each batch's total loss, and each epoch's wall time."""
+
+    train: dict[str, list[float]] = dataclasses.field(default_factory=lambda: {t: [] for t in TERMS})
+    test: dict[str, list[float]] = dataclasses.field(default_factory=lambda: {t: [] for t in TERMS})
+    batch_total: list[float] = dataclasses.field(default_factory=list)
+    epoch_seconds: list[float] = dataclasses.field(default_factory=list)
+    resumed_from_epoch: int = 0
+
+    @property
+    def epochs_done(self) -> int:
+        return len(self.epoch_seconds)
+
+
+@dataclasses.dataclass(frozen=True)
+class Frames:
+    """A split of the learning problem on one device: network inputs, target displacements, the mesh faces."""
+
+    inputs: torch.Tensor     # (F, V, C)
+    targets: torch.Tensor    # (F, V, 3)
+    faces: torch.Tensor      # (n_faces, 3) int64
+
+
+def split_errors(predict: Callable[[torch.Tensor], torch.Tensor], frames: Frames, ids: torch.Tensor,
+                 batch_size: int, weights: LossWeights) -> dict[str, float]:
+    """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
+    `predict` maps input positions to predicted displacements. Positions are input + displacement."""
+    sums = dict.fromkeys(("l1", "l2sq", "normal"), 0.0)
+    with torch.no_grad():
+        for start in range(0, len(ids), batch_size):
+            batch = ids[start:start + batch_size]
+            inputs, targets = frames.inputs[batch], frames.targets[batch]
+            predicted, truth = inputs + predict(inputs), inputs + targets
+            sums["l1"] += l1_loss(predicted, truth).item() * len(batch)
+            sums["l2sq"] += l2_loss(predicted, truth).item() ** 2 * len(batch)
+            sums["normal"] += normal_loss(predicted, truth, frames.faces).item() * len(batch)
+    errors = {"l1": sums["l1"] / len(ids), "l2": (sums["l2sq"] / len(ids)) ** 0.5, "normal": sums["normal"] / len(ids)}
+    errors["total"] = weights.l1 * errors["l1"] + weights.l2 * errors["l2"] + weights.normal * errors["normal"]
+    return errors
+
+
+def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_ids: torch.Tensor,
+        test_ids: torch.Tensor, settings: TrainSettings, checkpoint: Path | None = None,
+        identity: dict[str, Any] | None = None,
+        on_batch: Callable[[int, float], None] = lambda epoch, loss: None,
+        on_notice: Callable[[str], None] = print) -> History:
+    """Train `model` in place for `settings.epochs` epochs; returns the loss history.
+
+    With `checkpoint`, the state is saved there after every epoch and, if the file exists when training starts
+    and was written for the same `identity` (settings, data and operators fingerprints), training resumes from
+    it. `on_batch(epoch, loss)` is called after every optimiser step.
+    """
+    optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr, betas=(0.9, 0.999), eps=1e-8)
+    shuffle = torch.Generator().manual_seed(settings.seed)
+    history = History()
+    identity = {"settings": _settings_key(settings), **(identity or {})}
+    if checkpoint is not None and checkpoint.is_file():
+        state = torch.load(checkpoint, map_location=frames.inputs.device, weights_only=False)
+        if state.get("format") == CHECKPOINT_FORMAT and state["identity"] == identity:
+            model.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            shuffle.set_state(state["shuffle"])
+            history = state["history"]
+            history.resumed_from_epoch = history.epochs_done
+            on_notice(f"resuming from {checkpoint} after epoch {history.epochs_done}")
+        else:
+            on_notice(f"{checkpoint} was written for other settings, data or operators: starting afresh")
+    for epoch in range(history.epochs_done, settings.epochs):
+        start = time.perf_counter()
+        model.train()
+        order = train_ids[torch.randperm(len(train_ids), generator=shuffle).to(train_ids.device)]
+        sums = dict.fromkeys(TERMS, 0.0)
+        for first in range(0, len(order), settings.batch_size):
+            batch = order[first:first + settings.batch_size]
+            inputs, targets = frames.inputs[batch], frames.targets[batch]
+            loss, terms = total_loss(inputs + model(inputs, mesh), inputs + targets, frames.faces, settings.weights)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            value = loss.item()
+            history.batch_total.append(value)
+            for name, term in (("total", value), *((k, v.item()) for k, v in terms.items())):
+                sums[name] += term * len(batch)
+            on_batch(epoch, value)
+        for name in TERMS:
+            history.train[name].append(sums[name] / len(order))
+        model.eval()
+        test = split_errors(lambda x: model(x, mesh), frames, test_ids, settings.batch_size, settings.weights)
+        for name in TERMS:
+            history.test[name].append(test[name])
+        history.epoch_seconds.append(time.perf_counter() - start)
+        if checkpoint is not None:
+            _save_atomically({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
+                              "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
+                              "history": history}, checkpoint)
+    model.eval()
+    return history
+
+
+def _settings_key(settings: TrainSettings) -> dict[str, Any]:
+    # Not the epoch count: a checkpoint of a shorter run is a valid start for a longer one.
+    key = dataclasses.asdict(settings)
+    key.pop("epochs")
+    return key
+
+
+def _save_atomically(state: dict[str, Any], path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)

@@ -1,0 +1,62 @@
+"""Closed-polyline sampling and the direct least-squares ellipse fit, on analytic cases."""
+import numpy as np
+
+from meshops.ellipse import ellipse_polyline, fit_ellipses
+from meshops.polyline import closest_arc_position, sample_closed_polyline
+
+
+def test_samples_are_evenly_spaced_along_a_closed_square_from_its_first_corner():
+    square = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [9.0, 9.0]]])  # last entry is padding
+    samples = sample_closed_polyline(square, np.array([4]), 8)
+    expected = [[0, 0], [0.5, 0], [1, 0], [1, 0.5], [1, 1], [0.5, 1], [0, 1], [0, 0.5]]
+    assert np.allclose(samples[0], expected)
+    shifted = sample_closed_polyline(square, np.array([4]), 4, start=np.array([0.25]))
+    assert np.allclose(shifted[0], [[0.25, 0], [1, 0.25], [0.75, 1], [0, 0.75]])
+
+
+def test_closest_arc_position_projects_onto_the_nearest_segment():
+    square = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
+    assert np.allclose(closest_arc_position(square, np.array([[1.3, 0.4]])), [1.4])
+    assert np.allclose(closest_arc_position(square, np.array([[-0.2, 0.1]])), [3.9])
+
+
+def _ellipse_points(centre, axes, angle, theta):
+    c, s = np.cos(angle), np.sin(angle)
+    local = np.stack([axes[0] * np.cos(theta), axes[1] * np.sin(theta)], axis=-1)
+    return centre + local @ np.array([[c, s], [-s, c]])
+
+
+def test_fit_recovers_an_ellipse_through_exact_points():
+    theta = np.array([0.1, 0.9, 1.7, 2.8, 3.5, 4.4, 5.6])
+    points = _ellipse_points(np.array([0.1, -0.05]), (1.3, 0.6), 0.4, theta)[None]
+    centre, axes, rotation, ok = fit_ellipses(points, np.ones((1, 7), dtype=bool))
+    assert ok[0]
+    assert np.allclose(centre[0], [0.1, -0.05], atol=1e-9)
+    assert np.allclose(np.sort(axes[0]), [0.6, 1.3], atol=1e-9)
+    assert np.isclose(np.linalg.det(rotation[0]), 1.0)
+    polygon = ellipse_polyline(centre, axes, rotation, 64)[0]
+    # Every polygon point lies on the true ellipse, and the polygon turns counter-clockwise.
+    c, s = np.cos(0.4), np.sin(0.4)
+    local = (polygon - [0.1, -0.05]) @ np.array([[c, -s], [s, c]])
+    assert np.allclose((local[:, 0] / 1.3) ** 2 + (local[:, 1] / 0.6) ** 2, 1.0, atol=1e-9)
+    area2 = np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1])
+    assert area2 > 0
+
+
+def test_least_squares_fit_of_noisy_points_stays_close():
+    rng = np.random.default_rng(3)
+    theta = np.sort(rng.uniform(0, 2 * np.pi, 9))
+    points = _ellipse_points(np.zeros(2), (1.0, 0.7), -0.3, theta) + rng.normal(0, 0.01, (9, 2))
+    centre, axes, _, ok = fit_ellipses(points[None], np.ones((1, 9), dtype=bool))
+    assert ok[0] and np.allclose(np.sort(axes[0]), [0.7, 1.0], atol=0.05) and np.allclose(centre[0], 0, atol=0.05)
+
+
+def test_degenerate_fits_are_flagged():
+    circle = _ellipse_points(np.zeros(2), (1.0, 1.0), 0.0, np.linspace(0, 2 * np.pi, 6, endpoint=False))
+    line = np.stack([np.linspace(-1, 1, 6), np.zeros(6)], axis=1)
+    away = circle + [3.0, 0.0]  # a fine ellipse that does not surround the origin
+    batch = np.stack([circle, line, away, circle])
+    mask = np.ones((4, 6), dtype=bool)
+    mask[3, 4:] = False  # only four points: a conic is not determined
+    _, _, _, ok = fit_ellipses(batch, mask)
+    assert list(ok) == [True, False, False, False]

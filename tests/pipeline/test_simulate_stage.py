@@ -1,0 +1,122 @@
+"""Scene and simulate stages: contents, the harmonic residual on the shipped scenes, and bad input."""
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.config import resolve_scene, write_settings
+from sim.cloth import apply_rigid
+
+CONFIG = yaml.safe_load(open("workflow_config.yaml"))
+
+
+def stage(*args):
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module", params=["patch", "flag"])
+def scene_run(request, tmp_path_factory):
+    """The scene's low- and high-res runs on the CPU profile, through the stage CLIs."""
+    d = tmp_path_factory.mktemp(request.param)
+    write_settings(resolve_scene(CONFIG, request.param, "cpu"), d / "settings.json")
+    steps = [("pipeline.scene", d / "settings.json", d / "scene.h5"),
+             ("pipeline.subdivide", d / "scene.h5", d / "subdiv.h5", "--quiet"),
+             ("pipeline.simulate", "low", d / "settings.json", d / "scene.h5", d / "sim_low.h5", "--quiet"),
+             ("pipeline.simulate", "high", d / "settings.json", d / "scene.h5", d / "subdiv.h5", d / "sim_low.h5",
+              d / "sim_high.h5", "--quiet")]
+    for step in steps:
+        run = stage(*map(str, step))
+        assert run.returncode == 0, run.stderr
+    return d
+
+
+def test_high_res_holds_the_low_frequencies_of_the_low_res_on_every_frame(scene_run):
+    with h5py.File(scene_run / "sim_high.h5") as f:
+        residual = f["harmonic_residual"][()]
+        positions = f["positions"][()]
+        assert f.attrs["n_harmonics"] == int(np.ceil(positions.shape[1] / 40))
+    assert np.isfinite(positions).all()
+    assert residual.max() < 1e-5
+
+
+def test_artifacts_are_self_describing(scene_run):
+    for name in ("scene.h5", "sim_low.h5", "sim_high.h5"):
+        with h5py.File(scene_run / name) as f:
+            for attr in ("stage", "config", "versions", "length_unit"):
+                assert attr in f.attrs, (name, attr)
+    with h5py.File(scene_run / "sim_low.h5") as f:
+        assert f["positions"].dtype == np.float32
+        assert f["solve_ms"].shape == (f["positions"].shape[0],)
+        assert "warp-lang" in f.attrs["versions"]
+
+
+def test_pins_follow_the_driver_in_both_runs(scene_run):
+    with h5py.File(scene_run / "scene.h5") as s, h5py.File(scene_run / "sim_low.h5") as low:
+        targets, pins = s["pins/targets"][()], s["pins/ids"][()]
+        np.testing.assert_allclose(low["positions"][:, pins], targets, atol=1e-5)
+        driver = [s[f"driver/{k}"][()] for k in ("rotation", "translation", "pivot")]
+    with h5py.File(scene_run / "sim_high.h5") as high:
+        # Loop subdivision keeps the old vertices first: the low-res pins are pinned in the high-res run too,
+        # moved by the same rigid driver from their (subdivided) rest positions.
+        high_pins = high["pins/ids"][()]
+        assert set(pins) <= set(high_pins)
+        expected = apply_rigid(*driver, high["rest_vertices"][()][high_pins])
+        np.testing.assert_allclose(high["positions"][:, high_pins], expected, atol=1e-5)
+
+
+def test_cloth_moves_and_keeps_its_edges(scene_run):
+    with h5py.File(scene_run / "sim_low.h5") as f:
+        x, faces, rest = f["positions"][()], f["faces"][()], f["rest_vertices"][()]
+    assert np.abs(x[-1] - x[0]).max() > 0.01  # something happened
+    e = np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
+    ratio = np.linalg.norm(x[:, e[:, 0]] - x[:, e[:, 1]], axis=2) / np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1)
+    assert ratio.max() < 1.05 and ratio.min() > 0.74
+
+
+def _corrupt_scene(src, dst, edit):
+    with h5py.File(src) as f, h5py.File(dst, "w") as g:
+        for key in f.attrs:
+            g.attrs[key] = f.attrs[key]
+        names = []
+        f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        for name in names:
+            g.create_dataset(name, data=f[name][()])
+        edit(g)
+
+
+def _nan_vertex(g):
+    v = g["rest/vertices"][()]
+    v[3, 1] = np.nan
+    g["rest/vertices"][...] = v
+
+
+def _non_manifold(g):
+    v, f = g["rest/vertices"][()], g["rest/faces"][()]
+    del g["rest/faces"]
+    g["rest/faces"] = np.concatenate([f, [[f[0, 0], f[0, 1], len(v) - 1]]]).astype(np.int32)
+
+
+@pytest.mark.parametrize("edit, message", [(_nan_vertex, "contains NaN"), (_non_manifold, "")])
+def test_bad_scene_gives_one_clear_error_and_no_output(tmp_path, edit, message):
+    settings = tmp_path / "settings.json"
+    write_settings(resolve_scene(CONFIG, "patch", "cpu"), settings)
+    assert stage("pipeline.scene", str(settings), str(tmp_path / "scene.h5")).returncode == 0
+    _corrupt_scene(tmp_path / "scene.h5", tmp_path / "bad.h5", edit)
+    out = tmp_path / "sim_low.h5"
+    run = stage("pipeline.simulate", "low", str(settings), str(tmp_path / "bad.h5"), str(out), "--quiet")
+    assert run.returncode == 2
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {tmp_path / 'bad.h5'}") and message in lines[0]
+    assert "Traceback" not in run.stderr
+    assert not out.exists() and not list(tmp_path.glob(".*.tmp.h5"))
+
+
+def test_missing_input_file(tmp_path):
+    settings = tmp_path / "settings.json"
+    write_settings(resolve_scene(CONFIG, "patch", "cpu"), settings)
+    run = stage("pipeline.simulate", "low", str(settings), str(tmp_path / "nope.h5"), str(tmp_path / "o.h5"))
+    assert run.returncode == 2 and "nope.h5: input file does not exist" in run.stderr
+    assert not (tmp_path / "o.h5").exists()
