@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from meshops.ellipse import ellipse_polyline, fit_ellipses
+from meshops.ellipse import ellipse_points, fit_ellipses
 from meshops.neighbourhood import ASSIGNMENT_RINGS, Neighbourhood, quantise
-from meshops.polyline import closest_arc_position, sample_closed_polyline
+from meshops.polyline import closest_arc_position, locate_arc_samples, sample_closed_polyline
 
 # Polygon resolution used to measure arc length along a fitted ellipse (perimeter error ~ 1e-4).
 ELLIPSE_POLYGON_POINTS = 128
@@ -44,9 +44,13 @@ def ellipse_samples(nb: Neighbourhood, n_samples: int) -> tuple[np.ndarray, np.n
     radius = np.sum(np.where(real, np.linalg.norm(flat, axis=-1), 0.0), axis=1) / nb.ring_count
     flat = flat / radius[:, None, None]
     centre, axes, rotation, ok = fit_ellipses(flat, real)
-    polygon = ellipse_polyline(centre, axes, rotation, ELLIPSE_POLYGON_POINTS)
+    # Arc length is measured on a fine inscribed polygon; the samples are then placed on the ellipse itself.
+    theta = np.broadcast_to(np.arange(ELLIPSE_POLYGON_POINTS) * 2 * np.pi / ELLIPSE_POLYGON_POINTS,
+                            (n, ELLIPSE_POLYGON_POINTS))
+    polygon = ellipse_points(centre, axes, rotation, theta)
     start = closest_arc_position(polygon, flat[:, 0])
-    on_ellipse = sample_closed_polyline(polygon, np.full(n, ELLIPSE_POLYGON_POINTS), n_samples, start)
+    segment, fraction = locate_arc_samples(polygon, np.full(n, ELLIPSE_POLYGON_POINTS), n_samples, start)
+    on_ellipse = ellipse_points(centre, axes, rotation, (segment + fraction) * 2 * np.pi / ELLIPSE_POLYGON_POINTS)
     on_ellipse = on_ellipse * radius[:, None, None]
     samples = (nb.vertices[:, None, :] + on_ellipse[..., :1] * nb.tangent[:, None, :]
                + on_ellipse[..., 1:] * nb.bitangent[:, None, :])

@@ -63,8 +63,7 @@ def fit_ellipses(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.n
     return centre, axes, rotation, ok
 
 
-def ellipse_polyline(centre: np.ndarray, axes: np.ndarray, rotation: np.ndarray, n_points: int) -> np.ndarray:
-    """Dense counter-clockwise polygon (N, n_points, 2) on each ellipse, for arc-length sampling."""
-    theta = np.arange(n_points) * 2 * np.pi / n_points
+def ellipse_points(centre: np.ndarray, axes: np.ndarray, rotation: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Points (N, M, 2) at parameters theta (N, M) of each ellipse; theta increases counter-clockwise."""
     local = np.stack([axes[:, None, 0] * np.cos(theta), axes[:, None, 1] * np.sin(theta)], axis=-1)
     return centre[:, None, :] + np.einsum("nij,nmj->nmi", rotation, local)

@@ -25,7 +25,17 @@ def sample_closed_polyline(points: np.ndarray, count: np.ndarray, n_samples: int
     points (N, K, d) padded, count (N,) real points per row; `start` (N,) the arc-length position of the first
     sample (default 0: the first point). Returns (N, n_samples, d).
     """
-    points, ends, cumulative = _closed_segments(points, count)
+    segment, fraction = locate_arc_samples(points, count, n_samples, start)
+    points, ends, _ = _closed_segments(points, count)
+    a = np.take_along_axis(points, segment[..., None], axis=1)
+    b = np.take_along_axis(ends, segment[..., None], axis=1)
+    return a + fraction[..., None] * (b - a)
+
+
+def locate_arc_samples(points: np.ndarray, count: np.ndarray, n_samples: int,
+                       start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where the samples of `sample_closed_polyline` fall: segment index (N, S) and fraction along it (N, S)."""
+    _, _, cumulative = _closed_segments(points, count)
     total = cumulative[:, -1:]
     offset = np.zeros((len(points), 1)) if start is None else start[:, None]
     target = np.mod(offset + total * np.arange(n_samples)[None, :] / n_samples, total)
@@ -34,9 +44,7 @@ def sample_closed_polyline(points: np.ndarray, count: np.ndarray, n_samples: int
     seg_start = np.take_along_axis(cumulative, segment, axis=1)
     seg_length = np.take_along_axis(cumulative, segment + 1, axis=1) - seg_start
     fraction = np.where(seg_length > 0, (target - seg_start) / np.where(seg_length > 0, seg_length, 1), 0.0)
-    a = np.take_along_axis(points, segment[..., None], axis=1)
-    b = np.take_along_axis(ends, segment[..., None], axis=1)
-    return a + fraction[..., None] * (b - a)
+    return segment, fraction
 
 
 def closest_arc_position(points: np.ndarray, query: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Closed-polyline sampling and the direct least-squares ellipse fit, on analytic cases."""
 import numpy as np
 
-from meshops.ellipse import ellipse_polyline, fit_ellipses
+from meshops.ellipse import ellipse_points, fit_ellipses
 from meshops.polyline import closest_arc_position, sample_closed_polyline
 
 
@@ -34,7 +34,7 @@ def test_fit_recovers_an_ellipse_through_exact_points():
     assert np.allclose(centre[0], [0.1, -0.05], atol=1e-9)
     assert np.allclose(np.sort(axes[0]), [0.6, 1.3], atol=1e-9)
     assert np.isclose(np.linalg.det(rotation[0]), 1.0)
-    polygon = ellipse_polyline(centre, axes, rotation, 64)[0]
+    polygon = ellipse_points(centre, axes, rotation, np.linspace(0, 2 * np.pi, 64, endpoint=False)[None])[0]
     # Every polygon point lies on the true ellipse, and the polygon turns counter-clockwise.
     c, s = np.cos(0.4), np.sin(0.4)
     local = (polygon - [0.1, -0.05]) @ np.array([[c, -s], [s, c]])
