@@ -12,7 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from meshops.ellipse import ellipse_points, fit_ellipses
 from meshops.neighbourhood import ASSIGNMENT_RINGS, Neighbourhood, quantise
-from meshops.polyline import closest_arc_position, locate_arc_samples, sample_closed_polyline
+from meshops.polyline import ClosedPolylines
 
 # Polygon resolution used to measure arc length along a fitted ellipse (perimeter error ~ 1e-4).
 ELLIPSE_POLYGON_POINTS = 128
@@ -21,7 +21,8 @@ _CHUNK = 2048
 
 
 def spiral_depth(length: int, dilation: int) -> int:
-    """Rings a spiral needs to reach `length` entries at `dilation` around a regular valence-6 vertex."""
+    """Rings a spiral draws on: enough to reach `length` entries at `dilation` around a regular valence-6
+    vertex, and never fewer than the 3-ring RC and EC use, so a spiral pads only where that runs out."""
     needed = (length - 1) * dilation
     depth = 1
     while 3 * depth * (depth + 1) < needed:
@@ -31,7 +32,7 @@ def spiral_depth(length: int, dilation: int) -> int:
 
 def ring_samples(nb: Neighbourhood, n_samples: int) -> np.ndarray:
     """RC samples (V, n_samples, 3): uniform in length along the closed one-ring, the first at the first neighbour."""
-    return sample_closed_polyline(nb.ring_positions(), nb.ring_count, n_samples)
+    return ClosedPolylines.of(nb.ring_positions(), nb.ring_count).sample(n_samples)
 
 
 def ellipse_samples(nb: Neighbourhood, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
@@ -47,9 +48,8 @@ def ellipse_samples(nb: Neighbourhood, n_samples: int) -> tuple[np.ndarray, np.n
     # Arc length is measured on a fine inscribed polygon; the samples are then placed on the ellipse itself.
     theta = np.broadcast_to(np.arange(ELLIPSE_POLYGON_POINTS) * 2 * np.pi / ELLIPSE_POLYGON_POINTS,
                             (n, ELLIPSE_POLYGON_POINTS))
-    polygon = ellipse_points(centre, axes, rotation, theta)
-    start = closest_arc_position(polygon, flat[:, 0])
-    segment, fraction = locate_arc_samples(polygon, np.full(n, ELLIPSE_POLYGON_POINTS), n_samples, start)
+    polygon = ClosedPolylines.of(ellipse_points(centre, axes, rotation, theta))
+    segment, fraction = polygon.locate(n_samples, start=polygon.closest_arc_position(flat[:, 0]))
     on_ellipse = ellipse_points(centre, axes, rotation, (segment + fraction) * 2 * np.pi / ELLIPSE_POLYGON_POINTS)
     on_ellipse = on_ellipse * radius[:, None, None]
     samples = (nb.vertices[:, None, :] + on_ellipse[..., :1] * nb.tangent[:, None, :]
@@ -104,7 +104,8 @@ def spiral_table(nb: Neighbourhood, length: int, dilation: int) -> np.ndarray:
     owner, other, ring_index = owner[keep], nb.neighbour[keep], nb.distance[keep]
 
     flat = nb.tangent_coordinates(nb.vertices[other], owner)
-    angle = quantise(np.mod(np.arctan2(flat[:, 1], flat[:, 0]), 2 * np.pi))
+    # Quantised before wrapping, so a vertex straight along the first neighbour's direction stays at angle 0.
+    angle = np.mod(quantise(np.arctan2(flat[:, 1], flat[:, 0])), quantise(2 * np.pi))
     one_ring = ring_index == 1
     angle[one_ring] = np.argmax(nb.ring[owner[one_ring]] == other[one_ring, None], axis=1)
     order = np.lexsort((other, angle, ring_index, owner))

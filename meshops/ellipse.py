@@ -26,9 +26,10 @@ def fit_ellipses(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.n
     x, y = points[..., 0], points[..., 1]
     quadratic = np.stack([x * x, x * y, y * y], axis=-1)
     linear = np.stack([x, y, np.ones_like(x)], axis=-1)
-    s1 = np.einsum("nk,nki,nkj->nij", w, quadratic, quadratic)
-    s2 = np.einsum("nk,nki,nkj->nij", w, quadratic, linear)
-    s3 = np.einsum("nk,nki,nkj->nij", w, linear, linear)
+    weighted_quadratic = np.swapaxes(quadratic * w[..., None], 1, 2)
+    s1 = weighted_quadratic @ quadratic
+    s2 = weighted_quadratic @ linear
+    s3 = np.swapaxes(linear * w[..., None], 1, 2) @ linear
 
     ok = (mask.sum(axis=1) >= 5) & (np.linalg.cond(s3) < 1e10)
     s3 = np.where(ok[:, None, None], s3, np.eye(3))
@@ -65,5 +66,6 @@ def fit_ellipses(points: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.n
 
 def ellipse_points(centre: np.ndarray, axes: np.ndarray, rotation: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Points (N, M, 2) at parameters theta (N, M) of each ellipse; theta increases counter-clockwise."""
-    local = np.stack([axes[:, None, 0] * np.cos(theta), axes[:, None, 1] * np.sin(theta)], axis=-1)
-    return centre[:, None, :] + np.einsum("nij,nmj->nmi", rotation, local)
+    along, across = axes[:, None, 0] * np.cos(theta), axes[:, None, 1] * np.sin(theta)
+    return np.stack([centre[:, None, 0] + rotation[:, None, 0, 0] * along + rotation[:, None, 0, 1] * across,
+                     centre[:, None, 1] + rotation[:, None, 1, 0] * along + rotation[:, None, 1, 1] * across], axis=-1)

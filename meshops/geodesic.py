@@ -13,42 +13,50 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
-from sim.mesh import unique_edges
 
 
 def fixed_vertex(vertices: np.ndarray) -> int:
-    """Vertex closest to ((max_x + min_x) / 2, max_y, (max_z + min_z) / 2) of the bounding box, y up (eq. 2)."""
-    return int(np.argmin(np.linalg.norm(vertices - _top_centre(vertices), axis=1)))
+    """Vertex closest to ((max_x + min_x) / 2, max_y, (max_z + min_z) / 2) of the bounding box, y up (eq. 2).
+
+    Symmetric meshes tie (two vertices either side of the middle); ties go to the lowest vertex id.
+    """
+    return int(np.argmin(_distance_to_top_centre(vertices)))
 
 
-def _top_centre(vertices: np.ndarray) -> np.ndarray:
+def _distance_to_top_centre(vertices: np.ndarray) -> np.ndarray:
+    """Distances to the eq. 2 point, rounded to 1e-9 of the bounding-box diagonal so that exact ties stay ties
+    however the mesh is translated or scaled."""
     low, high = vertices.min(axis=0), vertices.max(axis=0)
-    return np.array([(low[0] + high[0]) / 2, high[1], (low[2] + high[2]) / 2])
+    centre = np.array([(low[0] + high[0]) / 2, high[1], (low[2] + high[2]) / 2])
+    diagonal = max(float(np.linalg.norm(high - low)), np.finfo(float).tiny)
+    return np.rint(np.linalg.norm(vertices - centre, axis=1) / diagonal * 1e9)
 
 
-def geodesic_sources(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def geodesic_sources(vertices: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """One source per connected component: the fixed vertex first, then, for every other component (a mesh may
-    hold separate pieces), its vertex closest to the same eq. 2 point, so each piece has a reachable origin."""
-    edges = unique_edges(faces)
+    hold separate pieces), its vertex closest to the same eq. 2 point, so each piece has a reachable origin.
+    `edges` (E, 2) lists each undirected edge once."""
     n = len(vertices)
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, component = csgraph.connected_components(graph, directed=False)
-    distance = np.linalg.norm(vertices - _top_centre(vertices), axis=1)
+    distance = _distance_to_top_centre(vertices)
     order = np.lexsort((distance, component))
     first_of_component = order[np.r_[True, np.diff(component[order]) != 0]]
     fixed = fixed_vertex(vertices)
     return np.r_[fixed, first_of_component[first_of_component != fixed]].astype(np.int64)
 
 
-def geodesic_distance(vertices: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> tuple[np.ndarray, str]:
+def geodesic_distance(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray,
+                      sources: np.ndarray) -> tuple[np.ndarray, str]:
     """Distance (V,) from the nearest source along the surface, and the method that produced it."""
-    distance = heat_geodesic_distance(vertices, faces, sources)
+    distance = heat_geodesic_distance(vertices, faces, edges, sources)
     if distance is not None:
         return distance, "heat"
-    return graph_geodesic_distance(vertices, faces, sources), "dijkstra"
+    return graph_geodesic_distance(vertices, edges, sources), "dijkstra"
 
 
-def heat_geodesic_distance(vertices: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> np.ndarray | None:
+def heat_geodesic_distance(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray,
+                           sources: np.ndarray) -> np.ndarray | None:
     """Heat-method distance with natural (Neumann) boundary conditions and t = (mean edge length)^2.
 
     Returns None when the heat step underflowed somewhere (zero gradient), where directions carry no information.
@@ -57,7 +65,6 @@ def heat_geodesic_distance(vertices: np.ndarray, faces: np.ndarray, sources: np.
     weight = sp.diags(np.repeat(face_area, 3))
     stiffness = (gradient.T @ weight @ gradient).tocsc()
     mass = np.bincount(faces.ravel(), weights=np.repeat(face_area / 3, 3), minlength=len(vertices))
-    edges = unique_edges(faces)
     t = float(np.mean(np.sum((vertices[edges[:, 0]] - vertices[edges[:, 1]]) ** 2, axis=1)))
 
     impulse = np.zeros(len(vertices))
@@ -78,9 +85,8 @@ def heat_geodesic_distance(vertices: np.ndarray, faces: np.ndarray, sources: np.
     return distance
 
 
-def graph_geodesic_distance(vertices: np.ndarray, faces: np.ndarray, sources: np.ndarray) -> np.ndarray:
+def graph_geodesic_distance(vertices: np.ndarray, edges: np.ndarray, sources: np.ndarray) -> np.ndarray:
     """Shortest path along mesh edges (Dijkstra) from the nearest source."""
-    edges = unique_edges(faces)
     n = len(vertices)
     length = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     graph = sp.coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()

@@ -10,6 +10,7 @@ import numpy as np
 from meshops.geodesic import geodesic_distance, geodesic_sources
 from meshops.rings import (boundary_walk, mean_edge_length, ordered_one_ring, pair_lookup, ring_distances,
                            vertex_normals)
+from sim.mesh import unique_edges
 
 DUMMY = -2  # marks the one-ring dummy inside `Neighbourhood.ring`; -1 is padding
 # Geometric keys (distances, angles) are rounded to this fraction of the mean edge length (or radian) before
@@ -20,6 +21,7 @@ ASSIGNMENT_RINGS = 3
 
 
 def quantise(value: np.ndarray) -> np.ndarray:
+    """`value` (already in mean edge lengths or radians) as an integer count of QUANTUM, in float64."""
     return np.rint(value / QUANTUM)
 
 
@@ -66,12 +68,13 @@ def build_neighbourhood(vertices: np.ndarray, faces: np.ndarray, depth: int = AS
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n = len(vertices)
-    scale = mean_edge_length(vertices, faces)
+    edges = unique_edges(faces)
+    scale = mean_edge_length(vertices, edges)
     ring, size, is_open = ordered_one_ring(n, faces)
-    sources = geodesic_sources(vertices, faces)
-    geodesic, method = geodesic_distance(vertices, faces, sources)
+    sources = geodesic_sources(vertices, edges)
+    geodesic, method = geodesic_distance(vertices, faces, edges, sources)
     normal = vertex_normals(vertices, faces)
-    indptr, neighbour, distance = ring_distances(n, faces, max(depth, ASSIGNMENT_RINGS))
+    indptr, neighbour, distance = ring_distances(n, edges, max(depth, ASSIGNMENT_RINGS))
     following, preceding = boundary_walk(n, faces)
     dummy_owner, dummy_ring, dummy_position = ring_dummies(vertices, normal, following, preceding,
                                                            indptr, neighbour, distance)

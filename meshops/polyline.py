@@ -1,59 +1,59 @@
 """Uniform arc-length sampling of closed polylines, batched: one padded polyline per vertex."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
-def _closed_segments(points: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Padded points with the first point repeated after the last real one, so padding adds zero length.
+@dataclass(frozen=True)
+class ClosedPolylines:
+    points: np.ndarray      # (N, K, d), padding replaced by the first point so that it adds zero length
+    ends: np.ndarray        # (N, K, d) the end of each segment: the next point, the first after the last
+    cumulative: np.ndarray  # (N, K + 1) arc length at each point, the total last
 
-    Returns the points (N, K, d), the segment ends (N, K, d) and the cumulative length at each point (N, K + 1).
-    """
-    n, k = points.shape[:2]
-    padding = np.arange(k)[None, :] >= count[:, None]
-    points = np.where(padding[..., None], points[:, :1], points)
-    ends = np.roll(points, -1, axis=1)
-    length = np.linalg.norm(ends - points, axis=-1)
-    cumulative = np.concatenate([np.zeros((n, 1)), np.cumsum(length, axis=1)], axis=1)
-    return points, ends, cumulative
+    @classmethod
+    def of(cls, points: np.ndarray, count: np.ndarray | None = None) -> "ClosedPolylines":
+        """Polylines from padded points (N, K, d) with `count` (N,) real points per row (default: all)."""
+        n, k = points.shape[:2]
+        if count is not None:
+            padding = np.arange(k)[None, :] >= count[:, None]
+            points = np.where(padding[..., None], points[:, :1], points)
+        ends = np.roll(points, -1, axis=1)
+        length = np.sqrt(np.sum((ends - points) ** 2, axis=-1))
+        return cls(points, ends, np.concatenate([np.zeros((n, 1)), np.cumsum(length, axis=1)], axis=1))
 
+    def locate(self, n_samples: int, start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Segment index (N, S) and fraction along it (N, S) of `n_samples` points spaced length / n_samples,
+        the first at arc-length position `start` (N,) (default 0: the first point)."""
+        n, k = self.points.shape[:2]
+        total = self.cumulative[:, -1:]
+        offset = np.zeros((n, 1)) if start is None else start[:, None]
+        target = np.mod(offset + total * np.arange(n_samples)[None, :] / n_samples, total)
+        # One sorted search for all rows: row r's arc lengths, normalised to [0, 1], are shifted to [r, r + 1].
+        row = np.arange(n)[:, None]
+        keys = (row + self.cumulative / total).ravel()
+        at = np.searchsorted(keys, (row + target / total).ravel(), side="right").reshape(n, n_samples) - 1
+        segment = np.clip(at - row * (k + 1), 0, k - 1)
+        seg_start = np.take_along_axis(self.cumulative, segment, axis=1)
+        seg_length = np.take_along_axis(self.cumulative, segment + 1, axis=1) - seg_start
+        fraction = np.clip((target - seg_start) / np.where(seg_length > 0, seg_length, 1.0), 0.0, 1.0)
+        return segment, fraction
 
-def sample_closed_polyline(points: np.ndarray, count: np.ndarray, n_samples: int,
-                           start: np.ndarray | None = None) -> np.ndarray:
-    """`n_samples` points spaced length / n_samples along each closed polyline, counter-clockwise in storage order.
+    def sample(self, n_samples: int, start: np.ndarray | None = None) -> np.ndarray:
+        """The points (N, n_samples, d) located by `locate`, counter-clockwise in storage order."""
+        segment, fraction = self.locate(n_samples, start)
+        a = np.take_along_axis(self.points, segment[..., None], axis=1)
+        b = np.take_along_axis(self.ends, segment[..., None], axis=1)
+        return a + fraction[..., None] * (b - a)
 
-    points (N, K, d) padded, count (N,) real points per row; `start` (N,) the arc-length position of the first
-    sample (default 0: the first point). Returns (N, n_samples, d).
-    """
-    segment, fraction = locate_arc_samples(points, count, n_samples, start)
-    points, ends, _ = _closed_segments(points, count)
-    a = np.take_along_axis(points, segment[..., None], axis=1)
-    b = np.take_along_axis(ends, segment[..., None], axis=1)
-    return a + fraction[..., None] * (b - a)
-
-
-def locate_arc_samples(points: np.ndarray, count: np.ndarray, n_samples: int,
-                       start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Where the samples of `sample_closed_polyline` fall: segment index (N, S) and fraction along it (N, S)."""
-    _, _, cumulative = _closed_segments(points, count)
-    total = cumulative[:, -1:]
-    offset = np.zeros((len(points), 1)) if start is None else start[:, None]
-    target = np.mod(offset + total * np.arange(n_samples)[None, :] / n_samples, total)
-    segment = np.sum(cumulative[:, None, 1:] <= target[:, :, None], axis=-1)
-    segment = np.minimum(segment, points.shape[1] - 1)
-    seg_start = np.take_along_axis(cumulative, segment, axis=1)
-    seg_length = np.take_along_axis(cumulative, segment + 1, axis=1) - seg_start
-    fraction = np.where(seg_length > 0, (target - seg_start) / np.where(seg_length > 0, seg_length, 1), 0.0)
-    return segment, fraction
-
-
-def closest_arc_position(points: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """Arc-length position (N,) of the point of each closed polyline (N, M, d), all M points real, nearest `query`."""
-    points, ends, cumulative = _closed_segments(points, np.full(len(points), points.shape[1]))
-    direction = ends - points
-    length2 = np.einsum("nmd,nmd->nm", direction, direction)
-    t = np.clip(np.einsum("nmd,nmd->nm", query[:, None] - points, direction) / length2, 0.0, 1.0)
-    gap = np.linalg.norm(points + t[..., None] * direction - query[:, None], axis=-1)
-    best = np.argmin(gap, axis=1)
-    rows = np.arange(len(points))
-    return cumulative[rows, best] + t[rows, best] * np.sqrt(length2[rows, best])
+    def closest_arc_position(self, query: np.ndarray) -> np.ndarray:
+        """Arc-length position (N,) of the point of each polyline nearest `query` (N, d)."""
+        direction = self.ends - self.points
+        length2 = np.sum(direction ** 2, axis=-1)
+        t = np.clip(np.sum((query[:, None] - self.points) * direction, axis=-1) / np.where(length2 > 0, length2, 1),
+                    0.0, 1.0)
+        gap2 = np.sum((self.points + t[..., None] * direction - query[:, None]) ** 2, axis=-1)
+        best = np.argmin(gap2, axis=1)
+        rows = np.arange(len(self.points))
+        return self.cumulative[rows, best] + t[rows, best] * np.sqrt(length2[rows, best])

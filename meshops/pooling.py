@@ -73,13 +73,17 @@ def collapse_pass(vertices: np.ndarray, faces: np.ndarray, quadric_threshold: fl
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n = len(vertices)
-    scale = mean_edge_length(vertices, faces)
     edges, sides = edge_faces(faces)
+    scale = mean_edge_length(vertices, edges)
     # Centred first: plane offsets stay small, so flat regions come out at zero error wherever the mesh sits.
     error = quadric_errors(vertices - vertices.mean(axis=0), faces, edges, sides) / scale ** 2
     length = np.linalg.norm(vertices[edges[:, 1]] - vertices[edges[:, 0]], axis=1) / scale
-    # Flat regions tie at zero error; shorter edges first keeps the coarse triangles even.
-    order = np.lexsort((np.arange(len(edges)), quantise(length), quantise(error)))
+    # Flat regions tie at zero error. Among ties, edges between low-valence vertices go first: those vertices
+    # have the fewest chances to be paired once their neighbours are taken (the Karp-Sipser idea), which keeps
+    # the pass near half the vertices; then shorter edges, which keeps the coarse triangles even.
+    valence = np.bincount(edges.ravel(), minlength=n)
+    valence_sum = valence[edges[:, 0]] + valence[edges[:, 1]]
+    order = np.lexsort((np.arange(len(edges)), quantise(length), valence_sum, quantise(error)))
     boundary_edge = sides[:, 1] < 0
     on_boundary = np.zeros(n, dtype=bool)
     on_boundary[edges[boundary_edge].ravel()] = True
@@ -104,17 +108,19 @@ def collapse_pass(vertices: np.ndarray, faces: np.ndarray, quadric_threshold: fl
 
 
 class _PassState:
-    """The mesh of one pass as collapses accumulate: merged vertices point at their representative."""
+    """The mesh of one pass as collapses accumulate: merged vertices point at their representative, and every
+    face keeps its current unit normal and shape quality."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray):
         n = len(vertices)
         self.faces = faces
         self.face_list = faces.tolist()
         self.position = vertices.copy()
+        self.normal, self.quality = _unit_normal_and_quality(vertices[faces])
         self.representative = list(range(n))
         self.partner = np.arange(n)
         self.locked = [False] * n
-        self.removed = np.zeros(len(faces), dtype=bool)
+        self.removed = [False] * len(faces)
         self.remaining = n
         adjacency = sp.csr_matrix((np.ones(2 * len(edges)), (np.r_[edges[:, 0], edges[:, 1]],
                                                               np.r_[edges[:, 1], edges[:, 0]])), shape=(n, n))
@@ -127,35 +133,37 @@ class _PassState:
         rep = self.representative
         return {rep[x] for x in self.adjacency[self.adjacency_ptr[v]:self.adjacency_ptr[v + 1]] if x != without}
 
+    def _faces_of(self, v: int) -> list[int]:
+        return [f for f in self.incidence[self.incidence_ptr[v]:self.incidence_ptr[v + 1]] if not self.removed[f]]
+
     def try_collapse(self, c: int, d: int, opposite: list[int]) -> bool:
         """Collapse edge (c, d) into c at the midpoint if the result stays manifold and unfolded."""
         rep = self.representative
         # Link condition in the current mesh: common neighbours of c and d must be the edge's opposite vertices.
         if self._link(c, d) & self._link(d, c) - {rep[x] for x in opposite if x >= 0}:
             return False
-        around = {f for v in (c, d) for f in self.incidence[self.incidence_ptr[v]:self.incidence_ptr[v + 1]]
-                  if not self.removed[f]}
-        dying = [f for f in around if c in self.face_list[f] and d in self.face_list[f]]
-        moving = np.fromiter((f for f in around if f not in dying), dtype=np.int64)
-        if not len(moving):  # an isolated triangle would vanish
+        faces_c = self._faces_of(c)
+        dying = [f for f in faces_c if d in self.face_list[f]]
+        moving = [f for f in faces_c if f not in dying] + [f for f in self._faces_of(d) if f not in dying]
+        if not moving:  # an isolated triangle would vanish
             return False
-        merged = [frozenset(c if x == d else rep[x] for x in self.face_list[f]) for f in moving]
-        if len(set(merged)) < len(merged):
+        merged = {frozenset(c if x == d else rep[x] for x in self.face_list[f]) for f in moving}
+        if len(merged) < len(moving):
             return False
         midpoint = (self.position[c] + self.position[d]) / 2
-        before = self.position[self.faces[moving]]
-        after = np.where(np.isin(self.faces[moving], (c, d))[..., None], midpoint, before)
-        normal_before, quality_before = _normal_and_quality(before)
-        normal_after, quality_after = _normal_and_quality(after)
-        cosine = np.einsum("fd,fd->f", normal_before, normal_after) / np.maximum(
-            np.linalg.norm(normal_before, axis=1) * np.linalg.norm(normal_after, axis=1), np.finfo(float).tiny)
-        if np.any(cosine < MIN_NORMAL_COSINE) or np.any(quality_after < np.minimum(quality_before, MIN_FACE_QUALITY)):
+        corners = self.faces[moving]
+        after = np.where(((corners == c) | (corners == d))[..., None], midpoint, self.position[corners])
+        normal, quality = _unit_normal_and_quality(after)
+        if (np.einsum("fd,fd->f", normal, self.normal[moving]) < MIN_NORMAL_COSINE).any() or \
+                (quality < np.minimum(self.quality[moving], MIN_FACE_QUALITY)).any():
             return False
         self.locked[c] = self.locked[d] = True
         rep[d] = c
         self.partner[c] = d
         self.position[c] = self.position[d] = midpoint
-        self.removed[dying] = True
+        self.normal[moving], self.quality[moving] = normal, quality
+        for f in dying:
+            self.removed[f] = True
         self.remaining -= 1
         return True
 
@@ -165,7 +173,7 @@ class _PassState:
         coarse_id = np.cumsum(keep) - 1
         unpool = coarse_id[representative]
         coarse_vertices = self.position[keep]
-        coarse_faces = unpool[self.faces[~self.removed]]
+        coarse_faces = unpool[self.faces[~np.asarray(self.removed)]]
         try:
             validate_mesh(coarse_vertices, coarse_faces)
         except ValueError as err:  # the checks above exist to make this impossible
@@ -174,9 +182,14 @@ class _PassState:
         return Coarsening(coarse_vertices, coarse_faces, pool, unpool, int((~keep).sum()), largest_error)
 
 
-def _normal_and_quality(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Doubled-area normals (F, 3) and shape quality 4*sqrt(3)*area/sum(edge^2) of triangles (F, 3, 3)."""
-    edge = np.roll(triangles, -1, axis=1) - triangles
-    normal = np.cross(edge[:, 0], -edge[:, 2])
-    return normal, 2 * np.sqrt(3) * np.linalg.norm(normal, axis=1) / np.einsum("fkd,fkd->f", edge, edge)
-
+def _unit_normal_and_quality(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (F, 3) and shape quality 4*sqrt(3)*area/sum(edge^2) of triangles (F, 3, 3); a degenerate
+    triangle gets quality 0 and a zero normal."""
+    u = triangles[:, 1] - triangles[:, 0]
+    v = triangles[:, 2] - triangles[:, 0]
+    w = triangles[:, 2] - triangles[:, 1]
+    normal = np.stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+                       u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]], axis=1)
+    doubled_area = np.sqrt(np.einsum("fd,fd->f", normal, normal))
+    squares = np.einsum("fd,fd->f", u, u) + np.einsum("fd,fd->f", v, v) + np.einsum("fd,fd->f", w, w)
+    return normal / np.maximum(doubled_area, np.finfo(float).tiny)[:, None], 2 * np.sqrt(3) * doubled_area / squares

@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from sim.mesh import unique_edges
 
 
 def ordered_one_ring(n_vertices: int, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -49,13 +48,12 @@ def ordered_one_ring(n_vertices: int, faces: np.ndarray) -> tuple[np.ndarray, np
     return ring, size, is_open
 
 
-def ring_distances(n_vertices: int, faces: np.ndarray, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ring_distances(n_vertices: int, edges: np.ndarray, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edge-graph distance from every vertex to every vertex at most `depth` edges away (itself included, at 0).
 
     Returned as CSR arrays `indptr` (V+1,), `neighbour` (N,), `distance` (N,) with neighbours sorted by id, so
-    the pair keys `owner * V + neighbour` are sorted too.
+    the pair keys `owner * V + neighbour` are sorted too. `edges` (E, 2) lists each undirected edge once.
     """
-    edges = unique_edges(faces)
     step = sp.coo_matrix((np.ones(2 * len(edges), dtype=np.int32),
                           (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])),
                          shape=(n_vertices, n_vertices)).tocsr() + sp.identity(n_vertices, dtype=np.int32, format="csr")
@@ -109,6 +107,5 @@ def boundary_walk(n_vertices: int, faces: np.ndarray) -> tuple[np.ndarray, np.nd
     return following, preceding
 
 
-def mean_edge_length(vertices: np.ndarray, faces: np.ndarray) -> float:
-    edges = unique_edges(faces)
+def mean_edge_length(vertices: np.ndarray, edges: np.ndarray) -> float:
     return float(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).mean())

@@ -55,6 +55,7 @@ class MeshNetwork(nn.Module):
                              f"the operators have size {mesh.conv_size}")
 
     def _run(self, x: torch.Tensor, mesh: MeshHierarchy) -> torch.Tensor:
+        self.check_mesh(mesh)
         skips: list[torch.Tensor] = []
         for step in self.steps:
             if step.op == "linear":

@@ -171,9 +171,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     except ArchitectureError as err:
         raise PipelineError(f"--arch/--conv/--pool/--width: {err}") from None
     mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces)
-    if mesh.vertex_counts[0] != data.inputs.shape[1]:
-        raise PipelineError(f"{args.operators}: level 0 has {mesh.vertex_counts[0]} vertices, "
-                            f"{args.dataset} {data.inputs.shape[1]}")
+    try:
+        net.check_mesh(mesh)
+    except ValueError as err:
+        raise PipelineError(f"{args.operators}: {err}") from None
     model = _normalized(net, data)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)

@@ -120,7 +120,8 @@ class Skeleton:
                   "joint_upper": (p, 3)}
         for name, shape in shapes.items():
             if np.shape(getattr(self, name)) != shape:
-                raise ValueError(f"skeleton field '{name}' must have shape {shape}, got {np.shape(getattr(self, name))}")
+                raise ValueError(f"skeleton field '{name}' must have shape {shape}, "
+                                 f"got {np.shape(getattr(self, name))}")
         if self.parents[0] != -1 or any(not 0 <= self.parents[i] < i for i in range(1, p)):
             raise ValueError("skeleton parents must list the root first (-1) and every parent before its children")
         if (self.radius_a <= 0).any() or (self.radius_b <= 0).any():
@@ -143,21 +144,22 @@ class Skeleton:
             raise ValueError(f"no body part '{name}'; parts are {', '.join(self.names)}") from None
 
 
-# Part name, parent, joint offset, frame rotation about z (deg), capsule a, capsule b, radius a, radius b,
-# joint limits (deg) as (x_lo, x_hi, y_lo, y_hi, z_lo, z_hi) for the left side or the midline. Lengths are for a
-# 1.7 tall body; right parts mirror their left twins (x offsets and y/z angles change sign).
-_TEMPLATE = (
-    ("pelvis", None, (0, 0.95, 0), 0, (-0.08, 0, 0), (0.08, 0, 0), 0.10, 0.10, (-30, 30, -90, 90, -20, 20)),
-    ("spine", "pelvis", (0, 0.07, 0), 0, (-0.05, 0.08, 0), (0.05, 0.08, 0), 0.095, 0.095, (-20, 45, -35, 35, -25, 25)),
-    ("chest", "spine", (0, 0.17, 0), 0, (-0.07, 0.11, 0), (0.07, 0.11, 0), 0.12, 0.12, (-15, 30, -30, 30, -20, 20)),
-    ("head", "chest", (0, 0.24, 0), 0, (0, 0, 0), (0, 0.175, 0.01), 0.05, 0.095, (-40, 50, -70, 70, -35, 35)),
-    ("upper_arm_l", "chest", (0.18, 0.20, 0), 45, (0, 0, 0), (0, -0.29, 0), 0.05, 0.042, (-150, 50, -70, 70, -30, 90)),
-    ("lower_arm_l", "upper_arm_l", (0, -0.29, 0), 0, (0, 0, 0), (0, -0.25, 0), 0.04, 0.032, (-145, 0, -60, 60, 0, 0)),
-    ("hand_l", "lower_arm_l", (0, -0.25, 0), 0, (0, -0.04, 0), (0, -0.14, 0), 0.035, 0.03, (-70, 70, 0, 0, -20, 30)),
-    ("thigh_l", "pelvis", (0.10, -0.05, 0), 0, (0, 0, 0), (0, -0.41, 0), 0.075, 0.052, (-120, 30, -40, 40, -20, 45)),
-    ("shin_l", "thigh_l", (0, -0.41, 0), 0, (0, 0, 0), (0, -0.39, 0), 0.05, 0.04, (0, 140, 0, 0, 0, 0)),
-    ("foot_l", "shin_l", (0, -0.40, 0), 0, (0, -0.05, -0.03), (0, -0.06, 0.15), 0.04, 0.03, (-25, 45, -20, 20, -15, 15)),
-)
+# Part: parent, joint offset, frame rotation about z (deg), capsule a, capsule b, radius a, radius b, and joint
+# limits (deg) (x_lo, x_hi, y_lo, y_hi, z_lo, z_hi) for the left side or the midline. Lengths are for a 1.7 tall
+# body; right parts mirror their left twins (x offsets and y/z angles change sign).
+_TEMPLATE = {
+    "pelvis": (None, (0, 0.95, 0), 0, (-0.08, 0, 0), (0.08, 0, 0), 0.10, 0.10, (-30, 30, -90, 90, -20, 20)),
+    "spine": ("pelvis", (0, 0.07, 0), 0, (-0.05, 0.08, 0), (0.05, 0.08, 0), 0.095, 0.095, (-20, 45, -35, 35, -25, 25)),
+    "chest": ("spine", (0, 0.17, 0), 0, (-0.07, 0.11, 0), (0.07, 0.11, 0), 0.12, 0.12, (-15, 30, -30, 30, -20, 20)),
+    "head": ("chest", (0, 0.24, 0), 0, (0, 0, 0), (0, 0.175, 0.01), 0.05, 0.095, (-40, 50, -70, 70, -35, 35)),
+    "upper_arm_l": ("chest", (0.18, 0.20, 0), 45, (0, 0, 0), (0, -0.29, 0), 0.05, 0.042, (-150, 50, -70, 70, -30, 90)),
+    "lower_arm_l": ("upper_arm_l", (0, -0.29, 0), 0, (0, 0, 0), (0, -0.25, 0), 0.04, 0.032, (-145, 0, -60, 60, 0, 0)),
+    "hand_l": ("lower_arm_l", (0, -0.25, 0), 0, (0, -0.04, 0), (0, -0.14, 0), 0.035, 0.03, (-70, 70, 0, 0, -20, 30)),
+    "thigh_l": ("pelvis", (0.10, -0.05, 0), 0, (0, 0, 0), (0, -0.41, 0), 0.075, 0.052, (-120, 30, -40, 40, -20, 45)),
+    "shin_l": ("thigh_l", (0, -0.41, 0), 0, (0, 0, 0), (0, -0.39, 0), 0.05, 0.04, (0, 140, 0, 0, 0, 0)),
+    "foot_l": ("shin_l", (0, -0.40, 0), 0, (0, -0.05, -0.03), (0, -0.06, 0.15), 0.04, 0.03,
+               (-25, 45, -20, 20, -15, 15)),
+}
 _PART_ORDER = ("pelvis", "spine", "chest", "head", "upper_arm_l", "lower_arm_l", "hand_l", "upper_arm_r",
                "lower_arm_r", "hand_r", "thigh_l", "shin_l", "foot_l", "thigh_r", "shin_r", "foot_r")
 TORSO = "pelvis"  # the frame pose vectors and torso-relative data are expressed in
@@ -177,12 +179,11 @@ def default_skeleton(height: float = 1.7) -> Skeleton:
     if not height > 0:
         raise ValueError(f"height must be positive, got {height}")
     scale = height / 1.7
-    rows = {row[0]: row for row in _TEMPLATE}
     fields = {k: [] for k in ("parents", "offsets", "frames", "a", "b", "ra", "rb", "lo", "hi")}
     flip = np.array([-1.0, 1.0, 1.0])
     for name in _PART_ORDER:
-        mirrored = name not in rows
-        _, parent, offset, frame_deg, a, b, ra, rb, limits = rows[mirror_name(name) if mirrored else name]
+        mirrored = name not in _TEMPLATE
+        parent, offset, frame_deg, a, b, ra, rb, limits = _TEMPLATE[mirror_name(name) if mirrored else name]
         lim = np.radians(np.reshape(limits, (3, 2)))
         offset, a, b = (np.array(v, dtype=np.float64) for v in (offset, a, b))
         if mirrored:
@@ -306,7 +307,7 @@ def capsule_signed_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray, ra
     unit = axis / length[..., None]
     rel = points[:, None, :] - a[None]
     s = np.einsum("npk,pk->np", rel, unit)
-    q = np.sqrt(np.maximum(np.einsum("npk,npk->np", rel, rel) - s * s, 0.0))
+    q = np.linalg.norm(rel - s[..., None] * unit[None], axis=-1)
     sin_phi = (radius_a - radius_b) / length
     cos_phi = np.sqrt(1.0 - sin_phi ** 2)
     along = s * cos_phi - q * sin_phi

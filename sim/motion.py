@@ -5,7 +5,9 @@ frames), then fades in over `blend_frames` with a quintic smoothstep weight w(t)
 motions are smooth curves with analytic time derivatives (sums of sinusoids, or monotone cubic Hermite (PCHIP)
 splines through keyframes), so the result is C¹ in time and the angular and linear velocities are exact rather
 than differenced. Because every joint-limit box contains the rest pose, w * raw stays within the limits whenever
-raw does; a smooth soft clamp guarantees the latter for the sinusoidal motions.
+raw does; a smooth soft clamp guarantees the latter for the sinusoidal motions. The raw motions say nothing about
+the root height: it is set so that the lower foot stays on the ground (a smooth minimum over the foot capsules,
+lightly smoothed in time so that the weight passes from foot to foot without a jolt).
 """
 from __future__ import annotations
 
@@ -16,14 +18,14 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import gaussian_filter1d
 
-from sim.body import (TORSO, Skeleton, capsule_pair_clearance, default_skeleton,
-                      forward_kinematics, joint_angular_velocity, joint_quaternions, mirror_name, part_velocities,
-                      quat_canonical, quat_conjugate, quat_multiply, quat_rotate, rest_transforms,
-                      self_collision_pairs)
+from sim.body import (TORSO, Skeleton, capsule_pair_clearance, default_skeleton, forward_kinematics,
+                      joint_angular_velocity, joint_quaternions, mirror_name, part_velocities, quat_canonical,
+                      quat_conjugate, quat_multiply, quat_rotate, rest_transforms, self_collision_pairs)
 
 MOTION_KINDS = ("rest", "walk", "dance", "karate", "random")
-POSE_FEATURES = ("position", "quaternion", "linear_velocity", "angular_velocity")  # 3 + 4 + 3 + 3 per part
 SOFT_LIMIT_MARGIN = 0.05  # fraction of a joint's range over which the soft clamp bends values into the limit
+GROUND_SOFTNESS = 0.005   # length (for a 1.7 body) over which the lower foot smoothly takes the weight
+GROUND_SMOOTHING = 0.05   # seconds (Gaussian sigma): the body's give when the weight passes to the other foot
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,11 +97,13 @@ def make_motion(kind: str, n_frames: int, fps: float = 60.0, seed: int = 0, sett
     rates = dw[:, None, None] * curves.angles + w[:, None, None] * curves.rates
     root = skel.joint_offsets[0] + w[:, None] * curves.offset + w_integral[:, None] * curves.travel
     root_velocity = dw[:, None] * curves.offset + w[:, None] * (curves.offset_rate + curves.travel)
-    # Smoothing a function and its derivative with the same kernel keeps one the derivative of the other.
+    # Smoothing a function and its derivative with the same kernel keeps one the derivative of the other; the
+    # fade-in weight keeps the smoothed lift from reaching back into the still settle frames.
     sigma = GROUND_SMOOTHING * fps
-    lift, lift_rate = _ground_lift(skel, root, root_velocity, angles, rates)
-    root[:, 1] += gaussian_filter1d(lift, sigma, mode="nearest")
-    root_velocity[:, 1] += gaussian_filter1d(lift_rate, sigma, mode="nearest")
+    lift, lift_rate = (gaussian_filter1d(x, sigma, mode="nearest")
+                       for x in _ground_lift(skel, root, root_velocity, angles, rates))
+    root[:, 1] += w * lift
+    root_velocity[:, 1] += dw * lift + w * lift_rate
     keep = slice(0, n_frames)
     return Motion(kind=kind, fps=float(fps), seed=int(seed), settle_frames=int(settle_frames),
                   blend_frames=int(blend_frames), root_position=root[keep], root_velocity=root_velocity[keep],
@@ -152,10 +156,6 @@ def _fade_in(tau: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray, 
     dw = 30 * u * u * (u - 1) ** 2 / duration
     integral = duration * (u ** 6 - 3 * u ** 5 + 2.5 * u ** 4) + np.maximum(tau - duration, 0.0)
     return w, dw, integral
-
-
-GROUND_SOFTNESS = 0.005  # length (scaled with height) over which the lower foot smoothly takes the weight
-GROUND_SMOOTHING = 0.05  # seconds (Gaussian sigma): the body's give when the weight passes to the other foot
 
 
 def _ground_lift(skel: Skeleton, root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray,
@@ -222,17 +222,17 @@ class _Waves:
                 self.angles[:, p, axis] += sign * amplitude * np.sin(arg)
                 self.rates[:, p, axis] += sign * amplitude * harmonic * self.omega * np.cos(arg)
 
-
-    def add_bump(self, part: str, axis: int, height: float, center: float, concentration: float,
-                 side_phase: float = 0.0) -> None:
+    def add_flexion_bump(self, part: str, height: float, center: float, concentration: float,
+                         side_phase: float) -> None:
         """Add a periodic bump h exp(k (cos(phase - center) - 1)) (a von Mises profile: one smooth peak per
-        cycle, nearly flat elsewhere) to a part and, shifted by side_phase cycles, to its twin."""
+        cycle, nearly flat elsewhere) to a part's flexion (x) angle and, shifted by side_phase cycles, to its
+        twin's."""
         for name, shift in zip((part, mirror_name(part)), (0.0, side_phase)):
             arg = self.omega * self.tau + 2 * np.pi * shift - center
             value = height * np.exp(concentration * (np.cos(arg) - 1.0))
             p = self.skel.index(name)
-            self.angles[:, p, axis] += value
-            self.rates[:, p, axis] -= value * concentration * np.sin(arg) * self.omega
+            self.angles[:, p, 0] += value
+            self.rates[:, p, 0] -= value * concentration * np.sin(arg) * self.omega
 
     def limited(self) -> tuple[np.ndarray, np.ndarray]:
         """The accumulated angles and rates, softly clamped into the joint limits."""
@@ -251,8 +251,9 @@ def _rest(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
 
 
 def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
-    """A walking gait along +z: hips swing +-22°, knees flex in swing, arms swing against the legs, pelvis and
-    shoulders counter-rotate, the pelvis shifts over the stance leg. Seeds vary cadence, amplitude and leading foot."""
+    """A walking gait along +z: hips swing from 26° forward to 17° back, knees flex in swing, arms swing
+    against the legs, pelvis and shoulders counter-rotate, the pelvis shifts over the stance leg. Seeds vary
+    cadence, amplitude and the leading foot."""
     scale = skel.height / 1.7
     period = 1.1 * np.sqrt(scale) * rng.uniform(0.92, 1.08)
     amp = rng.uniform(0.88, 1.12)
@@ -264,8 +265,8 @@ def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
     waves.add("thigh_l", 0, -0.08, [(-hip, 1, 0.0)], half)
     # Knee: flexes once in early swing and is nearly straight and still at heel strike (phase pi/2), so the
     # landing foot comes down gently and the ground contact passes smoothly from foot to foot.
-    waves.add_bump("shin_l", 0, 0.05, np.pi, 1.0, half)
-    waves.add_bump("shin_l", 0, 0.95 * amp, 0.1, 4.0, half)
+    waves.add_flexion_bump("shin_l", 0.05, np.pi, 1.0, half)
+    waves.add_flexion_bump("shin_l", 0.95 * amp, 0.1, 4.0, half)
     waves.add("foot_l", 0, 0.0, [(-0.2 * amp, 1, 0.2)], half)
     waves.add("upper_arm_l", 0, 0.0, [(0.3 * amp, 1, 0.0)], half)
     waves.add("upper_arm_l", 2, -0.45, (), half)
@@ -285,8 +286,8 @@ def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
 
 
 def _dance(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
-    """Dance-like: knees bounce on the beat (thigh -k/2, knee k, ankle -k/2 keep the feet flat), hips sway every two beats,
-    the body turns slowly, arms raise, swing and bend with seeded phases, the head nods."""
+    """Dance-like: knees bounce on the beat (thigh -k/2, knee k, ankle -k/2 keep the feet flat), hips sway
+    every two beats, the body turns slowly, arms raise, swing and bend with seeded phases, the head nods."""
     scale = skel.height / 1.7
     beat = rng.uniform(1.6, 2.1)  # beats per second
     omega = 2 * np.pi * beat
@@ -337,7 +338,8 @@ def _mirror_pose(degrees: dict[str, tuple[float, float, float]]) -> dict[str, tu
 
 
 def _keyframed(skel: Skeleton, times: np.ndarray, poses: np.ndarray, tau: np.ndarray) -> _Curves:
-    """PCHIP through keyframe poses (K, P, 3) at `times`; the root stays above its rest position."""
+    """PCHIP through keyframe poses (K, P, 3) at `times`, standing in place (the root only rises and falls with
+    the ground contact)."""
     spline = PchipInterpolator(times, poses, axis=0)
     zero = np.zeros((len(tau), 3))
     return _Curves(zero, zero.copy(), spline(tau), spline.derivative()(tau), np.zeros(3))

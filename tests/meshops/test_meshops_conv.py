@@ -149,4 +149,9 @@ def test_ring_dummies_complete_the_cut_rings_and_lie_outside_the_sheet():
     assert np.array_equal(count[far_from_corners], np.maximum(3 - to_boundary, 0)[far_from_corners])
     assert count.max() <= 6
     x, y = nb.dummy_position[:, 0], nb.dummy_position[:, 1]
-    assert np.all((x < 0) | (x > 1.1) | (y < 0) | (y > 0.9))
+    outside = (x < 0) | (x > 1.1) | (y < 0) | (y > 0.9)
+    assert np.all(outside[far_from_corners[nb.dummy_owner]])
+    # Midway between ends on two sides of a corner, a dummy can fall on the corner or just inside it, but
+    # always on the far side of its vertex from the middle of the sheet.
+    away = nb.dummy_position - vertices[nb.dummy_owner]
+    assert np.all(np.einsum("ij,ij->i", away, vertices[nb.dummy_owner] - [0.55, 0.45, 0]) > 0)

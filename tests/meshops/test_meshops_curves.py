@@ -2,22 +2,23 @@
 import numpy as np
 
 from meshops.ellipse import ellipse_points, fit_ellipses
-from meshops.polyline import closest_arc_position, sample_closed_polyline
+from meshops.polyline import ClosedPolylines
 
 
 def test_samples_are_evenly_spaced_along_a_closed_square_from_its_first_corner():
     square = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [9.0, 9.0]]])  # last entry is padding
-    samples = sample_closed_polyline(square, np.array([4]), 8)
+    samples = ClosedPolylines.of(square, np.array([4])).sample(8)
     expected = [[0, 0], [0.5, 0], [1, 0], [1, 0.5], [1, 1], [0.5, 1], [0, 1], [0, 0.5]]
     assert np.allclose(samples[0], expected)
-    shifted = sample_closed_polyline(square, np.array([4]), 4, start=np.array([0.25]))
+    shifted = ClosedPolylines.of(square, np.array([4])).sample(4, start=np.array([0.25]))
     assert np.allclose(shifted[0], [[0.25, 0], [1, 0.25], [0.75, 1], [0, 0.75]])
 
 
 def test_closest_arc_position_projects_onto_the_nearest_segment():
     square = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
-    assert np.allclose(closest_arc_position(square, np.array([[1.3, 0.4]])), [1.4])
-    assert np.allclose(closest_arc_position(square, np.array([[-0.2, 0.1]])), [3.9])
+    polyline = ClosedPolylines.of(square)
+    assert np.allclose(polyline.closest_arc_position(np.array([[1.3, 0.4]])), [1.4])
+    assert np.allclose(polyline.closest_arc_position(np.array([[-0.2, 0.1]])), [3.9])
 
 
 def _ellipse_points(centre, axes, angle, theta):

@@ -38,8 +38,8 @@ def test_boundary_ring_runs_from_one_boundary_edge_to_the_other():
 def test_ring_distances_match_breadth_first_search(name):
     vertices, faces = mesh_of(name)
     n = len(vertices)
-    indptr, neighbour, distance = ring_distances(n, faces, 3)
     edges = trimesh.Trimesh(vertices, faces, process=False).edges_unique
+    indptr, neighbour, distance = ring_distances(n, edges, 3)
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     hops = csgraph.shortest_path(graph, directed=False, unweighted=True, indices=np.arange(0, n, 7))
     for row, v in enumerate(range(0, n, 7)):

@@ -159,7 +159,7 @@ def test_evaluation_errors_renders_and_exports(trained):
 
 
 def test_resume_after_kill_ends_like_an_uninterrupted_run(work, tmp_path):
-    epochs = ["--epochs", "40", "--quiet"]
+    epochs = ["--epochs", "24", "--quiet"]
     paths = [work / "dataset.h5", work / "operators.h5"]
     killed = subprocess.Popen([sys.executable, "-m", "pipeline.train", *map(str, paths), str(tmp_path / "a.pt"),
                                str(tmp_path / "a.h5"), *ARCH, *epochs], cwd=REPO, start_new_session=True)

@@ -1,0 +1,101 @@
+"""Operator precompute speed: all four convolution kinds at L = 13 and 10 pooling steps on ~15k-vertex meshes, on
+one CPU core (issue #3 budget: 60 s), plus the choice of assignment solver for the many tiny RC/EC problems.
+
+Meshes: `flag` is the flag scene's high-res mesh (grid cloth, max edge 0.046, Loop-subdivided twice), `pants` a
+stretched sphere with three holes cut, `sphere` a closed cube-sphere. Before numpy loads, the process is pinned to
+one core and BLAS to one thread. Usage:
+  python bench/operators.py [--meshes flag,pants,sphere] [--repeat 1] [--problems 20000] [--out table.md]
+"""
+from __future__ import annotations
+
+import os
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_name] = "1"
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import lap  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.optimize import linear_sum_assignment  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "meshops")]  # the procedural test surfaces live with the tests
+
+from meshops import build_operators  # noqa: E402
+from meshops_shapes import cube_sphere, flag_high_res, pants  # noqa: E402
+
+PARTS = ("neighbourhood", "RC13", "EC13", "SP13", "SPD13", "pooling")
+
+
+MESHES = {"flag": lambda: flag_high_res(0.046), "pants": lambda: pants(55), "sphere": lambda: cube_sphere(50)}
+
+
+def time_operators(name: str, repeat: int) -> list[str]:
+    vertices, faces = MESHES[name]()
+    best, levels = np.inf, None
+    for _ in range(repeat):
+        started = time.perf_counter()
+        levels = build_operators(vertices, faces)
+        best = min(best, time.perf_counter() - started)
+    parts = {part: sum(level.seconds.get(part, 0.0) for level in levels) for part in PARTS}
+    counts = [len(level.vertices) for level in levels]
+    fallbacks = sum(level.ec_fallbacks["EC13"] for level in levels)
+    return [f"| {name} | {len(vertices)} | {best:.1f} | " + " | ".join(f"{parts[p]:.2f}" for p in PARTS)
+            + f" | {'/'.join(map(str, counts))} | {fallbacks} |"]
+
+
+def assignment_problems(count: int, seed: int = 0) -> list[np.ndarray]:
+    """Cost blocks shaped like RC13's: 12 samples x ~37 candidates (1-3-ring of a valence-6 vertex), integer
+    costs in 1e-6 edge lengths, and the lexicographic penalty on the 30 candidates beyond the one-ring."""
+    rng = np.random.default_rng(seed)
+    problems = []
+    for _ in range(count):
+        candidates = rng.integers(30, 45)
+        cost = np.rint(rng.uniform(0.0, 3.0, (12, candidates)) * 1e6)
+        cost[:, 6:] += 12 * cost.max() + 1
+        problems.append(cost)
+    return problems
+
+
+def time_solvers(count: int) -> list[str]:
+    problems = assignment_problems(count)
+    started = time.perf_counter()
+    scipy_totals = [c[linear_sum_assignment(c)].sum() for c in problems]
+    scipy_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    lap_totals = [c[np.arange(12), lap.lapjv(c, extend_cost=True, return_cost=False)[0]].sum() for c in problems]
+    lap_seconds = time.perf_counter() - started
+    worse = sum(b > a + 0.5 for a, b in zip(scipy_totals, lap_totals))
+    return [f"| scipy.optimize.linear_sum_assignment | {scipy_seconds / count * 1e6:.1f} | reference |",
+            f"| lap.lapjv(extend_cost=True) | {lap_seconds / count * 1e6:.1f} | "
+            f"{worse} of {count} above the optimum |"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--meshes", default=",".join(MESHES))
+    parser.add_argument("--repeat", type=int, default=1, help="runs per mesh; the fastest is reported")
+    parser.add_argument("--problems", type=int, default=20000, help="assignment problems for the solver timing")
+    parser.add_argument("--out", help="also write the tables to this markdown file")
+    args = parser.parse_args()
+
+    lines = ["| mesh | vertices | total s | " + " | ".join(f"{p} s" for p in PARTS) + " | vertices per level "
+             "| EC fallbacks |", "|" + " --- |" * (len(PARTS) + 5)]
+    for name in args.meshes.split(","):
+        lines += time_operators(name, args.repeat)
+        print(lines[-1], flush=True)
+    lines += ["", "| solver (12 x 30-44 costs) | us per problem | result |", "| --- | --- | --- |"]
+    lines += time_solvers(args.problems)
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
