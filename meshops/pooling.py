@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from meshops.neighbourhood import quantise
+from meshops.neighbourhood import QUANTUM, quantise
 from meshops.rings import mean_edge_length
 from sim.mesh import edge_faces, opposite_vertex, validate_mesh
 
@@ -76,14 +76,14 @@ def collapse_pass(vertices: np.ndarray, faces: np.ndarray, quadric_threshold: fl
     edges, sides = edge_faces(faces)
     scale = mean_edge_length(vertices, edges)
     # Centred first: plane offsets stay small, so flat regions come out at zero error wherever the mesh sits.
-    error = quadric_errors(vertices - vertices.mean(axis=0), faces, edges, sides) / scale ** 2
+    error = quantise(quadric_errors(vertices - vertices.mean(axis=0), faces, edges, sides) / scale ** 2)
     length = np.linalg.norm(vertices[edges[:, 1]] - vertices[edges[:, 0]], axis=1) / scale
     # Flat regions tie at zero error. Among ties, edges between low-valence vertices go first: those vertices
     # have the fewest chances to be paired once their neighbours are taken (the Karp-Sipser idea), which keeps
     # the pass near half the vertices; then shorter edges, which keeps the coarse triangles even.
     valence = np.bincount(edges.ravel(), minlength=n)
     valence_sum = valence[edges[:, 0]] + valence[edges[:, 1]]
-    order = np.lexsort((np.arange(len(edges)), quantise(length), valence_sum, quantise(error)))
+    order = np.lexsort((np.arange(len(edges)), quantise(length), valence_sum, error))
     boundary_edge = sides[:, 1] < 0
     on_boundary = np.zeros(n, dtype=bool)
     on_boundary[edges[boundary_edge].ravel()] = True
@@ -98,13 +98,14 @@ def collapse_pass(vertices: np.ndarray, faces: np.ndarray, quadric_threshold: fl
     state = _PassState(vertices, faces, edges)
     largest = 0.0
     candidates = order[allowed[order]]
+    threshold = quantise(quadric_threshold)
     for cost, (c, d), across in zip(error[candidates].tolist(), edges[candidates].tolist(),
                                     opposite[candidates].tolist()):
-        if cost > quadric_threshold and state.remaining < STOP_FRACTION * n:
+        if cost > threshold and state.remaining < STOP_FRACTION * n:
             break
         if not (state.locked[c] or state.locked[d]) and state.try_collapse(c, d, across):
             largest = max(largest, cost)
-    return state.coarsening(largest)
+    return state.coarsening(largest * QUANTUM)
 
 
 class _PassState:

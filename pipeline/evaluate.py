@@ -1,7 +1,8 @@
 """Stage `evaluate`: errors, timing, pictures and exported meshes of a trained upsampling network.
 
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--renders DIR]
-        [--export DIR] [--render-frames 3] [--export-frames 120] [--timing-frames 30] [--device cpu] [--quiet]
+        [--export DIR] [--render-frames 3] [--export-frames 60] [--timing-frames 30] [--device cpu] [--threads N]
+        [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (Loop subdivision, no network), so the network's gain shows.
@@ -26,7 +27,7 @@ from model.training import split_errors
 from pipeline import cli
 from pipeline.artifacts import atomic_h5, open_artifact, read
 from pipeline.errors import PipelineError
-from pipeline.train import configure_torch, load_dataset, load_model
+from pipeline.train import add_threads, configure_torch, load_dataset, load_model
 from viz.export import write_glb, write_obj_sequence
 from viz.render import Panel, render_panels, value_colors
 
@@ -77,15 +78,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--renders", help="folder of PNG renders (default: renders/ beside the report)")
     parser.add_argument("--export", help="folder of OBJ/GLB exports (default: export/ beside the report)")
     parser.add_argument("--render-frames", type=int, default=3, help="test frames to render")
-    parser.add_argument("--export-frames", type=int, default=120, help="first frames exported as OBJ (0: all)")
+    parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--device", default="cpu")
+    add_threads(parser)
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
     report_dir = Path(args.report).parent
     renders_dir = Path(args.renders) if args.renders else report_dir / "renders"
     export_dir = Path(args.export) if args.export else report_dir / "export"
-    device = configure_torch(args.device, 0)
+    device = configure_torch(args.device, 0, args.threads)
     data = load_dataset(args.dataset)
     model, mesh, state = load_model(args.model, args.operators, str(device))
     if mesh.vertex_counts[0] != data.inputs.shape[1]:
@@ -192,7 +194,7 @@ def _write_report(path: Path, args, errors, times, device, state, data, frame_na
         "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).",
         "", "## Inference time", "",
         f"Median **{np.median(times):.2f} ms per frame** on {device} (network only, one frame per call, "
-        f"{len(times)} test frames timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
+        f"{len(times)} test frame(s) timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
         f"max {times.max():.2f} ms). Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop subdivision): "
         "2.2-26.6 ms for 4k-15k vertices.", "", "## Renders", "",
         "Test frames: low-res input | high-res ground truth | network output | |error| of Loop subdivision "

@@ -2,12 +2,12 @@
 
     python -m pipeline.train DATASET.h5 OPERATORS.h5 MODEL.pt TRAIN.h5 --arch "D62 D124 D248 D D248 D_3 D248"
         [--conv RC13] [--pool avg] [--width 1.0] [--epochs 200] [--batch-size 3] [--lr 1e-3] [--loss-l1 1]
-        [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0] [--checkpoint PATH] [--quiet]
+        [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0] [--checkpoint PATH] [--threads N] [--quiet]
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
-resumes from it, and it is removed once model.pt and train.h5 are complete. model.pt holds the state dict and
-everything needed to rebuild the network and to recognise the operators it was trained on
-(docs/artifacts_learning.md).
+resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
+are complete. model.pt holds the state dict and everything needed to rebuild the network and to recognise the
+operators it was trained on (docs/artifacts_learning.md).
 """
 from __future__ import annotations
 
@@ -128,8 +128,13 @@ def load_model(path: str, operators_path: str, device: str) -> tuple[NormalizedR
     return model.to(device).eval(), mesh.to(device), state
 
 
-def configure_torch(device: str, seed: int) -> torch.device:
-    """Deterministic, seeded torch on `device`; fails clearly if CUDA is asked for but absent."""
+def configure_torch(device: str, seed: int, threads: int | None = None) -> torch.device:
+    """Deterministic, seeded torch on `device` using `threads` CPU threads (default: torch's choice); fails
+    clearly if CUDA is asked for but absent."""
+    if threads is not None:
+        if threads < 1:
+            raise PipelineError(f"--threads must be >= 1, got {threads}")
+        torch.set_num_threads(threads)
     if device.startswith("cuda"):
         if not torch.cuda.is_available():
             raise PipelineError(f"device '{device}' requested but torch finds no CUDA device (use --device cpu)")
@@ -138,6 +143,10 @@ def configure_torch(device: str, seed: int) -> torch.device:
     torch.set_flush_denormal(True)     # denormals in Adam's moments make CPU matmuls ~20x slower
     torch.manual_seed(seed)
     return torch.device(device)
+
+
+def add_threads(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threads", type=int, help="CPU threads for torch (Snakemake: the rule's threads)")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -157,15 +166,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
+    add_threads(parser)
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
     if args.epochs < 1 or args.batch_size < 1 or not args.lr > 0:
         raise PipelineError("--epochs and --batch-size must be >= 1 and --lr > 0")
     if min(args.loss_l1, args.loss_l2, args.loss_normal) < 0:
         raise PipelineError("loss weights must be >= 0")
-    device = configure_torch(args.device, args.seed)
+    device = configure_torch(args.device, args.seed, args.threads)
     data = load_dataset(args.dataset)
     spec = NetworkSpec(args.arch, args.conv, args.pool, args.width, data.inputs.shape[2], data.targets.shape[2])
+    if spec.letter != "D":
+        raise PipelineError(f"--arch '{args.arch}': the upsampling network is an encoder-decoder, written with "
+                            f"D tokens (e.g. 'D62 D124 D248 D D248 D_3 D248')")
     try:
         net = build_network(spec)
     except ArchitectureError as err:
@@ -179,7 +192,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
-    checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    for folder in (checkpoint.parent, Path(args.model).parent):
+        folder.mkdir(parents=True, exist_ok=True)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()
     with tqdm(total=args.epochs * steps_per_epoch, desc="train", unit="batch", disable=args.quiet) as bar:

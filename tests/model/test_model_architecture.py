@@ -1,6 +1,8 @@
 """The architecture grammar, the paper's Table 3 parameter counts, and the summary CLI."""
 from __future__ import annotations
 
+import h5py
+import numpy as np
 import pytest
 
 from model import summary
@@ -98,3 +100,19 @@ def test_summary_reports_bad_architecture(capsys):
         summary.main(["D62 Q"])
     assert exit_info.value.code == 2
     assert "token 2 'Q'" in capsys.readouterr().err
+
+
+def test_summary_of_a_decoder_reads_the_coarsest_vertex_count(grid, tmp_path, capsys):
+    _, _, mesh = grid
+    path = tmp_path / "operators.h5"
+    with h5py.File(path, "w") as f:
+        for level, count in enumerate(mesh.vertex_counts):
+            f[f"levels/{level}/vertices"] = np.zeros((count, 3), dtype=np.float32)
+    summary.main(["U8 U U3", "--conv", "RC7", "--in-channels", "5", "--operators", str(path)])
+    out = capsys.readouterr().out
+    coarse = mesh.vertex_counts[3]
+    expected = 5 * coarse * 8 + coarse * 8 + sum(7 * a * b + b for a, b in [(8, 8), (8, 8), (8, 3), (3, 3)])
+    assert f"learnable parameters: {expected:,}" in out and f"5 -> {coarse} x 8" in out
+    with pytest.raises(SystemExit):
+        summary.main(["U8 U U U U U3", "--conv", "RC7", "--operators", str(path)])
+    assert "needs 7 mesh levels" in capsys.readouterr().err

@@ -199,6 +199,7 @@ def test_model_on_other_operators_is_one_clear_error(trained, tmp_path, capsys):
     (["--arch", "D8 Q"], "token 2 'Q'"),
     (["--arch", "D8 D D D D D D8", "--conv", "RC7"], "needs 7 mesh levels"),
     (["--arch", "D8", "--conv", "EC13"], "no 'EC13' convolution tables"),
+    (["--arch", "U8 U3", "--conv", "RC7"], "encoder-decoder, written with D tokens"),
 ])
 def test_bad_training_options_are_one_clear_error(work, tmp_path, capsys, bad, message):
     with pytest.raises(SystemExit) as exit_info:
