@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from meshops.ellipse import ellipse_points, fit_ellipses
+from meshops.ellipse import closest_parameter, ellipse_points, fit_ellipses
 from meshops.neighbourhood import ASSIGNMENT_RINGS, Neighbourhood, quantise
 from meshops.polyline import ClosedPolylines
 
@@ -45,12 +45,13 @@ def ellipse_samples(nb: Neighbourhood, n_samples: int) -> tuple[np.ndarray, np.n
     radius = np.sum(np.where(real, np.linalg.norm(flat, axis=-1), 0.0), axis=1) / nb.ring_count
     flat = flat / radius[:, None, None]
     centre, axes, rotation, ok = fit_ellipses(flat, real)
-    # Arc length is measured on a fine inscribed polygon; the samples are then placed on the ellipse itself.
-    theta = np.broadcast_to(np.arange(ELLIPSE_POLYGON_POINTS) * 2 * np.pi / ELLIPSE_POLYGON_POINTS,
-                            (n, ELLIPSE_POLYGON_POINTS))
-    polygon = ClosedPolylines.of(ellipse_points(centre, axes, rotation, theta))
-    segment, fraction = polygon.locate(n_samples, start=polygon.closest_arc_position(flat[:, 0]))
-    on_ellipse = ellipse_points(centre, axes, rotation, (segment + fraction) * 2 * np.pi / ELLIPSE_POLYGON_POINTS)
+    # Arc length is measured on a fine inscribed polygon that starts at the ellipse point nearest the first
+    # neighbour; the samples are then placed on the ellipse itself.
+    start = closest_parameter(centre, axes, rotation, flat[:, 0])
+    step = 2 * np.pi / ELLIPSE_POLYGON_POINTS
+    theta = start[:, None] + step * np.arange(ELLIPSE_POLYGON_POINTS)[None, :]
+    segment, fraction = ClosedPolylines.of(ellipse_points(centre, axes, rotation, theta)).locate(n_samples)
+    on_ellipse = ellipse_points(centre, axes, rotation, start[:, None] + step * (segment + fraction))
     on_ellipse = on_ellipse * radius[:, None, None]
     samples = (nb.vertices[:, None, :] + on_ellipse[..., :1] * nb.tangent[:, None, :]
                + on_ellipse[..., 1:] * nb.bitangent[:, None, :])
@@ -77,19 +78,22 @@ def assignment_table(nb: Neighbourhood, samples: np.ndarray) -> np.ndarray:
     corner = np.r_[nb.distance[in_disk] == 1, nb.dummy_ring == 1][order]
     start = np.searchsorted(owner, np.arange(n + 1))
 
-    table = np.zeros((n, 1 + n_samples), dtype=np.int64)
-    table[:, 0] = np.arange(1, n + 1)
+    bounds = start.tolist()
+    chosen_sample, chosen_candidate = [], []
     for first in range(0, n, _CHUNK):
         last = min(first + _CHUNK, n)
-        rows = slice(start[first], start[last])
+        rows = slice(bounds[first], bounds[last])
         gap = np.linalg.norm(position[rows, None, :] - samples[owner[rows]], axis=-1)
         cost = quantise(gap / nb.scale)
         # Costs are integers below 2**53, so adding the penalty keeps them exact and ties reproducible.
         cost += np.where(corner[rows], 0.0, n_samples * cost.max() + 1)[:, None]
         for v in range(first, last):
-            block = cost[start[v] - start[first]:start[v + 1] - start[first]].T
-            sample, candidate = linear_sum_assignment(block)
-            table[v, 1 + sample] = label[start[v] + candidate]
+            candidate, sample = linear_sum_assignment(cost[bounds[v] - bounds[first]:bounds[v + 1] - bounds[first]])
+            chosen_candidate.append(candidate + bounds[v])
+            chosen_sample.append(sample + (1 + n_samples) * v)
+    table = np.zeros((n, 1 + n_samples), dtype=np.int64)
+    table[:, 0] = np.arange(1, n + 1)
+    table.ravel()[np.concatenate(chosen_sample) + 1] = label[np.concatenate(chosen_candidate)]
     return table
 
 

@@ -69,3 +69,22 @@ def ellipse_points(centre: np.ndarray, axes: np.ndarray, rotation: np.ndarray, t
     along, across = axes[:, None, 0] * np.cos(theta), axes[:, None, 1] * np.sin(theta)
     return np.stack([centre[:, None, 0] + rotation[:, None, 0, 0] * along + rotation[:, None, 0, 1] * across,
                      centre[:, None, 1] + rotation[:, None, 1, 0] * along + rotation[:, None, 1, 1] * across], axis=-1)
+
+
+def closest_parameter(centre: np.ndarray, axes: np.ndarray, rotation: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Parameter theta (N,) of the point of each ellipse nearest `query` (N, 2).
+
+    A coarse scan brackets the nearest point, Newton's method on d/dtheta |p(theta) - q|^2 / 2 = 0 refines it.
+    The answer depends only on the ellipse, not on how its axes were ordered or signed, which matters for
+    circles, whose axes are arbitrary.
+    """
+    local = np.einsum("nji,nj->ni", rotation, query - centre)
+    a, b = axes[:, 0:1], axes[:, 1:2]
+    u, w = local[:, 0:1], local[:, 1:2]
+    scan = np.arange(64) * 2 * np.pi / 64
+    theta = scan[np.argmin((a * np.cos(scan) - u) ** 2 + (b * np.sin(scan) - w) ** 2, axis=1)][:, None]
+    for _ in range(6):
+        slope = (b * b - a * a) * np.sin(theta) * np.cos(theta) + a * u * np.sin(theta) - b * w * np.cos(theta)
+        curvature = (b * b - a * a) * np.cos(2 * theta) + a * u * np.cos(theta) + b * w * np.sin(theta)
+        theta = np.where(curvature > 0, theta - slope / np.where(curvature > 0, curvature, 1.0), theta)
+    return theta[:, 0]

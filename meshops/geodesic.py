@@ -14,7 +14,6 @@ import scipy.sparse.csgraph as csgraph
 import scipy.sparse.linalg as spla
 
 
-
 def fixed_vertex(vertices: np.ndarray) -> int:
     """Vertex closest to ((max_x + min_x) / 2, max_y, (max_z + min_z) / 2) of the bounding box, y up (eq. 2).
 

@@ -42,13 +42,22 @@ def parse_conv_kind(name: str) -> tuple[str, int]:
     return match.group(1), int(match.group(2))
 
 
+def parse_conv_kinds(names: Sequence[str]) -> list[tuple[str, int]]:
+    """Parse a list of table names, refusing an empty list and repeats."""
+    if not names:
+        raise ValueError("no convolution named")
+    if len(set(names)) < len(names):
+        raise ValueError(f"a convolution is named twice in {', '.join(names)}")
+    return [parse_conv_kind(name) for name in names]
+
+
 def build_operators(vertices: np.ndarray, faces: np.ndarray, conv: Sequence[str] = DEFAULT_CONV,
                     pooling_steps: int = DEFAULT_POOLING_STEPS,
                     quadric_threshold: float = DEFAULT_QUADRIC_THRESHOLD,
                     progress: Callable[[int, Level], None] | None = None) -> list[Level]:
     """Levels 0..pooling_steps: level 0 is the input mesh in its own vertex order, each next one a collapse pass
     of the previous (the identity once nothing can collapse). Raises ValueError on an unusable mesh or spec."""
-    kinds = [parse_conv_kind(name) for name in conv]
+    kinds = parse_conv_kinds(conv)
     if pooling_steps < 0:
         raise ValueError(f"pooling steps must be >= 0, got {pooling_steps}")
     vertices = np.asarray(vertices, dtype=np.float64)

@@ -46,14 +46,3 @@ class ClosedPolylines:
         a = np.take_along_axis(self.points, segment[..., None], axis=1)
         b = np.take_along_axis(self.ends, segment[..., None], axis=1)
         return a + fraction[..., None] * (b - a)
-
-    def closest_arc_position(self, query: np.ndarray) -> np.ndarray:
-        """Arc-length position (N,) of the point of each polyline nearest `query` (N, d)."""
-        direction = self.ends - self.points
-        length2 = np.sum(direction ** 2, axis=-1)
-        t = np.clip(np.sum((query[:, None] - self.points) * direction, axis=-1) / np.where(length2 > 0, length2, 1),
-                    0.0, 1.0)
-        gap2 = np.sum((self.points + t[..., None] * direction - query[:, None]) ** 2, axis=-1)
-        best = np.argmin(gap2, axis=1)
-        rows = np.arange(len(self.points))
-        return self.cumulative[rows, best] + t[rows, best] * np.sqrt(length2[rows, best])

@@ -17,7 +17,8 @@ from meshops.neighbourhood import QUANTUM, quantise
 from meshops.rings import mean_edge_length
 from sim.mesh import edge_faces, opposite_vertex, validate_mesh
 
-# A collapse is refused if it turns any surviving face's normal by more than ~84 degrees (a flip or near-flip)...
+# A collapse is refused if it leaves any face's normal more than ~84 degrees from where it was at the start of the
+# pass (a flip or near-flip)...
 MIN_NORMAL_COSINE = 0.1
 # ...or leaves a face with shape quality 4*sqrt(3)*area/sum(edge^2) (1 = equilateral) below this, unless the
 # face was already that poor: slivers would spoil the next level's normals, rings and ellipses.
@@ -109,8 +110,9 @@ def collapse_pass(vertices: np.ndarray, faces: np.ndarray, quadric_threshold: fl
 
 
 class _PassState:
-    """The mesh of one pass as collapses accumulate: merged vertices point at their representative, and every
-    face keeps its current unit normal and shape quality."""
+    """The mesh of one pass as collapses accumulate: merged vertices point at their representative. Faces keep
+    the unit normal and shape quality they had at the start of the pass: a face moved by several collapses must
+    stay within bounds of its fine-level self, not merely of its previous state."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray):
         n = len(vertices)
@@ -162,7 +164,6 @@ class _PassState:
         rep[d] = c
         self.partner[c] = d
         self.position[c] = self.position[d] = midpoint
-        self.normal[moving], self.quality[moving] = normal, quality
         for f in dying:
             self.removed[f] = True
         self.remaining -= 1

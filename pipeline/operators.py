@@ -15,7 +15,7 @@ from typing import Sequence
 
 import numpy as np
 
-from meshops import Level, build_operators, parse_conv_kind
+from meshops import Level, build_operators, parse_conv_kind, parse_conv_kinds
 from meshops.hierarchy import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
 from pipeline.artifacts import atomic_h5
 from pipeline.cli import add_quiet, run
@@ -54,15 +54,10 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 def _parse_conv(text: str) -> list[str]:
     names = [name.strip() for name in text.split(",") if name.strip()]
-    if not names:
-        raise PipelineError("--conv names no convolution")
-    if len(set(names)) < len(names):
-        raise PipelineError(f"--conv repeats a convolution: {text}")
-    for name in names:
-        try:
-            parse_conv_kind(name)
-        except ValueError as err:
-            raise PipelineError(f"--conv: {err}") from None
+    try:
+        parse_conv_kinds(names)
+    except ValueError as err:
+        raise PipelineError(f"--conv {text!r}: {err}") from None
     return names
 
 

@@ -105,7 +105,8 @@ def test_each_bad_input_is_one_clear_error_and_leaves_no_output(tmp_path, capsys
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".h5") == ["unreferenced.h5"]
 
 
-@pytest.mark.parametrize("argv, problem", [(["--conv", "RC13,QQ3"], "--conv"), (["--conv", "RC13,RC13"], "repeats"),
+@pytest.mark.parametrize("argv, problem", [(["--conv", "RC13,QQ3"], "--conv"), (["--conv", "RC13,RC13"], "named twice"),
+                                           (["--conv", " , "], "no convolution"),
                                            (["--levels", "-1"], "--levels"),
                                            (["--quadric-threshold", "nan"], "--quadric-threshold")])
 def test_bad_options_are_refused(tmp_path, capsys, argv, problem):
@@ -121,8 +122,9 @@ def test_runs_as_a_module(tmp_path):
     vertices, faces = mesh_of("two_triangles")
     _write_obj(tmp_path / "pair.obj", vertices, faces)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    done = subprocess.run([sys.executable, "-m", "pipeline.operators", str(tmp_path / "pair.obj"),
-                           str(tmp_path / "out.h5"), "--levels", "1"], cwd=ROOT, env=env, capture_output=True, text=True)
+    command = [sys.executable, "-m", "pipeline.operators", str(tmp_path / "pair.obj"), str(tmp_path / "out.h5"),
+               "--levels", "1"]
+    done = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "level 1: 3 vertices" in done.stderr
     with h5py.File(tmp_path / "out.h5", "r") as f:

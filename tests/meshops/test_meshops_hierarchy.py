@@ -6,7 +6,7 @@ from meshops import build_operators, parse_conv_kind
 from meshops_shapes import grid_patch, mesh_of, operators_of
 
 
-@pytest.mark.parametrize("name", ["pants", "irregular", "square", "torus"])
+@pytest.mark.parametrize("name", ["pants", "irregular", "square", "torus", "flag"])
 def test_tables_and_pooling_do_not_change_under_translation_and_uniform_scaling(name):
     vertices, faces = mesh_of(name)
     reference = operators_of(name)
@@ -66,3 +66,5 @@ def test_unusable_input_is_refused_before_any_work():
         build_operators(np.r_[vertices, [[0.5, 0.5, 1.0]]], np.r_[faces, [[0, 5, 16]]])  # a third face on 0-5
     with pytest.raises(ValueError, match="pooling steps"):
         build_operators(vertices, faces, pooling_steps=-1)
+    with pytest.raises(ValueError, match="named twice"):
+        build_operators(vertices, faces, ["RC13", "SP9", "RC13"])

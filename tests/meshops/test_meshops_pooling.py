@@ -38,8 +38,15 @@ def test_coarse_meshes_are_manifold_unfolded_and_keep_their_topology(name):
     for fine, coarse in zip(levels[:-1], levels[1:]):
         validate_mesh(coarse.vertices, coarse.faces)
         mapped = fine.coarsening.unpool[fine.faces]
-        survivors = mapped[(mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 2] != mapped[:, 0])]
+        distinct = (mapped[:, 0] != mapped[:, 1]) & (mapped[:, 1] != mapped[:, 2]) & (mapped[:, 2] != mapped[:, 0])
+        survivors = mapped[distinct]
         assert {tuple(f) for f in survivors} == {tuple(f) for f in coarse.faces}, "faces are the renumbered survivors"
+        before, after = fine.vertices[fine.faces[distinct]], coarse.vertices[survivors]
+        normal_before = np.cross(before[:, 1] - before[:, 0], before[:, 2] - before[:, 0])
+        normal_after = np.cross(after[:, 1] - after[:, 0], after[:, 2] - after[:, 0])
+        cosine = np.einsum("ij,ij->i", normal_before, normal_after) / (
+            np.linalg.norm(normal_before, axis=1) * np.linalg.norm(normal_after, axis=1))
+        assert cosine.min() > 0.09, "a face flipped (or nearly) between levels"
         p = coarse.vertices[coarse.faces]
         edge = np.roll(p, -1, axis=1) - p
         quality = 2 * np.sqrt(3) * np.linalg.norm(np.cross(edge[:, 0], -edge[:, 2]), axis=1) / np.sum(edge ** 2, (1, 2))
@@ -98,7 +105,8 @@ def _reference_quadric_error(vertices, faces, edges, sides, e):
         if {a, b} & {u, w}:
             p = vertices[faces[f]]
             fence = np.cross(vertices[w] - vertices[u], np.cross(p[1] - p[0], p[2] - p[0]))
-            total += ((a in (u, w)) + (b in (u, w))) * np.dot(midpoint - vertices[u], fence / np.linalg.norm(fence)) ** 2
+            fence /= np.linalg.norm(fence)
+            total += ((a in (u, w)) + (b in (u, w))) * np.dot(midpoint - vertices[u], fence) ** 2
     return total
 
 
