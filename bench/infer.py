@@ -2,9 +2,9 @@
 
 For each mesh (the flag cloth of bench/sim.py's cases, Loop-subdivided twice, operators built by meshops) and each
 size (RC13, RC9, RC9 x/2, RC9 x/4 of D62 D124 D248 D D248 D_3 D248), times one frame: the network alone, and Loop
-subdivision S x_low (a padded-stencil gather on the device) + the network, as the paper's "DL + SubD" column. Median over
-repeats after warm-up, for each mode: eager, or CUDA-graph replay ("graph"), each optionally with TF32 matmuls
-("-tf32"). Usage:
+subdivision S x_low (a padded-stencil gather on the device) + the network, as the paper's "DL + SubD" column.
+Median over repeats after warm-up, for each mode: eager, or CUDA-graph replay ("graph"), each optionally with TF32
+matmuls ("-tf32"). Usage:
   python bench/infer.py [--device cpu|cuda] [--cases flag-cpu,15k] [--sizes RC13,RC9,RC9x/2,RC9x/4]
       [--modes eager,graph,eager-tf32,graph-tf32] [--repeats 20] [--warmup 5] [--threads N] [--out table.md]
 """

@@ -88,19 +88,10 @@ def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_i
     """
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr, betas=(0.9, 0.999), eps=1e-8)
     shuffle = torch.Generator().manual_seed(settings.seed)
-    history = History()
     identity = {"settings": _settings_key(settings), **(identity or {})}
+    history = History()
     if checkpoint is not None and checkpoint.is_file():
-        state = torch.load(checkpoint, map_location=frames.inputs.device, weights_only=False)
-        if state.get("format") == CHECKPOINT_FORMAT and state["identity"] == identity:
-            model.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-            shuffle.set_state(state["shuffle"])
-            history = state["history"]
-            history.resumed_from_epoch = history.epochs_done
-            on_notice(f"resuming from {checkpoint} after epoch {history.epochs_done}")
-        else:
-            on_notice(f"{checkpoint} was written for other settings, data or operators: starting afresh")
+        history = _resume(checkpoint, identity, settings.epochs, model, optimizer, shuffle, on_notice)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
@@ -130,6 +121,27 @@ def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_i
                               "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
                               "history": history}, checkpoint)
     model.eval()
+    return history
+
+
+def _resume(checkpoint: Path, identity: dict[str, Any], epochs: int, model: torch.nn.Module,
+            optimizer: torch.optim.Optimizer, shuffle: torch.Generator, on_notice: Callable[[str], None]) -> History:
+    """Restore model, optimiser and shuffle states from a matching checkpoint; a fresh History otherwise."""
+    try:
+        state = torch.load(checkpoint, map_location=next(model.parameters()).device, weights_only=False)
+    except Exception as err:  # torch raises many types for a foreign or damaged file
+        on_notice(f"{checkpoint} is not a readable checkpoint ({type(err).__name__}): starting afresh")
+        return History()
+    if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT and state["identity"] == identity
+            and state["history"].epochs_done <= epochs):
+        on_notice(f"{checkpoint} was written for other settings, data, operators or a longer run: starting afresh")
+        return History()
+    model.load_state_dict(state["model"])
+    optimizer.load_state_dict(state["optimizer"])
+    shuffle.set_state(state["shuffle"])
+    history = state["history"]
+    history.resumed_from_epoch = history.epochs_done
+    on_notice(f"resuming from {checkpoint} after epoch {history.epochs_done}")
     return history
 
 

@@ -41,8 +41,8 @@ def greedy_pooling(n_vertices: int, edges: np.ndarray) -> tuple[np.ndarray, np.n
     for a, b in edges:
         if matched[a] < 0 and matched[b] < 0:
             matched[a], matched[b] = b, a
-    pairs = [(v, v) if matched[v] < 0 else (v, matched[v]) for v in range(n_vertices) if matched[v] < 0 or v < matched[v]]
-    pool = np.asarray(pairs, dtype=np.int64)
+    first = np.flatnonzero((matched < 0) | (np.arange(n_vertices) < matched))     # singletons and pair heads
+    pool = np.stack([first, np.where(matched[first] < 0, first, matched[first])], axis=1)
     unpool = np.empty(n_vertices, dtype=np.int64)
     unpool[pool[:, 0]] = np.arange(len(pool))
     unpool[pool[:, 1]] = np.arange(len(pool))

@@ -1,0 +1,68 @@
+"""The training loop: resuming from a checkpoint, refusing stale ones, and split-wide error figures."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from model.losses import LossWeights
+from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.training import Frames, TrainSettings, fit, split_errors
+
+
+def _problem(grid):
+    vertices, faces, mesh = grid
+    generator = torch.Generator().manual_seed(3)
+    base = torch.as_tensor(vertices, dtype=torch.float32)
+    inputs = base + 0.05 * torch.randn(7, *base.shape, generator=generator)
+    targets = 0.01 * torch.sin(7 * inputs)
+    return mesh, Frames(inputs, targets, torch.as_tensor(faces))
+
+
+def _model() -> NormalizedRegressor:
+    torch.manual_seed(0)
+    return NormalizedRegressor(build_network(NetworkSpec("D8 D D8", "RC7")), torch.zeros(3), 1.0, 0.01)
+
+
+def test_resumed_training_equals_uninterrupted(grid, tmp_path):
+    mesh, frames = _problem(grid)
+    train_ids, test_ids = torch.arange(6), torch.tensor([6])
+    checkpoint = tmp_path / "ckpt"
+    notices = []
+    first = _model()
+    fit(first, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2), checkpoint, on_notice=notices.append)
+    resumed = _model()
+    history = fit(resumed, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4), checkpoint,
+                  on_notice=notices.append)
+    straight = _model()
+    reference = fit(straight, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4))
+    assert history.resumed_from_epoch == 2 and notices == [f"resuming from {checkpoint} after epoch 2"]
+    assert history.train["total"] == reference.train["total"]
+    for name, value in straight.state_dict().items():
+        torch.testing.assert_close(resumed.state_dict()[name], value, rtol=0, atol=0)
+    assert reference.train["total"][-1] < reference.train["total"][0]
+
+
+def test_stale_or_foreign_checkpoint_starts_afresh(grid, tmp_path):
+    mesh, frames = _problem(grid)
+    checkpoint = tmp_path / "ckpt"
+    fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1, lr=1e-2), checkpoint)
+    notices = []
+    history = fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1), checkpoint,
+                  on_notice=notices.append)
+    assert history.resumed_from_epoch == 0 and "starting afresh" in notices[0]
+    checkpoint.write_bytes(b"not a checkpoint")
+    fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1), checkpoint,
+        on_notice=notices.append)
+    assert "not a readable checkpoint" in notices[1]
+
+
+def test_split_errors_match_numpy(grid):
+    _, frames = _problem(grid)
+    ids = torch.tensor([0, 2, 3, 5, 6])
+    errors = split_errors(lambda x: 0.5 * torch.sin(7 * x) * 0.01, frames, ids, batch_size=2,
+                          weights=LossWeights(1.0, 2.0, 0.0))
+    difference = (0.5 * 0.01 * np.sin(7 * frames.inputs.numpy()) - frames.targets.numpy())[ids.numpy()]
+    assert np.isclose(errors["l1"], np.abs(difference).mean(), rtol=1e-5)
+    # L2 over the whole split, not a mean of per-batch L2s
+    assert np.isclose(errors["l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-5)
+    assert np.isclose(errors["total"], errors["l1"] + 2 * errors["l2"], rtol=1e-6)

@@ -1,0 +1,209 @@
+"""The learning stages end to end (dataset → train → evaluate) on small synthetic simulation artifacts, with the
+operators built by meshops; plus resume-after-kill and the clear errors of bad input."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from pipeline import cli, dataset, evaluate, operators, train
+from pipeline.artifacts import atomic_h5, read_csr, write_csr
+from sim.loop import loop_subdivide
+
+REPO = Path(__file__).resolve().parents[2]
+N_FRAMES = 12
+ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
+
+
+def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A hanging n x n square in the xy plane, CCW faces seen from +z."""
+    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    vertices = np.stack([c.ravel() / (n - 1) - 0.5, 1.0 - r.ravel() / (n - 1), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, d, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
+
+
+def write_simulation(folder: Path, n: int = 5, transform=lambda x, f: x) -> None:
+    """sim_low/sim_high/subdiv artifacts: a waving low-res sheet, and high-res wrinkles that depend on it.
+    `transform(positions, frame)` moves both runs rigidly (for the reference-frame test)."""
+    vertices, faces = _grid(n)
+    subdivision, high_faces = loop_subdivide(vertices, faces, 2)
+    t = np.arange(N_FRAMES)[:, None]
+    low = np.repeat(vertices[None], N_FRAMES, axis=0)
+    low[:, :, 2] = 0.1 * np.sin(3 * vertices[:, 0] + 0.5 * t) * (1 - vertices[:, 1])
+    smooth = np.stack([subdivision @ x for x in low])
+    high = smooth + 0.01 * np.sin(12 * smooth[:, :, 0] + 0.3 * t)[..., None] * np.array([0.0, 0.0, 1.0])
+    for name, positions, f in (("sim_low", low, faces), ("sim_high", high, high_faces)):
+        with atomic_h5(folder / f"{name}.h5", "simulate") as out:
+            out["positions"] = np.stack([transform(p, i) for i, p in enumerate(positions)]).astype(np.float32)
+            out["faces"] = f.astype(np.int32)
+    with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
+        write_csr(out, "S", subdivision)
+        out["vertices"] = subdivision @ vertices
+        out["faces"] = high_faces.astype(np.int32)
+
+
+def stage(main, *args) -> None:
+    cli.run(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("learning")
+    write_simulation(folder)
+    stage(operators.main, folder / "subdiv.h5", folder / "operators.h5", "--conv", "RC7", "--levels", "4", "--quiet")
+    stage(dataset.main, folder / "sim_low.h5", folder / "sim_high.h5", folder / "subdiv.h5", folder / "dataset.h5",
+          "--quiet")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def trained(work) -> Path:
+    stage(train.main, work / "dataset.h5", work / "operators.h5", work / "model.pt", work / "train.h5", *ARCH,
+          "--epochs", "20", "--quiet")
+    return work
+
+
+def test_dataset_is_subdivided_input_and_displacement_target(work):
+    with h5py.File(work / "subdiv.h5") as f:
+        subdivision = read_csr(f, "S")
+    with h5py.File(work / "sim_low.h5") as f:
+        low = f["positions"][()].astype(np.float64)
+    with h5py.File(work / "sim_high.h5") as f:
+        high = f["positions"][()].astype(np.float64)
+    with h5py.File(work / "dataset.h5") as f:
+        inputs, target = f["input"][()], f["target"][()]
+        train_ids, test_ids = f["split/train"][()], f["split/test"][()]
+        assert f["predictor"].id == f["input"].id           # the predictor is the input itself
+        assert f.attrs["frame"] == "world"
+    expected = np.einsum("hl,flc->fhc", subdivision.toarray(), low)
+    np.testing.assert_allclose(inputs, expected, atol=1e-6)
+    np.testing.assert_allclose(inputs + target, high, atol=1e-6)
+    assert len(test_ids) == 1 and len(train_ids) == N_FRAMES - 1      # round(10 % of 12)
+    assert np.array_equal(np.sort(np.concatenate([train_ids, test_ids])), np.arange(N_FRAMES))
+
+
+def test_torso_frame_removes_a_rigid_motion(work, tmp_path):
+    angles = np.linspace(0, 1.0, N_FRAMES)
+    rotations = np.stack([[[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]] for a in angles])
+    shifts = np.stack([np.array([0.3, -0.2, 1.0]) * a for a in angles])
+    write_simulation(tmp_path, transform=lambda x, f: x @ rotations[f].T + shifts[f])
+    transforms = np.tile(np.eye(4), (N_FRAMES, 1, 1))
+    transforms[:, :3, :3], transforms[:, :3, 3] = rotations, shifts
+    with atomic_h5(tmp_path / "scene.h5", "scene") as f:
+        f["torso_transforms"] = transforms
+    stage(dataset.main, tmp_path / "sim_low.h5", tmp_path / "sim_high.h5", tmp_path / "subdiv.h5",
+          tmp_path / "dataset.h5", "--frame", "torso", "--scene", tmp_path / "scene.h5", "--quiet")
+    with h5py.File(tmp_path / "dataset.h5") as moved, h5py.File(work / "dataset.h5") as still:
+        np.testing.assert_allclose(moved["input"][()], still["input"][()], atol=1e-5)
+        np.testing.assert_allclose(moved["target"][()], still["target"][()], atol=1e-5)
+
+
+def test_torso_frame_without_transforms_is_a_clear_error(work, tmp_path, capsys):
+    with atomic_h5(tmp_path / "scene.h5", "scene") as f:
+        f["rest/vertices"] = np.zeros((3, 3))
+    with pytest.raises(SystemExit) as exit_info:
+        stage(dataset.main, work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", tmp_path / "d.h5",
+              "--frame", "torso", "--scene", tmp_path / "scene.h5")
+    assert exit_info.value.code == 2
+    assert "torso_transforms" in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
+
+
+def test_training_writes_model_and_falling_loss_curves(trained):
+    assert not (trained / "model.pt.ckpt").exists()            # removed once the outputs are complete
+    with h5py.File(trained / "train.h5") as f:
+        train_loss, test_loss = f["epoch/train_total"][()], f["epoch/test_total"][()]
+        assert f.attrs["parameter_count"] == 10_349 and len(train_loss) == 20
+    assert train_loss[-1] < 0.6 * train_loss[0] and test_loss[-1] < 0.8 * test_loss[0]
+    state = torch.load(trained / "model.pt", weights_only=True)
+    assert state["spec"]["arch"] == "D8 D16 D D16" and state["operators"]["vertex_counts"][0] == 289
+
+
+def test_evaluation_errors_renders_and_exports(trained):
+    out = trained / "eval"
+    stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", out / "eval.h5",
+          out / "report.md", "--render-frames", "1", "--timing-frames", "3", "--quiet")
+    with h5py.File(trained / "dataset.h5") as f:
+        inputs, target = f["input"][()], f["target"][()]
+        test_ids, faces = f["split/test"][()], f["faces"][()]
+    with h5py.File(out / "eval.h5") as f:
+        predicted = f["predicted"][()]
+        errors = {k: f[f"errors/{k}"][()] for k in ("network/test/l1", "network/test/l2", "predictor/test/l1",
+                                                      "predictor/test/l2")}
+        assert f["inference_ms"].shape == (1,) or np.all(f["inference_ms"][()] > 0)
+    truth = inputs + target
+    difference = (predicted - truth)[test_ids].astype(np.float64)
+    assert np.isclose(errors["network/test/l1"], np.abs(difference).mean(), rtol=1e-4)
+    assert np.isclose(errors["network/test/l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-4)
+    assert np.isclose(errors["predictor/test/l1"], np.abs(target[test_ids]).mean(), rtol=1e-4)
+    assert errors["network/test/l1"] < errors["predictor/test/l1"]       # the network beats Loop subdivision
+    report = (out / "report.md").read_text()
+    assert "10,349 learnable parameters" in report and "Loop subdivision alone" in report
+    pictures = sorted((out / "renders").glob("*.png"))
+    assert len(pictures) == 1 and f"]({pictures[0].relative_to(out)})" in report
+    obj = trimesh.load(out / "export/predicted_obj/frame_0003.obj", process=False)
+    np.testing.assert_allclose(obj.vertices, predicted[3], atol=1e-5)
+    assert np.array_equal(obj.faces, faces)
+    scene = trimesh.load(next((out / "export").glob("*.glb")))
+    assert set(scene.geometry) == {"low_res_input", "ground_truth", "network_output"}
+
+
+def test_resume_after_kill_ends_like_an_uninterrupted_run(work, tmp_path):
+    epochs = ["--epochs", "24", "--quiet"]
+    paths = [work / "dataset.h5", work / "operators.h5"]
+    killed = subprocess.Popen([sys.executable, "-m", "pipeline.train", *map(str, paths), str(tmp_path / "a.pt"),
+                               str(tmp_path / "a.h5"), *ARCH, *epochs], cwd=REPO, start_new_session=True)
+    checkpoint = tmp_path / "a.pt.ckpt"
+    deadline = time.monotonic() + 60
+    while not checkpoint.exists() and killed.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    os.killpg(killed.pid, signal.SIGKILL)
+    killed.wait()
+    assert checkpoint.exists() and not (tmp_path / "a.pt").exists(), "the run must be killed mid-training"
+    stage(train.main, *paths, tmp_path / "a.pt", tmp_path / "a.h5", *ARCH, *epochs)
+    stage(train.main, *paths, tmp_path / "b.pt", tmp_path / "b.h5", *ARCH, *epochs)
+    with h5py.File(tmp_path / "a.h5") as resumed, h5py.File(tmp_path / "b.h5") as uninterrupted:
+        assert resumed.attrs["resumed_from_epoch"] > 0 and uninterrupted.attrs["resumed_from_epoch"] == 0
+        np.testing.assert_allclose(resumed["epoch/train_total"][()], uninterrupted["epoch/train_total"][()],
+                                   rtol=1e-6)
+    a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
+    for name in b:
+        torch.testing.assert_close(a[name], b[name], rtol=1e-6, atol=1e-7)
+
+
+def test_model_on_other_operators_is_one_clear_error(trained, tmp_path, capsys):
+    other = tmp_path / "other"
+    other.mkdir()
+    write_simulation(other, n=4)
+    stage(operators.main, other / "subdiv.h5", other / "operators.h5", "--conv", "RC7", "--levels", "4", "--quiet")
+    with pytest.raises(SystemExit) as exit_info:
+        stage(evaluate.main, trained / "dataset.h5", other / "operators.h5", trained / "model.pt",
+              tmp_path / "eval.h5", tmp_path / "report.md", "--quiet")
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "was trained on a mesh hierarchy with vertex counts" in err
+
+
+@pytest.mark.parametrize("bad, message", [
+    (["--arch", "D8 Q"], "token 2 'Q'"),
+    (["--arch", "D8 D D D D D D8", "--conv", "RC7"], "needs 7 mesh levels"),
+    (["--arch", "D8", "--conv", "EC13"], "no 'EC13' convolution tables"),
+    (["--arch", "U8 U3", "--conv", "RC7"], "encoder-decoder, written with D tokens"),
+])
+def test_bad_training_options_are_one_clear_error(work, tmp_path, capsys, bad, message):
+    with pytest.raises(SystemExit) as exit_info:
+        stage(train.main, work / "dataset.h5", work / "operators.h5", tmp_path / "m.pt", tmp_path / "t.h5", *bad)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and not (tmp_path / "m.pt").exists()
