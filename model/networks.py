@@ -46,6 +46,22 @@ class MeshNetwork(nn.Module):
         self.steps.append(Step("conv", level, block, len(self.convs)))
         self.convs.append(MeshConv(in_channels, out_channels, size))
 
+    def _up_block(self, channels: int, h: int | None, conv_size: int, level: int, skip: bool, norm: bool) -> int:
+        """Fig. 5's UpConv from `level` to `level - 1` (conv → unpool → [concat skip] → conv → [IN → leaky
+        ReLU]), or a plain unpooling when `h` is None; returns the channel count after it."""
+        name = f"U^{h}" if h is not None else "U"
+        if h is not None:
+            self._conv(channels, h, conv_size, level, name)
+        self.steps.append(Step("unpool", level - 1, name))
+        if h is None:
+            return channels
+        if skip:
+            self.steps.append(Step("concat", level - 1, name))
+        self._conv(2 * h if skip else h, h, conv_size, level - 1, name)
+        if norm:
+            self.steps.append(Step("norm", level - 1, name))
+        return h
+
     def check_mesh(self, mesh: MeshHierarchy) -> None:
         if mesh.n_levels < self.n_levels:
             raise ValueError(f"the {self.kind} needs {self.n_levels} mesh levels ({self.n_levels - 1} poolings) "
@@ -115,16 +131,8 @@ class EncoderDecoder(MeshNetwork):
             self.steps.append(Step("pool", level, name))
             level += 1
         for h in reversed(arch.blocks[:-1]):
-            name = f"U^{h}" if h is not None else "U"
-            if h is not None:
-                self._conv(channels, h, conv_size, level, name)
-            self.steps.append(Step("unpool", level - 1, name))
+            channels = self._up_block(channels, h, conv_size, level, skip=True, norm=True)
             level -= 1
-            if h is not None:
-                self.steps.append(Step("concat", level, name))
-                self._conv(2 * h, h, conv_size, level, name)
-                self.steps.append(Step("norm", level, name))
-                channels = h
         self._conv(channels, out_channels, conv_size, 0, "head")
         self._conv(out_channels, out_channels, conv_size, 0, "head")
 
@@ -160,16 +168,8 @@ class Decoder(MeshNetwork):
         self.steps.append(Step("linear", level, "FC"))
         self.steps.append(Step("norm", level, "FC"))
         for i, h in enumerate(arch.blocks):
-            name = f"U^{h}" if h is not None else "U"
-            if h is not None:
-                self._conv(channels, h, conv_size, level, name)
-            self.steps.append(Step("unpool", level - 1, name))
+            channels = self._up_block(channels, h, conv_size, level, skip=False, norm=i < len(arch.blocks) - 1)
             level -= 1
-            if h is not None:
-                self._conv(h, h, conv_size, level, name)
-                if i < len(arch.blocks) - 1:
-                    self.steps.append(Step("norm", level, name))
-                channels = h
 
     def check_mesh(self, mesh: MeshHierarchy) -> None:
         super().check_mesh(mesh)
