@@ -3,7 +3,7 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell sha1sum requirements.txt | cut -c1-12)
-SCENE ?= flag
+SCENE ?= pants
 
 .PHONY: setup run test bench clean
 

@@ -1,10 +1,12 @@
 """Solver speed: ms per frame for low- and high-res cloth, CPU and CUDA, at the paper's 8 substeps x 75 iterations.
 
 Median over measured frames after warm-up frames (the first frame compiles kernels and, on CUDA, captures the frame
-graph). Each row's ratio is against the stretch-only run of the same mesh and device in the same invocation, so the
-price of bending and of the harmonic constraint is visible. Usage:
-  python bench/sim.py [--devices cpu,cuda:0] [--cases flag,15k] [--frames 10] [--warmup 3] [--substeps 8]
-  [--iterations 75] [--out table.md]
+graph). Each row's ratio is against the first variant of the same mesh and device in the same invocation: for the
+flags the stretch-only run, so the price of bending and of the harmonic constraint is visible; for the garments
+(`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the run without
+collisions, so the price of body and of self-collision is. Usage:
+  python bench/sim.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
+  [--substeps 8] [--iterations 75] [--out table.md]
 """
 from __future__ import annotations
 
@@ -18,13 +20,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from sim.body import capsules_world, default_skeleton, rest_transforms  # noqa: E402
 from sim.cloth import first_row_pins, grid_cloth  # noqa: E402
+from sim.garments import make_garment  # noqa: E402
 from sim.harmonics import harmonic_basis, harmonic_count  # noqa: E402
 from sim.loop import loop_subdivide  # noqa: E402
+from sim.motion import body_state, make_motion  # noqa: E402
+from sim.skinning import linear_blend_skinning  # noqa: E402
 from sim.xpbd import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
+# Garment max_edge: ~3.5k vertices low-res, ~14k after one level of Loop subdivision.
+GARMENTS = {"pants": 0.035, "tshirt": 0.03}
 
 
 def build(max_edge: float):
@@ -52,6 +60,84 @@ def time_run(vertices, faces, settings, device, pins, frames, warmup, harmonic=N
     return float(np.median(times[warmup:]))
 
 
+def garment_inputs(kind: str, n_frames: int):
+    """The garment (low-res and one Loop level finer), its pinned attachment vertices and, per frame, their targets
+    and the capsules of the mannequin dancing (no settling: the dance fades in over the first 10 frames)."""
+    skel = default_skeleton()
+    garment = make_garment(kind, skel, max_edge=GARMENTS[kind])
+    S, high_faces = loop_subdivide(garment.vertices, garment.faces, levels=1)
+    state = body_state(skel, make_motion("dance", n_frames, settle_frames=0, blend_frames=10))
+    a, b, ra, rb = capsules_world(skel, state.transforms)
+    capsules, radii = np.stack([a, b], axis=2), np.stack([ra[0], rb[0]], axis=1)
+    ids = garment.attachment  # Loop subdivision keeps the coarse vertices first, so the ids hold on both levels
+    targets = linear_blend_skinning(garment.vertices[ids], garment.attachment_part[:, None], np.ones((len(ids), 1)),
+                                    rest_transforms(skel), state.transforms)
+    levels = {"low": (garment.vertices, garment.faces), "high": (S @ garment.vertices, high_faces)}
+    return levels, ids, targets, capsules, radii
+
+
+def time_garment(vertices, faces, settings, device, pins, targets, capsules, radii, frames, warmup):
+    body = settings.body_collision
+    solver = ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[0] if body else None,
+                         capsule_radii=radii if body else None)
+    times = []
+    for f in range(1, warmup + frames + 1):
+        start = time.perf_counter()
+        solver.step(targets[f], capsules=capsules[f] if body else None)
+        solver.x.numpy()
+        times.append((time.perf_counter() - start) * 1e3)
+    return float(np.median(times[warmup:]))
+
+
+def garment_rows(case: str, args) -> list[str]:
+    levels, pins, targets, capsules, radii = garment_inputs(case, args.warmup + args.frames + 1)
+    rows = []
+    for device in args.devices.split(","):
+        for level, (verts, faces) in levels.items():
+            if level == "high" and device == "cpu" and args.skip_cpu_high:
+                continue
+            base = dict(substeps=args.substeps, iterations=args.iterations)
+            baseline = None
+            for name, switches in (("no collision", {}), ("body", dict(body_collision=True)),
+                                   ("body+self", dict(body_collision=True, self_collision=True))):
+                ms = time_garment(verts, faces, SolverSettings(**base, **switches), device, pins, targets, capsules,
+                                  radii, args.frames, args.warmup)
+                baseline = baseline or ms
+                rows.append(f"| {case} | {level} | {len(verts)} | - | {device} | {name} | {ms:.2f} | "
+                            f"{ms / baseline:.2f} |")
+                print(rows[-1], flush=True)
+    return rows
+
+
+def flag_rows(case: str, args) -> list[str]:
+    (low, low_faces), (high, high_faces) = build(CASES[case])
+    k = harmonic_count(len(high))
+    t0 = time.perf_counter()
+    basis, _, mass = harmonic_basis(high, high_faces, k)
+    print(f"{case}: {len(low)} low / {len(high)} high vertices, K={k}, eigensolve {time.perf_counter() - t0:.1f} s",
+          flush=True)
+    rows = []
+    for device in args.devices.split(","):
+        for level, (verts, faces) in (("low", (low, low_faces)), ("high", (high, high_faces))):
+            if level == "high" and device == "cpu" and args.skip_cpu_high:
+                continue
+            pins = first_row_pins(verts, "xy", "top_edge")
+            base = dict(substeps=args.substeps, iterations=args.iterations)
+            variants = [("stretch only", SolverSettings(**base, bending=False), None),
+                        ("stretch+bending", SolverSettings(**base), None)]
+            if level == "high":
+                variants.append(("+harmonic each iteration", SolverSettings(**base),
+                                 (harmonic_constraint(basis, mass, pins), basis, mass)))
+            baseline = None
+            for name, settings, harmonic in variants:
+                ms = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, harmonic)
+                baseline = baseline or ms
+                rows.append(f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | {name} | "
+                            f"{ms:.2f} | {ms / baseline:.2f} |")
+                print(rows[-1], flush=True)
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", default="cpu")
@@ -63,33 +149,10 @@ def main():
     parser.add_argument("--skip-cpu-high", action="store_true", help="skip high-res runs on the CPU (slow)")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
-    rows = ["| mesh | level | V | K | device | variant | ms/frame | x stretch-only |", "|---|---|---|---|---|---|---|---|"]
+    rows = ["| mesh | level | V | K | device | variant | ms/frame | x first variant |",
+            "|---|---|---|---|---|---|---|---|"]
     for case in args.cases.split(","):
-        (low, low_faces), (high, high_faces) = build(CASES[case])
-        k = harmonic_count(len(high))
-        t0 = time.perf_counter()
-        basis, _, mass = harmonic_basis(high, high_faces, k)
-        print(f"{case}: {len(low)} low / {len(high)} high vertices, K={k}, eigensolve {time.perf_counter() - t0:.1f} s",
-              flush=True)
-        for device in args.devices.split(","):
-            for level, (verts, faces) in (("low", (low, low_faces)), ("high", (high, high_faces))):
-                if level == "high" and device == "cpu" and args.skip_cpu_high:
-                    continue
-                pins = first_row_pins(verts, "xy", "top_edge")
-                base = dict(substeps=args.substeps, iterations=args.iterations)
-                variants = [("stretch only", SolverSettings(**base, bending=False), None),
-                            ("stretch+bending", SolverSettings(**base), None)]
-                if level == "high":
-                    variants.append(("+harmonic each iteration", SolverSettings(**base),
-                                     (harmonic_constraint(basis, mass, pins), basis, mass)))
-                baseline = None
-                for name, settings, harmonic in variants:
-                    ms = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, harmonic)
-                    baseline = baseline or ms
-                    row = (f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | {name} | "
-                           f"{ms:.2f} | {ms / baseline:.2f} |")
-                    rows.append(row)
-                    print(row, flush=True)
+        rows += garment_rows(case, args) if case in GARMENTS else flag_rows(case, args)
     table = "\n".join(rows)
     print(f"\n{args.substeps} substeps x {args.iterations} iterations, median of {args.frames} frames after "
           f"{args.warmup} warm-up frames\n{table}")

@@ -1,4 +1,6 @@
-"""The architecture grammar: the paper's D^h_k / U^h_k notation as a config string (docs/architecture_grammar.md).
+"""The architecture grammar: the paper's D^h_k / U^h_k notation as a config string.
+
+docs/architecture.md, section "Network architecture grammar", derives the paper's parameter counts from it.
 
 A string is whitespace-separated tokens, all D (encoder-decoder networks) or all U (decoder networks):
 

@@ -48,7 +48,8 @@ def unpool(x: torch.Tensor, unpool_index: torch.Tensor) -> torch.Tensor:
 def instance_norm(x: torch.Tensor, eps: float = NORM_EPS) -> torch.Tensor:
     """Instance normalisation over the vertices of each sample and channel, without affine parameters.
 
-    No affine: the paper's Table 3 parameter counts leave no room for them (docs/architecture_grammar.md).
+    No affine: the paper's Table 3 parameter counts leave no room for them (docs/architecture.md, section
+    "Network architecture grammar").
     """
     mean = x.mean(dim=1, keepdim=True)
     var = x.var(dim=1, unbiased=False, keepdim=True)

@@ -3,7 +3,7 @@
 Each network compiles its architecture into a flat list of `Step`s once; `forward` runs that list and
 `model.summary` prints it, so the layer table always describes exactly what runs. The wiring (which features
 are skipped, where the output head sits) is the one that reproduces the paper's Table 3 parameter counts; see
-docs/architecture_grammar.md for the derivation.
+docs/architecture.md ("Network architecture grammar") for the derivation.
 """
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ import argparse
 import copy
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Sequence
@@ -53,7 +54,9 @@ def validate_config(config: Any, source: str = "config") -> None:
 def _describe(error: jsonschema.ValidationError) -> str:
     where = ".".join(str(p) for p in error.absolute_path) or "top level"
     if error.validator == "additionalProperties":
-        unknown = sorted(set(error.instance) - set(error.schema.get("properties", {})))
+        patterns = [re.compile(p) for p in error.schema.get("patternProperties", {})]
+        unknown = sorted(key for key in set(error.instance) - set(error.schema.get("properties", {}))
+                         if not any(p.search(key) for p in patterns))
         if unknown:
             return f"unknown key '{unknown[0]}' in {where}"
     if error.validator == "required":
@@ -87,16 +90,54 @@ def resolve_scene(config: dict, scene: str, profile: str | None = None, device: 
         raise PipelineError(f"{source}: unknown scene '{scene}' (known: {', '.join(sorted(merged['scenes']))})")
     settings = deep_merge(merged["defaults"], merged["scenes"][scene])
     _require_complete(settings, load_schema()["$defs"]["scene_settings"], f"scenes.{scene}", source)
+    _check_consistent(settings, f"scenes.{scene}", source)
     settings.update(scene=scene, profile=profile, device=device or merged["device"])
     return settings
 
 
 def _require_complete(settings: dict, schema: dict, where: str, source: str) -> None:
+    """Every key the schema knows must be set, except those `x-required-when` reserves for other cases (a grid
+    scene needs no garment, a garment scene no rod motion); a key of another case is an error, not ignored."""
+    conditional = schema.get("x-required-when")
+    needed, foreign = set(schema.get("properties", {})), set()
+    if conditional:
+        cases = conditional["cases"]
+        case = settings.get(conditional["key"])
+        reserved = {key for keys in cases.values() for key in keys}
+        needed -= reserved - set(cases.get(case, ()))
+        foreign = (reserved - set(cases.get(case, ()))) & set(settings)
+    if foreign:
+        key = sorted(foreign)[0]
+        owners = [c for c, keys in conditional["cases"].items() if key in keys]
+        raise PipelineError(f"{source}: key '{key}' in {where} applies only when {conditional['key']} is "
+                            f"{' or '.join(owners)} (here: {settings.get(conditional['key'])})")
     for key, sub in schema.get("properties", {}).items():
+        if key not in needed:
+            continue
         if key not in settings:
             raise PipelineError(f"{source}: missing key '{key}' in {where} (set it there or in defaults)")
         if sub.get("type") == "object" and "properties" in sub:
             _require_complete(settings[key], sub, f"{where}.{key}", source)
+
+
+def _check_consistent(settings: dict, where: str, source: str) -> None:
+    """Rules between keys that a schema cannot state."""
+    def fail(message: str):
+        raise PipelineError(f"{source}: {where}: {message}")
+    garment = settings["mesh"]["generator"] == "garment"
+    if garment != (settings["drivers"]["pins"] == "attachment"):
+        fail("drivers.pins must be 'attachment' exactly when mesh.generator is 'garment'")
+    if not garment and (settings["physics"]["body_collision"] or settings["dataset"]["frame"] == "torso"):
+        fail("physics.body_collision and dataset.frame 'torso' need a mannequin (mesh.generator 'garment')")
+    if settings["network"]["conv"] not in settings["operators"]["conv"]:
+        fail(f"network.conv '{settings['network']['conv']}' is not among operators.conv "
+             f"{settings['operators']['conv']}")
+    if settings["dataset"]["split"] == "held_out":
+        if not garment:
+            fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment')")
+        clips, test = settings["drivers"]["mannequin"]["clips"], settings["drivers"]["mannequin"]["test_clips"]
+        if not test or not set(test) <= set(clips) or set(test) == set(clips):
+            fail(f"drivers.mannequin.test_clips {test} must name some, but not all, of the clips {clips}")
 
 
 def write_settings(settings: dict, path: str | os.PathLike) -> None:

@@ -1,11 +1,13 @@
 """Stage `dataset`: the cloth-upsampling learning problem of paper Table 2, with a seeded train/test split.
 
     python -m pipeline.dataset SIM_LOW.h5 SIM_HIGH.h5 SUBDIV.h5 OUT.h5 [--frame world|torso] [--scene SCENE.h5]
-                               [--test-fraction 0.1] [--seed 0] [--quiet]
+                               [--test-fraction 0.1 | --test-clips walk,...] [--seed 0] [--quiet]
 
 Input and predictor: the Loop-subdivided low-res positions S x_low; target: the displacement x_high - S x_low;
 all in the scene's reference frame (`world`, or `torso` using SCENE.h5's `torso_transforms`). Because every row
-of S sums to one, S commutes with the rigid change of frame. docs/artifacts_learning.md lists every dataset.
+of S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share, or, with
+--test-clips, every frame of those mannequin clips (SCENE.h5 `motion/clip`), to measure generalisation to
+unseen motion. docs/artifacts.md lists every dataset.
 """
 from __future__ import annotations
 
@@ -35,6 +37,23 @@ def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.nda
     n_test = min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
     order = np.random.default_rng(seed).permutation(n_frames)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
+
+
+def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Train and test frame ids when the test set is the frames of whole clips of the scene's motion."""
+    if scene_path is None:
+        raise PipelineError("--test-clips needs --scene SCENE.h5 holding 'motion/clip' and 'motion/clip_names'")
+    with open_artifact(scene_path) as f:
+        clip, names = read(f, "motion/clip", np.int64), [str(n) for n in f["motion/clip_names"].asstr()[()]]
+    if len(clip) != n_frames:
+        raise PipelineError(f"{scene_path}: 'motion/clip' has {len(clip)} frames, the simulation {n_frames}")
+    unknown = sorted(set(test_clips) - set(names))
+    if unknown:
+        raise PipelineError(f"{scene_path}: no clip '{unknown[0]}' in this scene's motion (clips: {', '.join(names)})")
+    test = np.isin(clip, [names.index(n) for n in test_clips])
+    if test.all() or not test.any():
+        raise PipelineError(f"--test-clips {','.join(test_clips)} leaves no {'train' if test.all() else 'test'} frames")
+    return np.flatnonzero(~test), np.flatnonzero(test)
 
 
 def _torso_transforms(scene_path: str | None, n_frames: int) -> np.ndarray:
@@ -87,15 +106,20 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="reference frame of all positions (torso needs --scene with torso_transforms)")
     parser.add_argument("--scene", help="scene.h5 (read for --frame torso)")
     parser.add_argument("--test-fraction", type=float, default=0.1, help="share of frames held out (paper: 0.1)")
+    parser.add_argument("--test-clips", help="comma-separated motion clips held out as the test set (needs --scene)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
     arrays = build_dataset(args.sim_low, args.sim_high, args.subdiv, args.frame, args.scene)
-    train, test = split_frames(len(arrays["input"]), args.test_fraction, args.seed)
+    if args.test_clips:
+        test_clips = [c.strip() for c in args.test_clips.split(",") if c.strip()]
+        train, test = held_out_frames(args.scene, len(arrays["input"]), test_clips)
+    else:
+        train, test = split_frames(len(arrays["input"]), args.test_fraction, args.seed)
     config = {name: getattr(args, name) for name in ("sim_low", "sim_high", "subdiv", "frame", "scene",
-                                                    "test_fraction", "seed")}
+                                                    "test_fraction", "test_clips", "seed")}
     with atomic_h5(args.out, "dataset", config) as f:
         for name, data in arrays.items():
             f.create_dataset(name, data=data)
@@ -103,7 +127,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         f.create_dataset("split/train", data=train.astype(np.int64))
         f.create_dataset("split/test", data=test.astype(np.int64))
         f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=args.frame, n_frames=len(arrays["input"]),
-                       n_vertices=arrays["input"].shape[1], split_seed=args.seed, test_fraction=args.test_fraction)
+                       n_vertices=arrays["input"].shape[1], split_seed=args.seed, test_fraction=len(test) / len(arrays["input"]),
+                       split="held_out:" + args.test_clips if args.test_clips else "random")
         f["input"].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
         f["target"].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
     if not args.quiet:

@@ -2,17 +2,19 @@
 
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--renders DIR]
         [--export DIR] [--render-frames 3] [--export-frames 60] [--timing-frames 30] [--device cpu] [--threads N]
-        [--quiet]
+        [--scene SCENE.h5] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (Loop subdivision, no network), so the network's gain shows.
 Renders (default: `renders/` beside REPORT.md) put low-res input | ground truth | network output | error maps
 side by side; the export folder (default `export/`) holds the predicted sequence as OBJ files and a GLB scene
-comparing input, truth and prediction. docs/artifacts_learning.md lists eval.h5's datasets.
+comparing input, truth and prediction. With --scene of a garment scene, renders show the mannequin too.
+docs/artifacts.md lists eval.h5's datasets.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -26,8 +28,10 @@ from model.losses import LossWeights
 from model.training import split_errors
 from pipeline import cli
 from pipeline.artifacts import atomic_h5, open_artifact, read
+from pipeline.dataset import to_reference_frame
 from pipeline.errors import PipelineError
 from pipeline.train import add_threads, configure_torch, load_dataset, load_model
+from sim.body import body_mesh, skeleton_from_h5
 from viz.export import write_glb, write_obj_sequence
 from viz.render import Panel, render_panels, value_colors
 
@@ -70,14 +74,40 @@ def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
     return frames[np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int))]
 
 
+def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str) -> list | None:
+    """The mannequin's mesh at each of `frames` in the dataset's reference frame, or None for a scene without
+    one (or no --scene)."""
+    if scene_path is None:
+        return None
+    with open_artifact(scene_path) as f:
+        if "body" not in f:
+            return None
+        skel = skeleton_from_h5(f["body"])
+        rotation = read(f, "body/state/rotation", np.float64)[frames]
+        translation = read(f, "body/state/translation", np.float64)[frames]
+        torso = read(f, "torso_transforms", np.float64)[frames] if frame_name == "torso" else None
+    # Drawn a little inside its collision surface and finely cut: matplotlib sorts whole faces by depth, and
+    # large body faces a few mm under the cloth would otherwise poke through it.
+    inset = 0.01 * skel.height / 1.7
+    skel = dataclasses.replace(skel, radius_a=skel.radius_a - inset, radius_b=skel.radius_b - inset)
+    meshes = []
+    for i in range(len(frames)):
+        vertices, faces = body_mesh(skel, (rotation[i], translation[i]), segments=32)
+        if torso is not None:
+            vertices = to_reference_frame(vertices[None], torso[i:i + 1])[0]
+        meshes.append((vertices, faces))
+    return meshes
+
+
 def render_frame(path: Path, frame: int, low: np.ndarray, low_faces: np.ndarray, predictor: np.ndarray,
-                 truth: np.ndarray, predicted: np.ndarray, faces: np.ndarray) -> Path:
-    """Low-res input | ground truth | network output | |error| of the predictor (Loop subdivision alone) and of
-    the network, on one colour scale."""
+                 truth: np.ndarray, predicted: np.ndarray, faces: np.ndarray, body=None) -> Path:
+    """Low-res input | ground truth | network output (on the body, if any) | |error| of the predictor (Loop
+    subdivision alone) and of the network, on one colour scale."""
     predictor_error = np.linalg.norm(truth - predictor, axis=1)
     network_error = np.linalg.norm(truth - predicted, axis=1)
-    panels = [Panel("low-res input", low, low_faces), Panel("high-res ground truth", truth, faces),
-              Panel("network output", predicted, faces),
+    panels = [Panel("low-res input", low, low_faces, backdrop=body),
+              Panel("high-res ground truth", truth, faces, backdrop=body),
+              Panel("network output", predicted, faces, backdrop=body),
               Panel("error: Loop subdivision", truth, faces, predictor_error),
               Panel("error: network", predicted, faces, network_error)]
     # A few boundary vertices can carry errors far above the rest: saturate them so the pattern shows.
@@ -97,6 +127,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--scene", help="scene.h5: draws the mannequin in the renders of a garment scene")
     add_threads(parser)
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
@@ -132,8 +163,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     network_frame = per_frame_errors(displacement - data.targets)
     predictor_frame = per_frame_errors(-data.targets)
     rendered = pick_frames(data.test, args.render_frames)
+    bodies = body_meshes(args.scene, rendered, frame_name) or [None] * len(rendered)
     pictures = [render_frame(renders_dir / f"frame_{frame:04d}.png", frame, low_positions[frame], low_faces,
-                             data.inputs[frame], truth[frame], predicted[frame], data.faces) for frame in rendered]
+                             data.inputs[frame], truth[frame], predicted[frame], data.faces, body)
+                for frame, body in zip(rendered, bodies)]
     steps.update()
     n_export = len(predicted) if args.export_frames <= 0 else min(args.export_frames, len(predicted))
     write_obj_sequence(export_dir / "predicted_obj", predicted[:n_export], data.faces, range(n_export))

@@ -3,8 +3,9 @@
 CLI:
   python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [--device D] [--quiet]
   python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [--device D] [--quiet]
-The high-res run is driven by the same rigid driver (pins carried over through the subdivision) and holds the hard
-constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al. 2011).
+The high-res run follows the same pins (carried over through the subdivision), collides with the same body, and
+holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al.
+2011).
 """
 from __future__ import annotations
 
@@ -22,36 +23,74 @@ from pipeline.artifacts import atomic_h5, open_artifact, read, read_csr
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
-from sim.cloth import apply_rigid
+from pipeline.scene import rigid_targets
 from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, harmonic_constraint
 
 
 def solver_settings(settings: dict) -> SolverSettings:
     solver = dict(settings["solver"], gravity=tuple(settings["solver"]["gravity"]))
+    physics = settings["physics"]
     try:
-        return SolverSettings(**solver, bending=settings["physics"]["bending"])
+        return SolverSettings(**solver, bending=physics["bending"], body_collision=physics["body_collision"],
+                              self_collision=physics["self_collision"])
     except ValueError as err:
         raise PipelineError(f"scene '{settings['scene']}': {err}") from None
 
 
-def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray) -> np.ndarray:
-    """High-res vertices that follow the low-res pins: the even copies of pinned vertices (Loop subdivision keeps
-    old vertices first, in order) and every vertex whose stencil touches pinned vertices only."""
+def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray, low_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """High-res vertices that follow the low-res pins, and the rigid group each follows: the even copies of
+    pinned vertices (Loop subdivision keeps old vertices first, in order) with their vertex's group, and every
+    vertex whose stencil touches pinned vertices only, with the group of its largest stencil weight."""
     pinned = np.zeros(S.shape[1], dtype=bool)
     pinned[low_pins] = True
     free_weight = np.asarray(abs(S) @ (~pinned).astype(np.float64)).ravel()
-    return np.union1d(low_pins, np.flatnonzero(free_weight == 0.0)).astype(np.int64)
+    high_pins = np.union1d(low_pins, np.flatnonzero(free_weight == 0.0)).astype(np.int64)
+    # Largest stencil weight among the pinned columns: for an even copy that is its own vertex.
+    strongest = np.asarray(abs(S[high_pins][:, low_pins]).argmax(axis=1)).ravel() if len(low_pins) else []
+    return high_pins, np.asarray(low_part, dtype=np.int64)[strongest]
+
+
+class SceneDrive:
+    """Per-frame kinematic inputs from scene.h5: pin targets and, when the body collides, capsule end points."""
+
+    def __init__(self, scene_path: str, n_frames: int, body_collision: bool):
+        with open_artifact(scene_path) as f:
+            self.pins, self.targets = read(f, "pins/ids", np.int64), read(f, "pins/targets", np.float64)
+            self.part, self.transforms = read(f, "pins/part", np.int64), read(f, "pins/transforms", np.float64)
+            if len(self.targets) != n_frames:
+                raise PipelineError(f"{scene_path}: has {len(self.targets)} frames of pin targets, settings ask for "
+                                    f"{n_frames}")
+            self.capsules = self.radii = None
+            if body_collision:
+                if "capsules" not in f:
+                    raise PipelineError(f"{scene_path}: body_collision is on but the scene has no 'capsules' "
+                                        f"(a grid scene has no mannequin)")
+                self.capsules = np.stack([read(f, "capsules/a", np.float64), read(f, "capsules/b", np.float64)],
+                                         axis=2)
+                self.radii = np.stack([read(f, "capsules/radius_a", np.float64),
+                                       read(f, "capsules/radius_b", np.float64)], axis=1)
+
+    def solver_inputs(self) -> dict:
+        """ClothSolver constructor arguments for the body at frame 0."""
+        return {} if self.capsules is None else {"capsules": self.capsules[0], "capsule_radii": self.radii}
+
+    def frame(self, f: int, pin_targets: np.ndarray) -> dict:
+        """ClothSolver.step arguments for frame f."""
+        inputs = {"pin_targets": pin_targets}
+        if self.capsules is not None:
+            inputs["capsules"] = self.capsules[f]
+        return inputs
 
 
 def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s arguments for frame f."""
+    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s keyword arguments for frame f."""
     positions = np.empty((n_frames, *solver.x.shape, 3), dtype=np.float32)
     positions[0] = solver.positions()
     solve_ms = np.zeros(n_frames)
     for f in tqdm(range(1, n_frames), desc=label, disable=quiet, unit="frame"):
         start = time.perf_counter()
         try:
-            solver.step(*inputs(f))
+            solver.step(**inputs(f))
         except UnstableSimulation as err:
             raise PipelineError(f"{label}: simulation blew up (NaN or speed > max_speed) at frame {f}, {err}") from None
         positions[f] = solver.x.numpy()
@@ -62,22 +101,19 @@ def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bo
 def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool):
     with open_artifact(scene_path) as f:
         rest, faces = read(f, "rest/vertices", np.float64), read(f, "rest/faces", np.int64)
-        pins, targets = read(f, "pins/ids", np.int64), read(f, "pins/targets", np.float64)
     check_mesh(scene_path, rest, faces)
-    if len(targets) != settings["frames"]:
-        raise PipelineError(f"{scene_path}: has {len(targets)} frames of pin targets, settings ask for {settings['frames']}")
-    solver = ClothSolver(rest, faces, solver_settings(settings), device, pins)
-    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: (targets[fr],),
+    s = solver_settings(settings)
+    drive = SceneDrive(scene_path, settings["frames"], s.body_collision)
+    solver = ClothSolver(rest, faces, s, device, drive.pins, **drive.solver_inputs())
+    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: drive.frame(fr, drive.targets[fr]),
                                      f"{settings['scene']} low-res", quiet)
-    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": pins,
+    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": drive.pins,
             "solve_ms": solve_ms}, {"n_constraints": solver.n_constraints}
 
 
 def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str, quiet: bool):
-    with open_artifact(scene_path) as f:
-        low_pins = read(f, "pins/ids", np.int64)
-        rotation, translation = read(f, "driver/rotation"), read(f, "driver/translation")
-        pivot = read(f, "driver/pivot")
+    s = solver_settings(settings)
+    drive = SceneDrive(scene_path, settings["frames"], s.body_collision)
     with open_artifact(subdiv_path) as f:
         S = read_csr(f, "S")
         rest, faces = read(f, "vertices", np.float64), read(f, "faces", np.int64)
@@ -89,8 +125,8 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
                             f"{low_path} has {x_low.shape[1]}")
     if len(x_low) != settings["frames"]:
         raise PipelineError(f"{low_path}: has {len(x_low)} frames, settings ask for {settings['frames']}")
-    pins = subdivided_pins(S, low_pins)
-    targets = apply_rigid(rotation, translation, pivot, rest[pins])
+    pins, part = subdivided_pins(S, drive.pins, drive.part)
+    targets = rigid_targets(drive.transforms, part, rest[pins])
     try:
         constraint = harmonic_constraint(basis, mass, pins)
     except ValueError as err:
@@ -98,10 +134,13 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
     # B^T M (S x_low) per frame: the low-frequency content the high-res run must reproduce.
     mass_basis_t = (mass[:, None] * basis).T
     harmonic_targets = np.einsum("kv,fvc->fkc", mass_basis_t, np.stack([S @ x for x in x_low]))
-    solver = ClothSolver(rest, faces, solver_settings(settings), device, pins, initial_positions=S @ x_low[0],
-                         harmonic=constraint, harmonic_target=harmonic_targets[0])
-    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: (targets[fr], harmonic_targets[fr]),
-                                     f"{settings['scene']} high-res", quiet)
+    solver = ClothSolver(rest, faces, s, device, pins, initial_positions=S @ x_low[0],
+                         harmonic=constraint, harmonic_target=harmonic_targets[0], **drive.solver_inputs())
+
+    def inputs(fr: int) -> dict:
+        return dict(drive.frame(fr, targets[fr]), harmonic_target=harmonic_targets[fr])
+
+    positions, solve_ms = run_frames(solver, settings["frames"], inputs, f"{settings['scene']} high-res", quiet)
     high_content = np.einsum("kv,fvc->fkc", mass_basis_t, positions.astype(np.float64))
     residual = (np.linalg.norm((high_content - harmonic_targets).reshape(len(positions), -1), axis=1)
                 / np.linalg.norm(high_content.reshape(len(positions), -1), axis=1))

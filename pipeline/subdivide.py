@@ -3,7 +3,7 @@
     python -m pipeline.subdivide MESH OUT.h5 [--levels 2] [--vertices-per-harmonic 40] [--quiet]
 
 MESH is an OBJ/PLY mesh or an HDF5 artifact holding one (e.g. scene.h5's `rest/`). OUT.h5 holds the subdivision
-matrix S (high-res = S @ low-res), the subdivided rest mesh and the harmonic basis; docs/artifacts_subdiv.md
+matrix S (high-res = S @ low-res), the subdivided rest mesh and the harmonic basis; docs/artifacts.md
 lists every dataset.
 """
 from __future__ import annotations

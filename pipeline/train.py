@@ -7,7 +7,7 @@
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
 are complete. model.pt holds the state dict and everything needed to rebuild the network and to recognise the
-operators it was trained on (docs/artifacts_learning.md).
+operators it was trained on (docs/artifacts.md).
 """
 from __future__ import annotations
 

@@ -424,3 +424,12 @@ def _closed_tube_faces(n_rings: int, segments: int) -> np.ndarray:
     r00, r01, r10, r11 = ring[:-1], nxt[:-1], ring[1:], nxt[1:]
     bands = np.concatenate([np.stack([r00, r01, r11], -1).reshape(-1, 3), np.stack([r00, r11, r10], -1).reshape(-1, 3)])
     return np.concatenate([south, bands, north])
+
+
+def skeleton_from_h5(group) -> Skeleton:
+    """The skeleton stored in a scene.h5 `body` group (see docs/artifacts.md)."""
+    fields = ("joint_offsets", "frame_rotations", "capsule_a", "capsule_b", "radius_a", "radius_b", "joint_lower",
+              "joint_upper")
+    return Skeleton(names=tuple(n.decode() for n in group["names"][()]), parents=group["parents"][()].astype(np.int64),
+                    **{name: np.asarray(group[name][()], dtype=np.float64) for name in fields},
+                    height=float(group.attrs["height"]))

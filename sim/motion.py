@@ -420,3 +420,56 @@ def _draw_clear_pose(skel: Skeleton, rng: np.random.Generator, lower: np.ndarray
 
 _GENERATORS: dict[str, Callable[[Skeleton, np.random.Generator, np.ndarray], _Curves]] = {
     "rest": _rest, "walk": _walk, "dance": _dance, "karate": _karate, "random": _random}
+
+
+@dataclass(frozen=True, eq=False)
+class ClipSequence:
+    """Motions played one after another: the concatenated motion and, per frame, which clip it belongs to
+    (index into `names`; index 0, "settle", marks the rest frames before the first clip)."""
+    motion: Motion
+    clip: np.ndarray   # (F,) int64
+    names: tuple[str, ...]
+
+
+def play_clips(kinds: list[str], n_frames: int, settle_frames: int, blend_frames: int, seed: int,
+               fps: float = 60.0, skel: Skeleton | None = None) -> ClipSequence:
+    """`settle_frames` at rest, then each clip in turn on an equal share of the remaining frames.
+
+    Each clip fades in from the rest pose (make_motion) and, except the last, fades back out to it over its
+    final `blend_frames`, so that every seam joins rest to rest and the sequence stays C¹. Fading out scales
+    joint angles and the root's vertical excursion by w and the root's horizontal velocity by w (its position
+    is the running integral), so a walk slows to a halt instead of sliding back; the next clip starts where the
+    previous one stopped. Clip k uses seed + k.
+    """
+    skel = skel or default_skeleton()
+    share = (n_frames - settle_frames) // max(len(kinds), 1)
+    if not kinds or share < 2 * blend_frames + 1:
+        raise ValueError(f"{n_frames} frames with {settle_frames} settle frames leave {share} per clip for "
+                         f"{len(kinds)} clip(s); each needs more than 2 * blend_frames = {2 * blend_frames}")
+    lengths = [share] * (len(kinds) - 1) + [n_frames - settle_frames - share * (len(kinds) - 1)]
+    rest_root = skel.joint_offsets[0]
+    parts = [make_motion("rest", settle_frames, fps, seed, 0, blend_frames, skel)] if settle_frames else []
+    clip = [np.zeros(settle_frames, dtype=np.int64)]
+    offset = np.zeros(3)
+    for k, (kind, length) in enumerate(zip(kinds, lengths)):
+        m = make_motion(kind, length, fps, seed + k, 0, blend_frames, skel)
+        root, root_velocity = m.root_position - rest_root, m.root_velocity.copy()
+        angles, rates = m.joint_angles.copy(), m.joint_angle_rates.copy()
+        if k < len(kinds) - 1:
+            w, dw, _ = _fade_in((length - 1 - np.arange(length)) / fps, blend_frames / fps)
+            dw = -dw   # time runs toward the end of the clip
+            rates = w[:, None, None] * rates + dw[:, None, None] * angles
+            angles = w[:, None, None] * angles
+            root_velocity[:, 1] = w * root_velocity[:, 1] + dw * root[:, 1]
+            root[:, 1] *= w
+            root_velocity[:, [0, 2]] *= w[:, None]
+            steps = 0.5 * (root_velocity[1:, [0, 2]] + root_velocity[:-1, [0, 2]]) / fps
+            root[:, [0, 2]] = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+        parts.append(Motion(kind, float(fps), seed + k, 0, blend_frames, root + rest_root + offset, root_velocity,
+                            angles, rates))
+        clip.append(np.full(length, k + 1, dtype=np.int64))
+        offset = offset + root[-1] * np.array([1.0, 0.0, 1.0])
+    motion = Motion("+".join(kinds), float(fps), int(seed), int(settle_frames), int(blend_frames),
+                    *(np.concatenate([getattr(p, name) for p in parts])
+                      for name in ("root_position", "root_velocity", "joint_angles", "joint_angle_rates")))
+    return ClipSequence(motion, np.concatenate(clip), ("settle", *kinds))

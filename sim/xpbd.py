@@ -2,17 +2,21 @@
 
 A frame of length dt is split into `substeps`; each substep predicts positions, runs `iterations` Jacobi sweeps
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
-and derives velocities. On CUDA the whole frame is captured once as a graph and replayed; per-frame inputs (pin
-targets, harmonic targets) live in device arrays that are overwritten before each replay.
+and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.collision_kernels`
+(contacts fused into them) plus, for self-collision, a broad phase once per substep. On CUDA the whole frame is
+captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
+arrays that are overwritten before each replay.
 """
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from sim import collision_kernels as ck
 from sim import xpbd_kernels as k
 from sim.harmonics import lumped_mass
 from sim.mesh import bending_pairs, unique_edges
@@ -33,6 +37,11 @@ class SolverSettings:
     relaxation: float = 1.5              # Jacobi over-relaxation, see solve_distance_constraints
     max_speed: float = 100.0             # a vertex faster than this (units/s) means the run has blown up
     bending: bool = True                 # physics switch: cross-edge bending links
+    body_collision: bool = False         # physics switch: keep the cloth outside the body's capsules
+    self_collision: bool = False         # physics switch: vertex-triangle self-contact
+    collision_thickness: float = 0.005   # least distance of the cloth from every capsule surface
+    friction: float = 0.3                # Coulomb coefficient against the (moving) body
+    self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
 
     def __post_init__(self):
         checks = {
@@ -41,6 +50,8 @@ class SolverSettings:
             "stretch_compliance": self.stretch_compliance >= 0, "bending_compliance": self.bending_compliance >= 0,
             "damping": self.damping >= 0, "density": self.density > 0,
             "relaxation": 0 < self.relaxation < 2, "max_speed": self.max_speed > 0,
+            "collision_thickness": self.collision_thickness > 0, "friction": self.friction >= 0,
+            "self_thickness": self.self_thickness > 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -97,17 +108,27 @@ class UnstableSimulation(RuntimeError):
     """Positions became non-finite or a vertex exceeded the speed limit."""
 
 
+# How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
+# of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
+# watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
+# within a quarter edge become candidates (each costs a little in every iteration).
+BODY_MARGIN = 1.0
+SELF_MARGIN = 0.25
+
+
 class ClothSolver:
     """Steps a cloth mesh frame by frame on one Warp device.
 
-    Inputs per frame: the pin targets at the end of the frame (P, 3) and, for a constrained run, the harmonic
-    target B^T M S x_low at the end of the frame (K, 3); both are interpolated linearly across substeps from the
-    previous frame's values.
+    Inputs per frame: the pin targets at the end of the frame (P, 3), for a constrained run the harmonic target
+    B^T M S x_low at the end of the frame (K, 3) and, with body collision, the capsule end points at the end of
+    the frame (P, 2, 3); all are interpolated linearly across substeps from the previous frame's values.
+    `capsules` (P, 2, 3) and `capsule_radii` (P, 2) give the capsules at frame 0 and their radii at a and b.
     """
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
                  pinned: np.ndarray, initial_positions: np.ndarray | None = None,
-                 harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None):
+                 harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
+                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None):
         self.settings = settings
         self.device = wp.get_device(device)
         n = len(rest_vertices)
@@ -140,7 +161,8 @@ class ClothSolver:
         self.alpha_tilde = arr(con.compliance / (h * h), float)
         self.scale = arr(scale, float)
         self.lambdas = (arr(np.zeros(len(con.pairs)), float), arr(np.zeros(len(con.pairs)), float))
-        self.unstable = arr(np.zeros(s.substeps), int)
+        # One flag per substep (blow-up) and a last one for overflowing self-contact lists.
+        self.flags = arr(np.zeros(s.substeps + 1), int)
         self.n_pins = len(pinned)
         self.n_constraints = len(con.pairs)
 
@@ -156,33 +178,115 @@ class ClothSolver:
             self.residual = wp.zeros(n_modes, dtype=wp.vec3, device=self.device)
             target = np.zeros((n_modes, 3)) if harmonic_target is None else harmonic_target
             self.target_start, self.target_end = arr(target, wp.vec3), arr(target, wp.vec3)
+
+        edges = unique_edges(faces)
+        mean_edge = float(np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1).mean())
+        self.body = self._body(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
+        self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n)
         self._graph = None
 
     def _array(self, data: np.ndarray, dtype) -> wp.array:
-        np_dtype = np.int32 if dtype is int else np.float32
+        np_dtype = np.int32 if dtype in (int, wp.vec3i) else np.float32
         return wp.array(np.ascontiguousarray(data, dtype=np_dtype), dtype=dtype, device=self.device)
 
-    def step(self, pin_targets: np.ndarray | None = None, harmonic_target: np.ndarray | None = None) -> None:
+    def _body(self, capsules, radii, reach: float, n: int) -> ck.Body:
+        """The capsules and per-vertex body-contact state (with body collision off: no capsules, so the kernels'
+        capsule loops are empty)."""
+        s = self.settings
+        body = ck.Body()
+        body.near = self._array(np.zeros(n), int)
+        body.push = self._array(np.zeros(n), float)
+        if not s.body_collision:
+            if capsules is not None or radii is not None:
+                raise ValueError("capsules were given but settings.body_collision is off")
+            return body
+        if capsules is None or radii is None:
+            raise ValueError("body_collision needs capsules (P, 2, 3) and capsule_radii (P, 2) at frame 0")
+        capsules = np.asarray(capsules, dtype=np.float64)
+        radii = np.asarray(radii, dtype=np.float64)
+        if capsules.ndim != 3 or capsules.shape[1:] != (2, 3) or radii.shape != capsules.shape[:2]:
+            raise ValueError(f"capsules must be (P, 2, 3) and capsule_radii (P, 2); got {capsules.shape} and "
+                             f"{radii.shape}")
+        if not 1 <= len(capsules) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
+            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(capsules)}")
+        length = np.linalg.norm(capsules[:, 1] - capsules[:, 0], axis=1)
+        if (radii <= 0).any() or (length <= np.abs(radii[:, 0] - radii[:, 1])).any():
+            raise ValueError("capsule radii must be positive and each segment longer than the difference of its "
+                             "end radii")
+        body.start = self._array(capsules, wp.vec3)
+        body.end = self._array(capsules, wp.vec3)
+        body.radius = self._array(radii, float)
+        body.thickness = s.collision_thickness
+        body.reach = reach
+        body.friction = s.friction
+        return body
+
+    def _self_contacts(self, faces: np.ndarray, reach: float, n: int) -> ck.SelfContacts:
+        """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only).
+
+        The triangle BVH is built once over the initial boxes with the same (SAH) builder on every device, so CPU
+        and CUDA traverse identical trees; each substep only refits it."""
+        s = self.settings
+        sc = ck.SelfContacts()
+        sc.vertex_count = self._array(np.zeros(n), int)
+        if not s.self_collision:  # no lists and no triangles around any vertex: the iterations find no contact
+            sc.face_offsets = self._array(np.zeros(n + 1), int)
+            return sc
+        arr = self._array
+        sc.faces = arr(faces, wp.vec3i)
+        face_ids = np.repeat(np.arange(len(faces)), 3)
+        order = np.argsort(faces.ravel(), kind="stable")
+        sc.face_offsets = arr(np.concatenate([[0], np.cumsum(np.bincount(faces.ravel(), minlength=n))]), int)
+        sc.vertex_faces = arr(face_ids[order], int)
+        edge_offsets, neighbors, _ = _vertex_incidence(unique_edges(faces), n)
+        sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
+        sc.face_lower = arr(np.zeros((len(faces), 3)), wp.vec3)
+        sc.face_upper = arr(np.zeros((len(faces), 3)), wp.vec3)
+        sc.vertex_contacts = arr(np.zeros((n, ck.VERTEX_LIST)), int)
+        sc.face_contacts = arr(np.zeros((len(faces), ck.FACE_LIST)), int)
+        sc.face_count = arr(np.zeros(len(faces)), int)
+        sc.thickness = s.self_thickness
+        sc.reach = reach
+        wp.launch(ck.contact_bounds, dim=len(faces), device=self.device, inputs=[self.x, self.x, sc])
+        self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
+        sc.face_bvh = self._face_bvh.id
+        return sc
+
+    def step(self, pin_targets: np.ndarray | None = None, harmonic_target: np.ndarray | None = None,
+             capsules: np.ndarray | None = None) -> None:
         """Advance one frame. Raises UnstableSimulation naming the first bad substep."""
+        if self.settings.body_collision:
+            if capsules is None or np.shape(capsules) != tuple(self.body.end.shape) + (3,):
+                raise ValueError(f"body_collision needs the capsules at the end of the frame, shape "
+                                 f"{tuple(self.body.end.shape) + (3,)}; got "
+                                 f"{None if capsules is None else np.shape(capsules)}")
+            self.body.start.assign(self.body.end)
+            self.body.end.assign(np.asarray(capsules, dtype=np.float32))
+        elif capsules is not None:
+            raise ValueError("capsules were given but settings.body_collision is off")
         if self.n_pins:
             self.pin_start.assign(self.pin_end)
             self.pin_end.assign(np.asarray(pin_targets, dtype=np.float32))
         if self.harmonic:
             self.target_start.assign(self.target_end)
             self.target_end.assign(np.asarray(harmonic_target, dtype=np.float32))
-        self.unstable.zero_()
+        self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                wp.load_module(k, device=self.device)  # compile before capture: no JIT inside a graph
+                for module in (k, ck):  # compile before capture: no JIT inside a graph
+                    wp.load_module(module, device=self.device)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
                 self._graph = capture.graph
             wp.capture_launch(self._graph)
         else:
             self._launch_frame()
-        flags = self.unstable.numpy()
-        if flags.any():
-            raise UnstableSimulation(f"substep {int(np.argmax(flags))}")
+        flags = self.flags.numpy()
+        if flags[-1]:
+            warnings.warn("self-contact lists overflowed; the extra contacts of this frame were dropped",
+                          RuntimeWarning, stacklevel=2)
+        if flags[:-1].any():
+            raise UnstableSimulation(f"substep {int(np.argmax(flags[:-1]))}")
 
     def positions(self) -> np.ndarray:
         return self.x.numpy().astype(np.float64)
@@ -200,24 +304,46 @@ class ClothSolver:
         dev = self.device
         gravity = wp.vec3(*s.gravity)
         damping_factor = math.exp(-s.damping * h)
+        collide = s.body_collision or s.self_collision
         for sub in range(s.substeps):
-            fraction = (sub + 1) / s.substeps
-            wp.launch(k.predict_positions, dim=n, device=dev,
-                      inputs=[self.x, self.v, self.inv_mass, self.pin_slot, self.pin_start, self.pin_end, fraction,
-                              gravity, h, damping_factor, self.x_prev])
+            f0, f1 = sub / s.substeps, (sub + 1) / s.substeps
+            predict = [self.x, self.v, self.inv_mass, self.pin_slot, self.pin_start, self.pin_end, f1, gravity, h,
+                       damping_factor, self.x_prev]
+            if s.body_collision:
+                wp.launch(ck.predict_with_body, dim=n, device=dev, inputs=predict + [self.body, f0])
+            else:
+                wp.launch(k.predict_positions, dim=n, device=dev, inputs=predict)
+            if s.self_collision:
+                self._launch_broad_phase()
             # Ping-pong between x and x_work; the lambdas ping-pong in step.
             buffers = (self.x, self.x_work)
             for it in range(s.iterations):
                 src, dst = buffers[it % 2], buffers[(it + 1) % 2]
-                wp.launch(k.solve_distance_constraints, dim=n, device=dev,
-                          inputs=[src, self.inv_mass, self.offsets, self.neighbor, self.constraint, self.rest_min,
-                                  self.rest_max, self.alpha_tilde, self.scale, self.lambdas[it % 2],
-                                  0.0 if it == 0 else 1.0, self.lambdas[(it + 1) % 2], dst])
+                inputs = [src, self.inv_mass, self.offsets, self.neighbor, self.constraint, self.rest_min,
+                          self.rest_max, self.alpha_tilde, self.scale, self.lambdas[it % 2],
+                          0.0 if it == 0 else 1.0, self.lambdas[(it + 1) % 2], dst]
+                if collide:
+                    wp.launch(ck.solve_with_collisions, dim=n, device=dev,
+                              inputs=inputs + [self.contacts, self.body, f1])
+                else:
+                    wp.launch(k.solve_distance_constraints, dim=n, device=dev, inputs=inputs)
                 if self.harmonic:
-                    self._launch_projection(dst, fraction)
+                    self._launch_projection(dst, f1)
             solved = buffers[s.iterations % 2]
-            wp.launch(k.update_velocities, dim=n, device=dev,
-                      inputs=[solved, self.x_prev, 1.0 / h, s.max_speed, sub, self.x, self.v, self.unstable])
+            state = [solved, self.x_prev, 1.0 / h, s.max_speed, sub, self.x, self.v, self.flags]
+            if collide:
+                wp.launch(ck.finish_substep, dim=n, device=dev, inputs=state + [self.inv_mass, self.body, f0, f1])
+            else:
+                wp.launch(k.update_velocities, dim=n, device=dev, inputs=state)
+
+    def _launch_broad_phase(self) -> None:
+        """Self-contact candidates of the substep, from the start positions (x_prev) and the predictions (x)."""
+        n_faces = self.contacts.faces.shape[0]
+        wp.launch(ck.contact_bounds, dim=n_faces, device=self.device, inputs=[self.x, self.x_prev, self.contacts])
+        self._face_bvh.refit()
+        wp.launch(ck.find_self_contacts, dim=self.x.shape[0], device=self.device,
+                  inputs=[self.x, self.x_prev, self.inv_mass, self.contacts, self.flags, self.settings.substeps])
+        wp.launch(ck.sort_face_lists, dim=n_faces, device=self.device, inputs=[self.contacts])
 
     def _launch_projection(self, x: wp.array, fraction: float) -> None:
         n_chunks, n_modes = self.partial.shape

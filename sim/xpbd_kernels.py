@@ -17,6 +17,36 @@ import warp as wp
 wp.config.quiet = True
 
 
+@wp.func
+def predict_vertex(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    inv_mass: wp.array(dtype=float),
+    pin_slot: wp.array(dtype=int),
+    pin_target_start: wp.array(dtype=wp.vec3),
+    pin_target_end: wp.array(dtype=wp.vec3),
+    pin_fraction: float,
+    gravity: wp.vec3,
+    h: float,
+    damping_factor: float,
+    x_prev: wp.array(dtype=wp.vec3),
+) -> wp.vec3:
+    """Symplectic-Euler prediction x* = x + h (v + h g) e^{-k h}; pinned vertices jump to their target at the
+    end of the substep (linear interpolation of the frame's start and end targets). Stores x in x_prev and the
+    predicted velocity in v; returns x*."""
+    xi = x[i]
+    x_prev[i] = xi
+    slot = pin_slot[i]
+    if slot >= 0:
+        return wp.lerp(pin_target_start[slot], pin_target_end[slot], pin_fraction)
+    if inv_mass[i] > 0.0:
+        vi = (v[i] + gravity * h) * damping_factor
+        v[i] = vi
+        return xi + vi * h
+    return xi
+
+
 @wp.kernel
 def predict_positions(
     x: wp.array(dtype=wp.vec3),
@@ -31,22 +61,16 @@ def predict_positions(
     damping_factor: float,
     x_prev: wp.array(dtype=wp.vec3),
 ):
-    """Symplectic-Euler prediction x* = x + h (v + h g) e^{-k h}; pinned vertices jump to their target at the
-    end of the substep (linear interpolation of the frame's start and end targets)."""
+    """The prediction of every vertex (see predict_vertex)."""
     i = wp.tid()
-    xi = x[i]
-    x_prev[i] = xi
-    slot = pin_slot[i]
-    if slot >= 0:
-        x[i] = wp.lerp(pin_target_start[slot], pin_target_end[slot], pin_fraction)
-    elif inv_mass[i] > 0.0:
-        vi = (v[i] + gravity * h) * damping_factor
-        v[i] = vi
-        x[i] = xi + vi * h
+    x[i] = predict_vertex(i, x, v, inv_mass, pin_slot, pin_target_start, pin_target_end, pin_fraction, gravity, h,
+                          damping_factor, x_prev)
 
 
-@wp.kernel
-def solve_distance_constraints(
+@wp.func
+def distance_correction(
+    i: int,
+    xi: wp.vec3,
     x_in: wp.array(dtype=wp.vec3),
     inv_mass: wp.array(dtype=float),
     offsets: wp.array(dtype=int),
@@ -59,9 +83,9 @@ def solve_distance_constraints(
     lambda_in: wp.array(dtype=float),
     lambda_carry: float,
     lambda_out: wp.array(dtype=float),
-    x_out: wp.array(dtype=wp.vec3),
-):
-    """One Jacobi XPBD iteration over distance constraints rest_min <= |x_i - x_j| <= rest_max (XPBD eq. 18).
+) -> wp.vec3:
+    """One Jacobi XPBD iteration over distance constraints rest_min <= |x_i - x_j| <= rest_max (XPBD eq. 18):
+    the correction of vertex i (at xi = x_in[i]).
 
     Stretch constraints have rest_min = allowance * L, rest_max = L (compression down to 75 % is free, which lets
     wrinkles form); bending links across an edge have rest_min = rest_max. Each vertex gathers the corrections of
@@ -71,8 +95,6 @@ def solve_distance_constraints(
     inside its range is inactive and its multiplier is released (lambda = 0). `lambda_carry` is 0 on a substep's
     first iteration, which resets the multipliers without a separate launch.
     """
-    i = wp.tid()
-    xi = x_in[i]
     wi = inv_mass[i]
     dx = wp.vec3(0.0)
     for a in range(offsets[i], offsets[i + 1]):
@@ -91,7 +113,52 @@ def solve_distance_constraints(
             lam_new = lam + d_lambda
         if i < j:
             lambda_out[c] = lam_new
-    x_out[i] = xi + dx
+    return dx
+
+
+@wp.kernel
+def solve_distance_constraints(
+    x_in: wp.array(dtype=wp.vec3),
+    inv_mass: wp.array(dtype=float),
+    offsets: wp.array(dtype=int),
+    neighbor: wp.array(dtype=int),
+    constraint: wp.array(dtype=int),
+    rest_min: wp.array(dtype=float),
+    rest_max: wp.array(dtype=float),
+    alpha_tilde: wp.array(dtype=float),
+    scale: wp.array(dtype=float),
+    lambda_in: wp.array(dtype=float),
+    lambda_carry: float,
+    lambda_out: wp.array(dtype=float),
+    x_out: wp.array(dtype=wp.vec3),
+):
+    """One Jacobi sweep over the distance constraints, reading x_in and writing x_out (see distance_correction)."""
+    i = wp.tid()
+    xi = x_in[i]
+    x_out[i] = xi + distance_correction(i, xi, x_in, inv_mass, offsets, neighbor, constraint, rest_min, rest_max,
+                                        alpha_tilde, scale, lambda_in, lambda_carry, lambda_out)
+
+
+@wp.func
+def store_state(
+    i: int,
+    xi: wp.vec3,
+    x_prev: wp.array(dtype=wp.vec3),
+    inv_h: float,
+    max_speed: float,
+    substep: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=int),
+):
+    """x = xi, v = (xi - x_prev) / h; flags the substep if the position is not finite or the speed exceeds
+    `max_speed` (the host turns the flag into an error)."""
+    vi = (xi - x_prev[i]) * inv_h
+    x[i] = xi
+    v[i] = vi
+    speed = wp.length(vi)
+    if not (speed <= max_speed):  # also true for NaN
+        flags[substep] = 1
 
 
 @wp.kernel
@@ -103,18 +170,11 @@ def update_velocities(
     substep: int,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
-    unstable: wp.array(dtype=int),
+    flags: wp.array(dtype=int),
 ):
-    """v = (x - x_prev) / h; copies the solved positions into the state buffer and flags the substep if any
-    position is not finite or any speed exceeds `max_speed` (the host turns the flag into an error)."""
+    """Copies the solved positions into the state buffer and derives velocities (see store_state)."""
     i = wp.tid()
-    xi = x_solved[i]
-    vi = (xi - x_prev[i]) * inv_h
-    x[i] = xi
-    v[i] = vi
-    speed = wp.length(vi)
-    if not (speed <= max_speed):  # also true for NaN
-        unstable[substep] = 1
+    store_state(i, x_solved[i], x_prev, inv_h, max_speed, substep, x, v, flags)
 
 
 @wp.kernel

@@ -18,17 +18,20 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 LIGHT = np.array([0.35, 0.8, 0.5]) / np.linalg.norm([0.35, 0.8, 0.5])   # scene frame, from above and in front
 SURFACE_RGB = np.array([0.62, 0.72, 0.86])
+BACKDROP_RGB = np.array([0.80, 0.76, 0.70])
 ERROR_CMAP = "inferno"
 
 
 @dataclasses.dataclass(frozen=True)
 class Panel:
-    """One mesh in a figure; `values` (V,) colours it (e.g. per-vertex error), else it is plain shaded."""
+    """One mesh in a figure; `values` (V,) colours it (e.g. per-vertex error), else it is plain shaded. A
+    `backdrop` mesh (vertices, faces), e.g. the body wearing the garment, is drawn in grey behind and around it."""
 
     title: str
     vertices: np.ndarray
     faces: np.ndarray
     values: np.ndarray | None = None
+    backdrop: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def face_shading(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -55,7 +58,7 @@ def render_panels(path: str | Path, panels: list[Panel], vmax: float | None = No
     coloured = [p.values for p in panels if p.values is not None]
     if vmax is None and coloured:
         vmax = float(max(np.max(v) for v in coloured))
-    everything = np.concatenate([p.vertices for p in panels])
+    everything = np.concatenate([p.vertices for p in panels] + [p.backdrop[0] for p in panels if p.backdrop])
     low, high = everything.min(axis=0), everything.max(axis=0)
     centre, half = (low + high) / 2, max(float(np.max(high - low)) / 2, 1e-9)
     fig = Figure(figsize=(3.0 * len(panels) + (0.6 if coloured else 0), 3.3), dpi=110)
@@ -68,9 +71,14 @@ def render_panels(path: str | Path, panels: list[Panel], vmax: float | None = No
             rgb = SURFACE_RGB * shade
         else:
             rgb = value_colors(panel.values[panel.faces].mean(axis=1), vmax)[:, :3] * (0.55 + 0.45 * shade)
+        triangles = panel.vertices[panel.faces]
+        if panel.backdrop is not None:
+            # One collection, so that matplotlib's painter's sort orders body and cloth faces together.
+            vertices, faces = panel.backdrop
+            triangles = np.concatenate([vertices[faces], triangles])
+            rgb = np.concatenate([BACKDROP_RGB * face_shading(vertices, faces)[:, None], rgb])
         # Edges drawn in the face colour hide the hairline seams antialiasing leaves between faces.
-        ax.add_collection3d(Poly3DCollection(_to_plot(panel.vertices[panel.faces]), facecolors=rgb,
-                                             edgecolors=rgb, linewidths=0.3))
+        ax.add_collection3d(Poly3DCollection(_to_plot(triangles), facecolors=rgb, edgecolors=rgb, linewidths=0.3))
         for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), _to_plot(centre)):
             setter(c - half, c + half)
         ax.set_box_aspect((1, 1, 1), zoom=1.1)

@@ -73,3 +73,30 @@ def test_cli_reports_bad_key_without_traceback(tmp_path):
     assert not out.exists()
     with pytest.raises(PipelineError, match="does not exist"):
         load_config(tmp_path / "missing.yaml")
+
+
+def test_garment_scene_needs_no_grid_keys_and_refuses_them():
+    settings = resolve_scene(CONFIG, "pants")
+    assert "width" not in settings["mesh"] and "motion" not in settings["drivers"]
+    config = copy.deepcopy(CONFIG)
+    config["scenes"]["pants"]["mesh"]["width"] = 1.0
+    with pytest.raises(PipelineError, match="key 'width' in scenes.pants.mesh applies only when generator is grid"):
+        resolve_scene(config, "pants")
+    config = copy.deepcopy(CONFIG)
+    del config["scenes"]["flag"]["mesh"]["plane"]
+    with pytest.raises(PipelineError, match="missing key 'plane' in scenes.flag.mesh"):
+        resolve_scene(config, "flag")
+
+
+@pytest.mark.parametrize("scene, change, message", [
+    ("flag", {"physics": {"body_collision": True}}, "need a mannequin"),
+    ("flag", {"dataset": {"split": "held_out"}}, "needs mannequin clips"),
+    ("pants", {"network": {"conv": "EC13"}}, "network.conv 'EC13' is not among operators.conv"),
+    ("pants", {"drivers": {"mannequin": {"test_clips": ["karate", "dance", "walk"]}}}, "some, but not all"),
+    ("pants", {"drivers": {"mannequin": {"test_clips": ["random"]}}}, "some, but not all"),
+])
+def test_inconsistent_settings_are_named(scene, change, message):
+    config = copy.deepcopy(CONFIG)
+    config["scenes"][scene] = deep_merge(config["scenes"][scene], change)
+    with pytest.raises(PipelineError, match=message):
+        resolve_scene(config, scene, "paper")

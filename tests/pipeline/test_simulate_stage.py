@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from pipeline.config import resolve_scene, write_settings
+from pipeline.scene import rigid_targets
 from sim.cloth import apply_rigid
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
@@ -58,6 +59,8 @@ def test_pins_follow_the_driver_in_both_runs(scene_run):
         targets, pins = s["pins/targets"][()], s["pins/ids"][()]
         np.testing.assert_allclose(low["positions"][:, pins], targets, atol=1e-5)
         driver = [s[f"driver/{k}"][()] for k in ("rotation", "translation", "pivot")]
+        np.testing.assert_allclose(rigid_targets(s["pins/transforms"][()], s["pins/part"][()],
+                                                 s["rest/vertices"][()][pins]), targets, atol=1e-5)
     with h5py.File(scene_run / "sim_high.h5") as high:
         # Loop subdivision keeps the old vertices first: the low-res pins are pinned in the high-res run too,
         # moved by the same rigid driver from their (subdivided) rest positions.

@@ -29,26 +29,40 @@ def workdir(tmp_path_factory):
     return work
 
 
-def test_smoke_workflow_then_forced_rerun_of_one_stage(workdir):
-    run = snakemake(workdir, "results/patch/sim_high.h5")
+PRODUCTS = ("settings.json", "scene.h5", "subdiv.h5", "sim_low.h5", "sim_high.h5", "operators.h5", "dataset.h5",
+            "model.pt", "train.h5", "eval.h5", "report.md")
+
+
+def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir):
+    run = snakemake(workdir, "results/patch/")
     assert run.returncode == 0, run.stderr[-3000:]
     out = workdir / "results" / "patch"
+    assert all((out / name).is_file() for name in PRODUCTS), sorted(p.name for p in out.iterdir())
     with h5py.File(out / "sim_high.h5") as f:
         assert f["positions"].shape[0] == 8  # the cpu profile's patch frames
         assert np.all(f["harmonic_residual"][()] < 1e-5)
         assert f.attrs["stage"] == "simulate_high"
-    scene_mtime = (out / "scene.h5").stat().st_mtime_ns
-    low_mtime = (out / "sim_low.h5").stat().st_mtime_ns
+    with h5py.File(out / "operators.h5") as f:
+        assert "conv/RC9" in f["levels/0"]   # the cpu profile's network.conv
+    with h5py.File(out / "eval.h5") as f:
+        assert np.isfinite(f["errors/network/test/l1"][()]) and f["errors/predictor/test/l1"][()] > 0
+    report = (out / "report.md").read_text()
+    assert "## Errors" in report and "ms per frame" in report
+    assert list((out / "renders").glob("*.png")) and list((out / "export" / "predicted_obj").glob("*.obj"))
+    assert not list(out.glob(".*.tmp.h5")) and not list(out.glob("*.ckpt"))
+    mtimes = {name: (out / name).stat().st_mtime_ns for name in PRODUCTS}
 
-    rerun = snakemake(workdir, "results/patch/sim_high.h5", "--forcerun", "simulate_low")
+    rerun = snakemake(workdir, "results/patch/", "--forcerun", "evaluate")
     assert rerun.returncode == 0, rerun.stderr[-3000:]
-    assert "rule simulate_low:" in rerun.stderr and "rule scene:" not in rerun.stderr
-    assert (out / "scene.h5").stat().st_mtime_ns == scene_mtime
-    assert (out / "sim_low.h5").stat().st_mtime_ns > low_mtime
-    assert not list(out.glob(".*.tmp.h5"))
+    assert "rule evaluate:" in rerun.stderr and "rule train:" not in rerun.stderr
+    changed = {name for name in PRODUCTS if (out / name).stat().st_mtime_ns != mtimes[name]}
+    assert changed == {"eval.h5", "report.md"}
 
-    again = snakemake(workdir, "results/patch/")
-    assert again.returncode == 0, again.stderr[-3000:]
+    low = snakemake(workdir, "results/patch/sim_low.h5", "--forcerun", "simulate_low")
+    assert low.returncode == 0, low.stderr[-3000:]
+    assert "rule simulate_low:" in low.stderr and "rule scene:" not in low.stderr
+    assert (out / "scene.h5").stat().st_mtime_ns == mtimes["scene.h5"]
+    assert (out / "sim_low.h5").stat().st_mtime_ns > mtimes["sim_low.h5"]
 
 
 def test_bad_config_key_stops_the_workflow_with_its_name(workdir, tmp_path):

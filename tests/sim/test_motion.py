@@ -191,3 +191,31 @@ def test_fk_of_motion_frames_matches_body_state(motions):
     state = body_state(SKEL, m)
     np.testing.assert_array_equal(rotation, state.rotation)
     np.testing.assert_array_equal(translation, state.translation)
+
+
+def test_play_clips_joins_rest_to_rest_and_stays_c1():
+    from sim.motion import play_clips
+    fps, blend = 60.0, 20
+    seq = play_clips(["dance", "karate", "walk"], 210, 30, blend, seed=3, fps=fps)
+    m = seq.motion
+    assert m.n_frames == 210 and seq.names == ("settle", "dance", "karate", "walk")
+    assert np.array_equal(np.bincount(seq.clip), [30, 60, 60, 60])
+    starts = np.flatnonzero(np.diff(seq.clip)) + 1
+    for s in starts:   # every seam is at rest, with zero joint rates: C1 across clips
+        assert np.abs(m.joint_angles[s - 1]).max() < 1e-9 and np.abs(m.joint_angle_rates[s - 1]).max() < 1e-9
+        assert np.abs(m.joint_angles[s]).max() < 1e-9
+    # rates are the derivative of the angles (trapezoid rule, 1/60 s steps: a few % of the largest rate)
+    fd = np.diff(m.joint_angles, axis=0) * fps
+    mid = 0.5 * (m.joint_angle_rates[1:] + m.joint_angle_rates[:-1])
+    assert np.abs(fd - mid).max() < 0.03 * np.abs(m.joint_angle_rates).max()
+    fd_root = np.diff(m.root_position, axis=0) * fps
+    assert np.abs(fd_root - 0.5 * (m.root_velocity[1:] + m.root_velocity[:-1])).max() < 0.02
+    # the walk travels; the clip before it ended where the walk starts (no jump)
+    assert np.linalg.norm(np.diff(m.root_position, axis=0), axis=1).max() < 2.0 / fps
+    assert m.root_position[-1, 2] - m.root_position[starts[-1], 2] > 0.3
+
+
+def test_play_clips_refuses_clips_too_short_to_blend():
+    from sim.motion import play_clips
+    with pytest.raises(ValueError, match="each needs more than"):
+        play_clips(["dance", "walk"], 100, 40, 20, seed=0)

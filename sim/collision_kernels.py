@@ -1,0 +1,578 @@
+"""Warp kernels for body contact (tapered capsules) and self-contact (vertex-triangle) in the XPBD cloth solver.
+
+The per-vertex work lives inside the solver's existing launches, so collisions add few graph nodes:
+- `predict_with_body` replaces `predict_positions`: after the inertial prediction it sweeps each vertex, in the
+  frame of each moving capsule, from where it was at the substep start to its prediction, and stops it where it
+  first touches (continuous: a limb that moves farther than its radius in a substep cannot pass through the
+  cloth); it also lists the few capsules near the vertex for the iterations;
+- `solve_with_collisions` replaces `solve_distance_constraints`: the same Jacobi gather, plus the vertex's
+  self-contacts, then the listed capsules, swept from the vertex's previous iterate (a hard, vertex-local
+  constraint applied last, so every iteration ends outside the body on the side the vertex came from);
+- `finish_substep` replaces `update_velocities`: position-based Coulomb friction against the capsule's own
+  motion, a last projection out of every capsule, then velocities.
+Self-contact candidates are found once per substep (`contact_bounds`, a BVH refit, `find_self_contacts`,
+`sort_face_lists`) and resolved in every iteration. The broad phase is a `wp.Bvh` over the triangles, built once
+and refitted per substep, rather than a `wp.HashGrid`: a hash-grid rebuild inside a CUDA graph replays a
+host-to-device copy of a descriptor that Warp 1.19 keeps in one static variable per precision, so two grids in one
+process (e.g. two solvers) would read each other's descriptor on replay. A refit is a memset and one kernel, safe
+to capture, lossless (no cell capacity) and deterministic (min/max bounds, a fixed tree and traversal order).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from sim import xpbd_kernels as k
+
+SWEEP_STEPS = 24            # sphere-tracing steps of the continuous body test (a head-on approach needs one)
+SWEEP_TOLERANCE = 1.0e-3    # the trace has touched when within this fraction of the level
+DETECT_SLACK = 0.25         # candidate pairs: barycentric coordinates of the projection down to -DETECT_SLACK
+SOLVE_SLACK = 0.05          # active contacts: down to -SOLVE_SLACK, which closes the gaps above convex ridges
+FINAL_PASSES = 3            # passes over all capsules at the end of a substep
+WATCHED = 3                 # capsules a vertex may watch in the iterations (a byte each in one int32)
+
+
+@wp.struct
+class Body:
+    """Capsules of the frame and per-vertex body-contact state of the substep."""
+    start: wp.array2d(dtype=wp.vec3)  # (P, 2) end points a, b at the start of the frame
+    end: wp.array2d(dtype=wp.vec3)    # (P, 2) at its end
+    radius: wp.array2d(dtype=float)   # (P, 2) radii at a and b
+    thickness: float                  # cloth stays this far outside every capsule
+    reach: float                      # capsules closer than this to the prediction are watched in the iterations
+    friction: float
+    near: wp.array(dtype=int)         # (V,) capsules watched in this substep: c + 1 in each byte, 0 ends the list
+    push: wp.array(dtype=float)       # (V,) total outward correction by the body in this substep
+
+
+@wp.struct
+class SelfContacts:
+    """Mesh, broad-phase boxes and contact lists of the substep.
+
+    A contact is a vertex i and a triangle t not near it in the mesh, with the side of t that i was on at the
+    substep start. Vertex i lists it as side * (t + 1), triangle t as side * (i + 1): a vertex gathers the
+    corrections it receives from its own list and from the lists of the triangles around it, without atomics.
+    """
+    faces: wp.array(dtype=wp.vec3i)
+    face_offsets: wp.array(dtype=int)  # CSR of the faces around each vertex
+    vertex_faces: wp.array(dtype=int)
+    edge_offsets: wp.array(dtype=int)  # CSR of the mesh neighbours of each vertex
+    vertex_neighbors: wp.array(dtype=int)
+    face_lower: wp.array(dtype=wp.vec3)    # swept box of each triangle over the substep, padded by the reach
+    face_upper: wp.array(dtype=wp.vec3)
+    face_bvh: wp.uint64
+    vertex_contacts: wp.array2d(dtype=int)  # (V, VERTEX_LIST)
+    vertex_count: wp.array(dtype=int)
+    face_contacts: wp.array2d(dtype=int)    # (F, FACE_LIST)
+    face_count: wp.array(dtype=int)
+    thickness: float
+    reach: float                       # pairs within this distance at the prediction become candidates
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Capsule geometry
+
+
+@wp.func
+def any_perpendicular(e: wp.vec3) -> wp.vec3:
+    c = wp.cross(e, wp.vec3(1.0, 0.0, 0.0))
+    if wp.length(c) < 0.5:
+        c = wp.cross(e, wp.vec3(0.0, 1.0, 0.0))
+    return wp.normalize(c)
+
+
+@wp.func
+def capsule_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float):
+    """Signed distance from p to the tapered capsule (convex hull of the spheres (a, ra) and (b, rb)) and the
+    outward unit normal there (the distance's gradient): the formula of sim.body.capsule_signed_distance."""
+    axis = b - a
+    length = wp.length(axis)
+    e = axis / length
+    rel = p - a
+    s = wp.dot(rel, e)
+    radial = rel - s * e
+    q = wp.length(radial)
+    sin_phi = (ra - rb) / length
+    cos_phi = wp.sqrt(1.0 - sin_phi * sin_phi)
+    along = s * cos_phi - q * sin_phi
+    if along <= 0.0:
+        to_a = wp.length(rel)
+        n_a = -e
+        if to_a > 0.0:
+            n_a = rel / to_a
+        return to_a - ra, n_a
+    if along >= length * cos_phi:
+        rel_b = p - b
+        to_b = wp.length(rel_b)
+        n_b = e
+        if to_b > 0.0:
+            n_b = rel_b / to_b
+        return to_b - rb, n_b
+    r_hat = any_perpendicular(e)  # on the axis every direction away from it is as good
+    if q > 1.0e-9 * length:
+        r_hat = radial / q
+    return s * sin_phi + q * cos_phi - ra, sin_phi * e + cos_phi * r_hat
+
+
+@wp.func
+def segment_point_distance(p0: wp.vec3, p1: wp.vec3, q: wp.vec3) -> float:
+    d = p1 - p0
+    t = wp.clamp(wp.dot(q - p0, d) / wp.max(wp.dot(d, d), 1.0e-20), 0.0, 1.0)
+    return wp.length(p0 + t * d - q)
+
+
+@wp.func
+def capsule_at(body: Body, c: int, fraction: float):
+    """End points of capsule c at `fraction` of the frame (linear interpolation, like the pins)."""
+    return (wp.lerp(body.start[c, 0], body.end[c, 0], fraction),
+            wp.lerp(body.start[c, 1], body.end[c, 1], fraction))
+
+
+@wp.func
+def carry(p: wp.vec3, a0: wp.vec3, b0: wp.vec3, a1: wp.vec3, b1: wp.vec3) -> wp.vec3:
+    """Where p ends up if glued to the capsule while it moves from (a0, b0) to (a1, b1): the nearest axis point
+    moves with the end points and the offset from it turns by the smallest rotation taking the old axis direction
+    to the new one (a capsule's twist about its own axis is not known from its end points and moves no surface)."""
+    axis0 = b0 - a0
+    axis1 = b1 - a1
+    u = wp.clamp(wp.dot(p - a0, axis0) / wp.dot(axis0, axis0), 0.0, 1.0)
+    e0 = wp.normalize(axis0)
+    e1 = wp.normalize(axis1)
+    w = wp.cross(e0, e1)
+    rel = p - (a0 + u * axis0)
+    w_rel = wp.cross(w, rel)
+    # Rodrigues with sin = |w|, cos = e0.e1: R r = r + w x r + w x (w x r) / (1 + cos); a limb cannot turn by
+    # half a revolution within a substep, so 1 + cos stays away from 0.
+    return a1 + u * axis1 + rel + w_rel + wp.cross(w, w_rel) / wp.max(1.0 + wp.dot(e0, e1), 1.0e-6)
+
+
+@wp.func
+def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, level: float) -> wp.vec3:
+    """If the segment start -> end (start outside the level set {distance = level}) enters it, move `end` onto
+    the tangent plane where it first does; otherwise return `end` unchanged. The entry is found by sphere tracing,
+    which never steps past it because the distance is 1-Lipschitz."""
+    delta = end - start
+    span = wp.length(delta)
+    if span <= 1.0e-9:
+        return end
+    d_mid, n_mid = capsule_distance(start + 0.5 * delta, a, b, ra, rb)
+    if d_mid - level > 0.5 * span:  # the whole segment lies in a ball that clears the level set
+        return end
+    t = float(0.0)
+    p = start
+    for _ in range(SWEEP_STEPS):
+        d, n = capsule_distance(p, a, b, ra, rb)
+        gap = d - level
+        if gap <= SWEEP_TOLERANCE * level:
+            break
+        t = t + gap / span
+        if t >= 1.0:
+            return end
+        p = start + t * delta
+    # Touching at p (or, after a long grazing trace, close to it): keep `end` on the outer side of the plane.
+    d_hit, n_hit = capsule_distance(p, a, b, ra, rb)
+    depth = wp.dot(n_hit, end - p)
+    if depth >= 0.0:
+        return end
+    return end - depth * n_hit
+
+
+@wp.func
+def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, thickness: float):
+    """Move x, reached from x_from (relative to the capsule), to `thickness` outside the capsule, and return it
+    with the distance moved. If x_from was clearly outside (more than a quarter of the thickness) the way in is
+    swept first, so x stays on the side it came from even where it crossed the capsule's axis; then the nearest
+    point projection settles it on the offset surface."""
+    d, n = capsule_distance(x, a, b, ra, rb)
+    if d >= thickness and wp.length(x - x_from) < wp.min(ra, rb):
+        return x, 0.0  # outside, and too short a way to have passed through (the common case)
+    moved = float(0.0)
+    d_from, n_from = capsule_distance(x_from, a, b, ra, rb)
+    if d_from > 0.25 * thickness:
+        swept = sweep_out(x_from, x, a, b, ra, rb, wp.min(thickness, d_from))
+        moved = wp.length(swept - x)
+        x = swept
+        d, n = capsule_distance(x, a, b, ra, rb)
+    if d < thickness:
+        x = x + (thickness - d) * n
+        moved = moved + (thickness - d)
+    return x, moved
+
+
+@wp.func
+def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, body: Body, fraction: float) -> wp.vec3:
+    """keep_outside for every capsule watched by vertex i, one after the other, at `fraction` of the frame; the
+    distances moved add to the vertex's push (the normal impulse that friction is limited by)."""
+    near = body.near[i]
+    while near != 0:
+        c = (near & 255) - 1
+        near = near >> 8
+        a, b = capsule_at(body, c, fraction)
+        x, moved = keep_outside(x_from, x, a, b, body.radius[c, 0], body.radius[c, 1], body.thickness)
+        if moved > 0.0:
+            body.push[i] = body.push[i] + moved
+    return x
+
+
+@wp.func
+def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, body: Body, f0: float, f1: float) -> wp.vec3:
+    """Position-based Coulomb friction (Macklin et al. 2014, "Unified particle physics", sec. 6.1) against the
+    touching capsule: the vertex's displacement relative to where the capsule would have carried it loses its
+    tangential part up to friction * push (stick), or that much of it (slide). The tangent plane of a convex body
+    lies outside it, so this never pushes the vertex back into the touching capsule."""
+    best = int(-1)
+    best_d = float(1.0e30)
+    best_n = wp.vec3(0.0)
+    for c in range(body.start.shape[0]):
+        a, b = capsule_at(body, c, f1)
+        d, n = capsule_distance(x, a, b, body.radius[c, 0], body.radius[c, 1])
+        if d < best_d:
+            best = c
+            best_d = d
+            best_n = n
+    if best < 0 or best_d > 1.01 * body.thickness:  # pushed during the substep but no longer touching
+        return x
+    a0, b0 = capsule_at(body, best, f0)
+    a1, b1 = capsule_at(body, best, f1)
+    rel = x - carry(x_start, a0, b0, a1, b1)
+    tangential = rel - wp.dot(rel, best_n) * best_n
+    slip = wp.length(tangential)
+    limit = body.friction * body.push[i]
+    if slip <= limit:
+        return x - tangential
+    return x - tangential * (limit / slip)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Vertex-triangle geometry
+
+
+@wp.func
+def barycentric(r: wp.vec3, e1: wp.vec3, e2: wp.vec3) -> wp.vec3:
+    """Barycentric coordinates of the projection of a + r onto the plane of the triangle (a, a + e1, a + e2)."""
+    d11 = wp.dot(e1, e1)
+    d12 = wp.dot(e1, e2)
+    d22 = wp.dot(e2, e2)
+    r1 = wp.dot(r, e1)
+    r2 = wp.dot(r, e2)
+    den = d11 * d22 - d12 * d12
+    v = (d22 * r1 - d12 * r2) / den
+    w = (d11 * r2 - d12 * r1) / den
+    return wp.vec3(1.0 - v - w, v, w)
+
+
+@wp.func
+def triangle_normal(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
+    """Unit normal and whether the triangle is well enough shaped to have one (slivers are skipped)."""
+    e1 = xb - xa
+    e2 = xc - xa
+    nrm = wp.cross(e1, e2)
+    area2 = wp.length(nrm)
+    ok = area2 > 1.0e-6 * wp.max(wp.dot(e1, e1), wp.dot(e2, e2))
+    if not ok:
+        return wp.vec3(0.0), False
+    return nrm / area2, True
+
+
+@wp.func
+def contact_side(i: int, t: int, x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3),
+                 sc: SelfContacts) -> int:
+    """+1 or -1 (the side of t that vertex i was on at the substep start) if (i, t) is a contact candidate, else 0.
+
+    Candidates: t not within one edge of i in the mesh (pairs that close are neighbours at rest, and bending holds
+    them apart), and at the prediction i projects into t (down to -DETECT_SLACK) and lies within `reach` of its
+    plane, or on the other side than at the start by no more than its motion relative to t (it crossed during the
+    prediction)."""
+    tri = sc.faces[t]
+    for k in range(3):
+        if tri[k] == i:
+            return 0
+        for a in range(sc.edge_offsets[i], sc.edge_offsets[i + 1]):
+            if sc.vertex_neighbors[a] == tri[k]:
+                return 0
+    xa = x[tri[0]]
+    n, ok = triangle_normal(xa, x[tri[1]], x[tri[2]])
+    if not ok:
+        return 0
+    r = x[i] - xa
+    bary = barycentric(r, x[tri[1]] - xa, x[tri[2]] - xa)
+    if wp.min(bary) < -DETECT_SLACK:
+        return 0
+    pa = x_prev[tri[0]]
+    side = int(1)
+    if wp.dot(wp.cross(x_prev[tri[1]] - pa, x_prev[tri[2]] - pa), x_prev[i] - pa) < 0.0:
+        side = -1
+    d = wp.dot(n, r)
+    if wp.abs(d) < sc.reach:
+        return side
+    # Beyond reach on the other side: a crossing, if the vertex moved that far relative to the triangle (a
+    # triangle that turned fast may change the sign without anything crossing).
+    moved = x[i] - x_prev[i]
+    for k in range(3):
+        moved = moved - bary[k] * (x[tri[k]] - x_prev[tri[k]])
+    if -float(side) * d < sc.reach + wp.length(moved):
+        return side
+    return 0
+
+
+@wp.func
+def self_contact_correction(me: int, i: int, t: int, side: int, x_in: wp.array(dtype=wp.vec3),
+                            inv_mass: wp.array(dtype=float), sc: SelfContacts):
+    """Correction of vertex `me` (i or a corner of t) from the contact (i, t, side), and whether the contact is
+    active: the inequality side * n . (x_i - sum_k b_k x_k) >= thickness with compliance 0 and the normal held
+    fixed, active while violated and while x_i projects into t (down to -SOLVE_SLACK). Every vertex of the contact
+    evaluates the same expression, so all four agree on the multiplier and move by their mass-weighted share."""
+    tri = sc.faces[t]
+    xa = x_in[tri[0]]
+    xb = x_in[tri[1]]
+    xc = x_in[tri[2]]
+    n, ok = triangle_normal(xa, xb, xc)
+    if not ok:
+        return wp.vec3(0.0), False
+    n = float(side) * n
+    r = x_in[i] - xa
+    gap = wp.dot(n, r) - sc.thickness
+    if gap >= 0.0:
+        return wp.vec3(0.0), False
+    bary = barycentric(r, xb - xa, xc - xa)
+    if wp.min(bary) < -SOLVE_SLACK:
+        return wp.vec3(0.0), False
+    bary = wp.max(bary, wp.vec3(0.0))
+    bary = bary / (bary[0] + bary[1] + bary[2])
+    wi = inv_mass[i]
+    w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
+    d_lambda = -gap / (wi + wp.dot(wp.cw_mul(bary, bary), w))
+    if me == i:
+        return (wi * d_lambda) * n, True
+    for k in range(3):
+        if me == tri[k]:
+            return (-w[k] * bary[k] * d_lambda) * n, True
+    return wp.vec3(0.0), True
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Kernels
+
+
+@wp.kernel
+def predict_with_body(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    inv_mass: wp.array(dtype=float),
+    pin_slot: wp.array(dtype=int),
+    pin_target_start: wp.array(dtype=wp.vec3),
+    pin_target_end: wp.array(dtype=wp.vec3),
+    f1: float,
+    gravity: wp.vec3,
+    h: float,
+    damping_factor: float,
+    x_prev: wp.array(dtype=wp.vec3),
+    body: Body,
+    f0: float,
+):
+    """The inertial prediction (k.predict_vertex, substep from frame fraction f0 to f1), then, per capsule, the
+    continuous test: the vertex's start position is carried with the capsule to the substep end, and the path
+    from there to the prediction (the vertex's motion relative to the capsule) goes through keep_outside, so a
+    limb that moves farther than its radius in a substep still meets the cloth on its front side. The first
+    WATCHED capsules within `reach` of the result are watched in the iterations (a list, not a mask, so that an
+    iteration costs nothing for the many vertices far from the body); finish_substep checks them all."""
+    i = wp.tid()
+    xi = k.predict_vertex(i, x, v, inv_mass, pin_slot, pin_target_start, pin_target_end, f1, gravity, h,
+                          damping_factor, x_prev)
+    near = int(0)
+    watched = int(0)
+    push = float(0.0)
+    if inv_mass[i] > 0.0:
+        x_start = x_prev[i]
+        for c in range(body.start.shape[0]):
+            ra = body.radius[c, 0]
+            rb = body.radius[c, 1]
+            a0, b0 = capsule_at(body, c, f0)
+            a1, b1 = capsule_at(body, c, f1)
+            # Most capsules are far: skip those whose whole sweep over the substep (within a ball around the
+            # mean of the four end points) stays farther than `reach` from the vertex's path.
+            center = 0.25 * (a0 + b0 + a1 + b1)
+            bound = wp.max(wp.max(wp.length(a0 - center), wp.length(b0 - center)),
+                           wp.max(wp.length(a1 - center), wp.length(b1 - center)))
+            if segment_point_distance(x_start, xi, center) > bound + wp.max(ra, rb) + body.reach:
+                continue
+            xi, moved = keep_outside(carry(x_start, a0, b0, a1, b1), xi, a1, b1, ra, rb, body.thickness)
+            push = push + moved
+            d, n = capsule_distance(xi, a1, b1, ra, rb)
+            if d < body.reach and watched < WATCHED:
+                near = near | ((c + 1) << (8 * watched))
+                watched += 1
+    x[i] = xi
+    body.near[i] = near
+    body.push[i] = push
+
+
+@wp.kernel
+def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts):
+    """Swept box over the substep (start to prediction) of every triangle, padded by `reach` plus 2 DETECT_SLACK
+    times its extent (a point that projects into the triangle down to -DETECT_SLACK lies at most that far beyond
+    the corners' box); empties the triangle's contact list."""
+    t = wp.tid()
+    tri = sc.faces[t]
+    lo = wp.min(x_prev[tri[0]], x[tri[0]])
+    hi = wp.max(x_prev[tri[0]], x[tri[0]])
+    for k in range(1, 3):
+        lo = wp.min(lo, wp.min(x_prev[tri[k]], x[tri[k]]))
+        hi = wp.max(hi, wp.max(x_prev[tri[k]], x[tri[k]]))
+    pad = wp.vec3(sc.reach) + (2.0 * DETECT_SLACK) * (hi - lo)
+    sc.face_lower[t] = lo - pad
+    sc.face_upper[t] = hi + pad
+    sc.face_count[t] = 0
+
+
+VERTEX_LIST = 32  # capacity of a vertex's list of the triangles it touches
+FACE_LIST = 32    # capacity of a triangle's list of the vertices touching it
+vertex_list = wp.types.vector(length=VERTEX_LIST, dtype=int)
+
+
+@wp.kernel
+def find_self_contacts(
+    x: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    inv_mass: wp.array(dtype=float),
+    sc: SelfContacts,
+    flags: wp.array(dtype=int),
+    overflow_flag: int,
+):
+    """Contact lists: vertex i queries the triangle BVH with its swept box and lists each candidate triangle t,
+    and adds itself to t's list (a slot taken with an integer atomic; sort_face_lists then restores a fixed order).
+    A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
+    on the wrong side of the plane is pushed back rather than through. The BVH traversal order is fixed by the
+    tree, so the lists are deterministic. A full list drops the rest and raises flags[overflow_flag]. Pinned
+    vertices list nothing: they take no correction and move no triangle."""
+    i = wp.tid()
+    count = int(0)
+    if inv_mass[i] > 0.0:
+        old = vertex_list()
+        n_old = sc.vertex_count[i]
+        for a in range(n_old):
+            old[a] = sc.vertex_contacts[i, a]
+        query = wp.bvh_query_aabb(sc.face_bvh, wp.min(x_prev[i], x[i]), wp.max(x_prev[i], x[i]))
+        t = int(0)
+        while wp.bvh_query_next(query, t):
+            side = contact_side(i, t, x, x_prev, sc)
+            if side != 0:
+                for a in range(n_old):
+                    if wp.abs(old[a]) == t + 1:
+                        side = wp.sign(old[a])
+                slot = wp.atomic_add(sc.face_count, t, 1)
+                if count < VERTEX_LIST and slot < FACE_LIST:
+                    sc.vertex_contacts[i, count] = side * (t + 1)
+                    sc.face_contacts[t, slot] = side * (i + 1)
+                    count += 1
+                else:
+                    flags[overflow_flag] = 1
+    sc.vertex_count[i] = count
+
+
+@wp.kernel
+def sort_face_lists(sc: SelfContacts):
+    """Sort each triangle's list by vertex (insertion sort of a few entries), so that the iterations sum the
+    corrections in an order that does not depend on which thread took which slot."""
+    t = wp.tid()
+    n = wp.min(sc.face_count[t], FACE_LIST)
+    sc.face_count[t] = n
+    for a in range(1, n):
+        code = sc.face_contacts[t, a]
+        b = a
+        while b > 0 and wp.abs(sc.face_contacts[t, b - 1]) > wp.abs(code):
+            sc.face_contacts[t, b] = sc.face_contacts[t, b - 1]
+            b -= 1
+        sc.face_contacts[t, b] = code
+
+
+@wp.kernel
+def solve_with_collisions(
+    x_in: wp.array(dtype=wp.vec3),
+    inv_mass: wp.array(dtype=float),
+    offsets: wp.array(dtype=int),
+    neighbor: wp.array(dtype=int),
+    constraint: wp.array(dtype=int),
+    rest_min: wp.array(dtype=float),
+    rest_max: wp.array(dtype=float),
+    alpha_tilde: wp.array(dtype=float),
+    scale: wp.array(dtype=float),
+    lambda_in: wp.array(dtype=float),
+    lambda_carry: float,
+    lambda_out: wp.array(dtype=float),
+    x_out: wp.array(dtype=wp.vec3),
+    sc: SelfContacts,
+    body: Body,
+    f1: float,
+):
+    """One Jacobi sweep: distance constraints (k.distance_correction) and self-contacts gathered from x_in, then
+    projection out of the body. Empty contact lists and no watched capsule leave exactly x_in + distance
+    correction, as solve_distance_constraints computes it."""
+    i = wp.tid()
+    xi = x_in[i]
+    dx = k.distance_correction(i, xi, x_in, inv_mass, offsets, neighbor, constraint, rest_min, rest_max,
+                               alpha_tilde, scale, lambda_in, lambda_carry, lambda_out)
+    # Self-contacts, averaged over the active ones (Jacobi mass splitting): the vertex's own list, then those of
+    # the triangles around it (all empty with self-collision off; a pinned vertex takes no correction).
+    contact = wp.vec3(0.0)
+    active = int(0)
+    for a in range(sc.vertex_count[i]):
+        code = sc.vertex_contacts[i, a]
+        delta, on = self_contact_correction(i, i, wp.abs(code) - 1, wp.sign(code), x_in, inv_mass, sc)
+        if on:
+            contact = contact + delta
+            active += 1
+    if inv_mass[i] > 0.0:
+        for f in range(sc.face_offsets[i], sc.face_offsets[i + 1]):
+            t = sc.vertex_faces[f]
+            for a in range(sc.face_count[t]):
+                code = sc.face_contacts[t, a]
+                delta, on = self_contact_correction(i, wp.abs(code) - 1, t, wp.sign(code), x_in, inv_mass, sc)
+                if on:
+                    contact = contact + delta
+                    active += 1
+    if active > 0:
+        dx = dx + contact / float(active)
+    # The body last, from this vertex's previous iterate, which the previous sweep left outside.
+    x_out[i] = push_out_of_body(i, xi, xi + dx, body, f1)
+
+
+@wp.kernel
+def finish_substep(
+    x_solved: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    inv_h: float,
+    max_speed: float,
+    substep: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=int),
+    inv_mass: wp.array(dtype=float),
+    body: Body,
+    f0: float,
+    f1: float,
+):
+    """Friction for vertices the body pushed in this substep, then a nearest-point projection out of every
+    capsule, watched or not: the constraints may have pulled a vertex into a capsule it was far from at the
+    prediction, the harmonic projection may have moved it since the last sweep, and friction slides it along one
+    capsule's tangent plane, which may enter a neighbouring capsule. Then k.store_state."""
+    i = wp.tid()
+    xi = x_solved[i]
+    if inv_mass[i] > 0.0:
+        if body.friction > 0.0:
+            if body.push[i] > 0.0:
+                xi = apply_friction(i, xi, x_prev[i], body, f0, f1)
+        # Capsules overlap at the joints; in the crook between two, leaving one may enter the other, so the
+        # capsules take turns a few times (alternating projections converge to the crease).
+        for _ in range(FINAL_PASSES):
+            total = float(0.0)
+            for c in range(body.start.shape[0]):
+                a, b = capsule_at(body, c, f1)
+                ra = body.radius[c, 0]
+                rb = body.radius[c, 1]
+                if wp.length(xi - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + body.thickness:
+                    continue
+                xi, moved = keep_outside(xi, xi, a, b, ra, rb, body.thickness)
+                total = total + moved
+            if total == 0.0:
+                break
+    k.store_state(i, xi, x_prev, inv_h, max_speed, substep, x, v, flags)

@@ -1,0 +1,102 @@
+"""The scene stage for garment scenes: mannequin arrays, attachment pins, torso frames, held-out test clips."""
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.config import resolve_scene, write_settings
+from pipeline.dataset import held_out_frames, to_reference_frame
+from pipeline.errors import PipelineError
+from pipeline.scene import build_scene, main as scene_main
+from sim.body import (body_signed_distance, capsules_world, default_skeleton, quat_to_matrix, rest_transforms,
+                      skeleton_from_h5)
+
+CONFIG = yaml.safe_load(open("workflow_config.yaml"))
+
+
+@pytest.fixture(scope="module")
+def pants():
+    settings = resolve_scene(CONFIG, "pants", "cpu")
+    arrays, attrs = build_scene(settings)
+    return settings, arrays, attrs
+
+
+def test_pins_start_at_rest_and_move_rigidly_with_their_part(pants):
+    settings, a, _ = pants
+    pins, targets = a["pins/ids"], a["pins/targets"]
+    assert targets.shape == (settings["frames"], len(pins), 3) and len(pins) > 0
+    assert np.abs(targets[0] - a["rest/vertices"][pins]).max() < 1e-6
+    assert set(np.unique(a["pins/part"])) == {0}   # the waist band follows the pelvis
+    # rigid: all pairwise distances kept, while the band does move (it travels with the walk)
+    d = np.linalg.norm(targets[:, :, None] - targets[:, None, :], axis=-1)
+    assert np.abs(d - d[0]).max() < 1e-5
+    assert np.abs(targets[-1] - targets[0]).max() > 0.2
+
+
+def test_body_arrays_agree_with_the_library(pants):
+    _, a, _ = pants
+    skel = default_skeleton()
+    ra, rb = a["capsules/radius_a"], a["capsules/radius_b"]
+    ca, cb, *_ = capsules_world(skel, rest_transforms(skel))
+    assert np.allclose(a["capsules/a"][0], ca, atol=1e-6) and np.allclose(a["capsules/b"][0], cb, atol=1e-6)
+    assert np.allclose(ra, skel.radius_a) and np.allclose(rb, skel.radius_b)
+    # the rest garment clears the rest body
+    assert body_signed_distance(skel, rest_transforms(skel), a["rest/vertices"]).min() > 0
+    torso = a["torso_transforms"]
+    assert np.allclose(torso[:, :3, :3], quat_to_matrix(a["body/state/rotation"][:, 0]))
+    assert np.allclose(torso[:, :3, 3], a["body/state/translation"][:, 0])
+    # capsule velocities agree with the motion of the end points (central differences; karate's PCHIP keyframes
+    # are only C1, so differences at 60 fps are off by several % near a keyframe)
+    fps = 1.0 / CONFIG["defaults"]["solver"]["dt"]
+    fd = (a["capsules/a"][2:] - a["capsules/a"][:-2]) * fps / 2
+    assert np.abs(fd - a["capsules/velocity_a"][1:-1]).max() < 0.12 * np.abs(a["capsules/velocity_a"]).max()
+    assert a["pose"].shape == (len(torso), 208)
+    assert np.allclose(a["skinning/weights"].sum(axis=1), 1.0, atol=1e-6)
+
+
+def test_attachment_is_still_in_the_torso_frame(pants):
+    _, a, _ = pants
+    local = to_reference_frame(a["pins/targets"].astype(np.float64), a["torso_transforms"])
+    assert np.abs(local - local[0]).max() < 1e-5
+
+
+def test_scene_file_round_trips_the_skeleton_and_is_deterministic(tmp_path):
+    settings = resolve_scene(CONFIG, "skirt", "cpu")
+    write_settings(settings, tmp_path / "settings.json")
+    for name in ("one.h5", "two.h5"):
+        scene_main([str(tmp_path / "settings.json"), str(tmp_path / name)])
+    with h5py.File(tmp_path / "one.h5") as one, h5py.File(tmp_path / "two.h5") as two:
+        skel = skeleton_from_h5(one["body"])
+        assert skel.names == default_skeleton().names and np.allclose(skel.capsule_b, default_skeleton().capsule_b)
+        for name in ("rest/vertices", "pins/targets", "capsules/a", "pose", "motion/clip"):
+            assert np.array_equal(one[name][()], two[name][()])
+    train, test = held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["walk"])
+    with h5py.File(tmp_path / "one.h5") as f:
+        clip, names = f["motion/clip"][()], [n.decode() for n in f["motion/clip_names"][()]]
+    assert np.array_equal(test, np.flatnonzero(clip == names.index("walk")))
+    assert len(train) + len(test) == settings["frames"] and len(test) == 60
+    with pytest.raises(PipelineError, match="no clip 'tango'"):
+        held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["tango"])
+
+
+def test_too_few_frames_for_the_clips_is_one_clear_error():
+    settings = resolve_scene(CONFIG, "tshirt", "cpu")
+    settings["frames"] = 80
+    with pytest.raises(PipelineError, match="scene 'tshirt': 80 frames with 30 settle frames"):
+        build_scene(settings)
+
+
+def test_high_res_pins_follow_their_parts_rigidly(pants):
+    from pipeline.scene import rigid_targets
+    from pipeline.simulate import subdivided_pins
+    from sim.loop import loop_subdivide
+    _, a, _ = pants
+    S, _ = loop_subdivide(a["rest/vertices"], a["rest/faces"].astype(np.int64), 2)
+    high_rest = S @ a["rest/vertices"]
+    pins, part = subdivided_pins(S, a["pins/ids"].astype(np.int64), a["pins/part"].astype(np.int64))
+    assert len(pins) > len(a["pins/ids"]) and np.array_equal(pins[:len(a["pins/ids"])], np.sort(a["pins/ids"]))
+    targets = rigid_targets(a["pins/transforms"], part, high_rest[pins])
+    assert np.abs(targets[0] - high_rest[pins]).max() < 1e-9     # frame 0 is the rest pose
+    # in the torso frame the waist band does not move at all
+    local = to_reference_frame(targets, a["torso_transforms"])
+    assert np.abs(local - local[0]).max() < 1e-9
