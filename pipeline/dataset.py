@@ -1,13 +1,13 @@
 """Stage `dataset`: the cloth-upsampling learning problem of paper Table 2, with a seeded train/test split.
 
     python -m pipeline.dataset SIM_LOW.h5 SIM_HIGH.h5 SUBDIV.h5 OUT.h5 [--frame world|torso] [--scene SCENE.h5]
-                               [--test-fraction 0.1 | --test-clips walk,...] [--seed 0] [--quiet]
+                               [--test-fraction 0.1] [--test-clips walk,...] [--seed 0] [--quiet]
 
 Input and predictor: the Loop-subdivided low-res positions S x_low; target: the displacement x_high - S x_low;
 all in the scene's reference frame (`world`, or `torso` using SCENE.h5's `torso_transforms`). Because every row
-of S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share, or, with
---test-clips, every frame of those mannequin clips (SCENE.h5 `motion/clip`), to measure generalisation to
-unseen motion. docs/artifacts.md lists every dataset.
+of S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
+frames; with --test-clips every frame of those mannequin clips (SCENE.h5 `motion/clip`) is held out as well, in
+a third split that measures generalisation to an unseen motion. docs/artifacts.md lists every dataset.
 """
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.nda
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Train and test frame ids when the test set is the frames of whole clips of the scene's motion."""
+def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]) -> np.ndarray:
+    """Sorted ids of the frames that belong to the mannequin clips `test_clips`."""
     if scene_path is None:
         raise PipelineError("--test-clips needs --scene SCENE.h5 holding 'motion/clip' and 'motion/clip_names'")
     with open_artifact(scene_path) as f:
@@ -50,10 +50,19 @@ def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]
     unknown = sorted(set(test_clips) - set(names))
     if unknown:
         raise PipelineError(f"{scene_path}: no clip '{unknown[0]}' in this scene's motion (clips: {', '.join(names)})")
-    test = np.isin(clip, [names.index(n) for n in test_clips])
-    if test.all() or not test.any():
-        raise PipelineError(f"--test-clips {','.join(test_clips)} leaves no {'train' if test.all() else 'test'} frames")
-    return np.flatnonzero(~test), np.flatnonzero(test)
+    held = np.isin(clip, [names.index(n) for n in test_clips])
+    if n_frames - held.sum() < 2 or not held.any():
+        raise PipelineError(f"--test-clips {','.join(test_clips)} leaves {n_frames - held.sum()} frames to train "
+                            f"and test on and {held.sum()} held out")
+    return np.flatnonzero(held)
+
+
+def split_dataset(n_frames: int, test_fraction: float, seed: int, held_out: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Train, test and held-out frame ids: the held-out frames aside, a seeded random share of the rest is test."""
+    seen = np.setdiff1d(np.arange(n_frames), held_out)
+    train, test = split_frames(len(seen), test_fraction, seed)
+    return seen[train], seen[test], np.asarray(held_out, dtype=np.int64)
 
 
 def _torso_transforms(scene_path: str | None, n_frames: int) -> np.ndarray:
@@ -113,11 +122,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
     arrays = build_dataset(args.sim_low, args.sim_high, args.subdiv, args.frame, args.scene)
-    if args.test_clips:
-        test_clips = [c.strip() for c in args.test_clips.split(",") if c.strip()]
-        train, test = held_out_frames(args.scene, len(arrays["input"]), test_clips)
-    else:
-        train, test = split_frames(len(arrays["input"]), args.test_fraction, args.seed)
+    n_frames = len(arrays["input"])
+    test_clips = [c.strip() for c in (args.test_clips or "").split(",") if c.strip()]
+    held = held_out_frames(args.scene, n_frames, test_clips) if test_clips else np.zeros(0, np.int64)
+    train, test, held = split_dataset(n_frames, args.test_fraction, args.seed, held)
     config = {name: getattr(args, name) for name in ("sim_low", "sim_high", "subdiv", "frame", "scene",
                                                     "test_fraction", "test_clips", "seed")}
     with atomic_h5(args.out, "dataset", config) as f:
@@ -126,13 +134,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         f["predictor"] = f["input"]          # a hard link: Table 2's predictor is the input itself
         f.create_dataset("split/train", data=train.astype(np.int64))
         f.create_dataset("split/test", data=test.astype(np.int64))
+        f.create_dataset("split/held_out", data=held)
+        f["split"].attrs["meaning"] = ("train: frames trained on; test: a seeded random share of the other frames of "
+                                       "the same motions; held_out: every frame of the clips named in attr "
+                                       "held_out_clips (unseen motion; may be empty)")
+        f["split"].attrs["held_out_clips"] = ",".join(test_clips)
         f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=args.frame, n_frames=len(arrays["input"]),
-                       n_vertices=arrays["input"].shape[1], split_seed=args.seed, test_fraction=len(test) / len(arrays["input"]),
-                       split="held_out:" + args.test_clips if args.test_clips else "random")
+                       n_vertices=arrays["input"].shape[1], split_seed=args.seed, test_fraction=args.test_fraction)
         f["input"].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
         f["target"].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
     if not args.quiet:
-        print(f"dataset: {len(arrays['input'])} frames ({len(train)} train, {len(test)} test) of "
+        print(f"dataset: {n_frames} frames ({len(train)} train, {len(test)} test, {len(held)} held out) of "
               f"{arrays['input'].shape[1]} vertices, {args.frame} frame -> {args.out}")
 
 

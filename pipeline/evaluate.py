@@ -100,7 +100,7 @@ def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str) -> 
 
 
 def render_frame(path: Path, frame: int, low: np.ndarray, low_faces: np.ndarray, predictor: np.ndarray,
-                 truth: np.ndarray, predicted: np.ndarray, faces: np.ndarray, body=None) -> Path:
+                 truth: np.ndarray, predicted: np.ndarray, faces: np.ndarray, body=None, split: str = "test") -> Path:
     """Low-res input | ground truth | network output (on the body, if any) | |error| of the predictor (Loop
     subdivision alone) and of the network, on one colour scale."""
     predictor_error = np.linalg.norm(truth - predictor, axis=1)
@@ -112,7 +112,7 @@ def render_frame(path: Path, frame: int, low: np.ndarray, low_faces: np.ndarray,
               Panel("error: network", predicted, faces, network_error)]
     # A few boundary vertices can carry errors far above the rest: saturate them so the pattern shows.
     vmax = float(max(np.percentile(predictor_error, 99), np.percentile(network_error, 99)))
-    return render_panels(path, panels, vmax=vmax, title=f"test frame {frame}",
+    return render_panels(path, panels, vmax=vmax, title=f"{split} frame {frame}",
                          value_label="|error| (scene units, clipped at 99th pct.)")
 
 
@@ -146,12 +146,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     with open_artifact(args.dataset) as f:
         low_positions, low_faces = read(f, "low/positions", np.float64), read(f, "low/faces", np.int64)
         frame_name = str(f.attrs.get("frame", "world"))
+        held_clips = str(f["split"].attrs.get("held_out_clips", ""))
     steps = tqdm(total=4, desc="evaluate", unit="step", disable=args.quiet)
     frames = data.frames(device)
     weights = LossWeights(**state["training"]["loss_weights"])
     predict = {"network": lambda x: model(x, mesh), "predictor": torch.zeros_like}
     errors = {who: {split: split_errors(fn, frames, torch.as_tensor(ids, device=device), 8, weights)
-                    for split, ids in (("train", data.train), ("test", data.test))}
+                    for split, ids in data.splits().items()}
               for who, fn in predict.items()}
     displacement = infer_all(model, mesh, frames.inputs).cpu().numpy()
     steps.update()
@@ -162,10 +163,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     predicted = data.inputs + displacement
     network_frame = per_frame_errors(displacement - data.targets)
     predictor_frame = per_frame_errors(-data.targets)
-    rendered = pick_frames(data.test, args.render_frames)
+    # With an unseen motion, half the pictures show it.
+    n_held = args.render_frames // 2 if len(data.held_out) else 0
+    rendered = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
     bodies = body_meshes(args.scene, rendered, frame_name) or [None] * len(rendered)
     pictures = [render_frame(renders_dir / f"frame_{frame:04d}.png", frame, low_positions[frame], low_faces,
-                             data.inputs[frame], truth[frame], predicted[frame], data.faces, body)
+                             data.inputs[frame], truth[frame], predicted[frame], data.faces, body,
+                             "held-out" if frame in data.held_out else "test")
                 for frame, body in zip(rendered, bodies)]
     steps.update()
     n_export = len(predicted) if args.export_frames <= 0 else min(args.export_frames, len(predicted))
@@ -178,7 +182,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                    ("ground_truth", truth[frame], data.faces, None),
                    ("network_output", predicted[frame], data.faces, value_colors(error, float(error.max())))])
     _write_eval(args, errors, network_frame, predictor_frame, predicted, times, timed, where, state)
-    _write_report(Path(args.report), args, errors, times, where, state, data, frame_name, pictures,
+    _write_report(Path(args.report), args, errors, times, where, state, data, (frame_name, held_clips), pictures,
                   export_dir, n_export, low_positions.shape[1])
     steps.update()
     steps.close()
@@ -206,18 +210,23 @@ def _write_eval(args, errors, network_frame, predictor_frame, predicted, times, 
                        parameter_count=state["parameter_count"], timing="network only, batch of one frame")
 
 
-def _write_report(path: Path, args, errors, times, device, state, data, frame_name, pictures, export_dir,
+def _write_report(path: Path, args, errors, times, device, state, data, names, pictures, export_dir,
                   n_export, n_low) -> None:
     spec, training = state["spec"], state["training"]
+    frame_name, held_clips = names
     rel = lambda p: os.path.relpath(p, path.parent)  # noqa: E731
     scaled = lambda who, split, term: errors[who][split][term] / PAPER_UNIT  # noqa: E731
+    splits = list(data.splits())
     rows = []
     for who, label in (("network", "network"), ("predictor", "Loop subdivision alone (predictor)")):
-        cells = [f"{scaled(who, s, t):.3f}" for s in ("train", "test") for t in ("l1", "l2")]
+        cells = [f"{scaled(who, s, t):.3f}" for s in splits for t in ("l1", "l2")]
         rows.append(f"| {label} | " + " | ".join(cells) + f" | {errors[who]['test']['normal']:.4f} |")
-    gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in ("train", "test")
-             for t in ("l1", "l2")]
+    gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in splits for t in ("l1", "l2")]
     rows.append("| gain (predictor / network) | " + " | ".join(f"{g:.2f}x" for g in gains) + " | |")
+    header = "| | " + " | ".join(f"{s.replace('_', '-')} {t}" for s in splits for t in ("L1", "L2")) + " | test Ln |"
+    held_note = ([f"Held-out: every frame of the motion clip(s) `{held_clips}`, never seen in training (the "
+                  "generalisation test); test: a random share of the frames of the trained motions.", ""]
+                 if "held_out" in splits else [])
     lines = [
         f"# Evaluation of `{args.model}`", "",
         f"- Network: {state['arch_expanded']} (encoder-decoder), conv {spec['conv']}, {spec['pool']} pooling, "
@@ -226,10 +235,11 @@ def _write_report(path: Path, args, errors, times, device, state, data, frame_na
         f"Adam lr {training['lr']:g}, seed {training['seed']}, loss weights "
         f"L1 {training['loss_weights']['l1']:g} / L2 {training['loss_weights']['l2']:g} / "
         f"Ln {training['loss_weights']['normal']:g}.",
-        f"- Data: `{args.dataset}`, {len(data.inputs)} frames ({len(data.train)} train, {len(data.test)} test), "
+        f"- Data: `{args.dataset}`, {len(data.inputs)} frames ("
+        + ", ".join(f"{len(ids)} {name.replace('_', '-')}" for name, ids in data.splits().items()) + "), "
         f"{n_low} low-res -> {data.inputs.shape[1]} high-res vertices, positions in the {frame_name} frame.", "",
         "## Errors (x 1e-3 scene units, as paper Table 3)", "",
-        "| | train L1 | train L2 | test L1 | test L2 | test Ln |", "|---|---|---|---|---|---|", *rows, "",
+        header, "|---" * (2 * len(splits) + 2) + "|", *rows, "", *held_note,
         "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
         "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).",
         "", "## Inference time", "",
@@ -237,7 +247,7 @@ def _write_report(path: Path, args, errors, times, device, state, data, frame_na
         f"{len(times)} test frame(s) timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
         f"max {times.max():.2f} ms). Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop subdivision): "
         "2.2-26.6 ms for 4k-15k vertices.", "", "## Renders", "",
-        "Test frames: low-res input | high-res ground truth | network output | |error| of Loop subdivision "
+        "Test (and held-out) frames: low-res input | high-res ground truth | network output | |error| of Loop subdivision "
         "alone | |error| of the network (one colour scale, saturating at the 99th percentile of either).", "",
         *[f"![{p.stem}]({rel(p)})" for p in pictures], "", "## Files", "",
         f"- `{rel(Path(args.eval))}`: errors, per-frame errors, predicted positions, inference times.",

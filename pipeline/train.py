@@ -45,6 +45,12 @@ class LearningData:
     train: np.ndarray
     test: np.ndarray
     fingerprint: str
+    held_out: np.ndarray   # frames of motions never trained on (may be empty)
+
+    def splits(self) -> dict[str, np.ndarray]:
+        """The non-empty splits by name."""
+        named = {"train": self.train, "test": self.test, "held_out": self.held_out}
+        return {name: ids for name, ids in named.items() if len(ids)}
 
     def frames(self, device: torch.device | str) -> Frames:
         return Frames(torch.as_tensor(self.inputs, device=device), torch.as_tensor(self.targets, device=device),
@@ -56,15 +62,17 @@ def load_dataset(path: str) -> LearningData:
         inputs, targets = read(f, "input", np.float32), read(f, "target", np.float32)
         faces = read(f, "faces", np.int64)
         train, test = read(f, "split/train", np.int64), read(f, "split/test", np.int64)
+        held_out = read(f, "split/held_out", np.int64) if "split/held_out" in f else np.zeros(0, np.int64)
     if inputs.shape != targets.shape or inputs.ndim != 3:
         raise PipelineError(f"{path}: 'input' {inputs.shape} and 'target' {targets.shape} must both be (F, V, 3)")
-    if len(train) == 0 or len(test) == 0 or np.intersect1d(train, test).size \
-            or max(train.max(), test.max()) >= len(inputs):
-        raise PipelineError(f"{path}: 'split/train' and 'split/test' must be disjoint, non-empty frame ids")
+    every = np.concatenate([train, test, held_out])
+    if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every) or every.max() >= len(inputs):
+        raise PipelineError(f"{path}: 'split/train', 'split/test' (and 'split/held_out') must be disjoint frame ids, "
+                            f"train and test non-empty")
     digest = hashlib.sha256(inputs.tobytes())
     digest.update(targets.tobytes())
     digest.update(train.tobytes())
-    return LearningData(inputs, targets, faces, train, test, digest.hexdigest())
+    return LearningData(inputs, targets, faces, train, test, digest.hexdigest(), held_out)
 
 
 def load_hierarchy(path: str, conv: str, n_levels: int, faces: np.ndarray | None = None) -> MeshHierarchy:

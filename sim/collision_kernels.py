@@ -29,6 +29,11 @@ DETECT_SLACK = 0.25         # candidate pairs: barycentric coordinates of the pr
 SOLVE_SLACK = 0.05          # active contacts: down to -SOLVE_SLACK, which closes the gaps above convex ridges
 FINAL_PASSES = 3            # passes over all capsules at the end of a substep
 WATCHED = 3                 # capsules a vertex may watch in the iterations (a byte each in one int32)
+VERTEX_LIST = 32            # capacity of a vertex's list of the triangles it touches
+FACE_LIST = 32              # capacity of a triangle's list of the vertices touching it
+MAX_VALENCE = 16            # mesh neighbours of a vertex, at most, with self-collision on
+vertex_list = wp.types.vector(length=VERTEX_LIST, dtype=int)
+neighbor_list = wp.types.vector(length=MAX_VALENCE, dtype=int)
 
 
 @wp.struct
@@ -57,7 +62,7 @@ class SelfContacts:
     vertex_faces: wp.array(dtype=int)
     edge_offsets: wp.array(dtype=int)  # CSR of the mesh neighbours of each vertex
     vertex_neighbors: wp.array(dtype=int)
-    face_lower: wp.array(dtype=wp.vec3)    # swept box of each triangle over the substep, padded by the reach
+    face_lower: wp.array(dtype=wp.vec3)    # box where points may project into the triangle in the substep
     face_upper: wp.array(dtype=wp.vec3)
     face_bvh: wp.uint64
     vertex_contacts: wp.array2d(dtype=int)  # (V, VERTEX_LIST)
@@ -219,7 +224,7 @@ def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, body: Body, f0: float, 
     touching capsule: the vertex's displacement relative to where the capsule would have carried it loses its
     tangential part up to friction * push (stick), or that much of it (slide). The tangent plane of a convex body
     lies outside it, so this never pushes the vertex back into the touching capsule."""
-    best = int(-1)
+    best = int(0)
     best_d = float(1.0e30)
     best_n = wp.vec3(0.0)
     for c in range(body.start.shape[0]):
@@ -229,7 +234,7 @@ def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, body: Body, f0: float, 
             best = c
             best_d = d
             best_n = n
-    if best < 0 or best_d > 1.01 * body.thickness:  # pushed during the substep but no longer touching
+    if best_d > 1.01 * body.thickness:  # pushed during the substep but no longer touching
         return x
     a0, b0 = capsule_at(body, best, f0)
     a1, b1 = capsule_at(body, best, f1)
@@ -274,20 +279,20 @@ def triangle_normal(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
 
 
 @wp.func
-def contact_side(i: int, t: int, x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3),
-                 sc: SelfContacts) -> int:
+def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, t: int, x: wp.array(dtype=wp.vec3),
+                 x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts) -> int:
     """+1 or -1 (the side of t that vertex i was on at the substep start) if (i, t) is a contact candidate, else 0.
 
     Candidates: t not within one edge of i in the mesh (pairs that close are neighbours at rest, and bending holds
     them apart), and at the prediction i projects into t (down to -DETECT_SLACK) and lies within `reach` of its
     plane, or on the other side than at the start by no more than its motion relative to t (it crossed during the
-    prediction)."""
+    prediction). `neighbors` holds i's mesh neighbours (a local copy: this runs for every candidate)."""
     tri = sc.faces[t]
     for k in range(3):
         if tri[k] == i:
             return 0
-        for a in range(sc.edge_offsets[i], sc.edge_offsets[i + 1]):
-            if sc.vertex_neighbors[a] == tri[k]:
+        for a in range(n_neighbors):
+            if neighbors[a] == tri[k]:
                 return 0
     xa = x[tri[0]]
     n, ok = triangle_normal(xa, x[tri[1]], x[tri[2]])
@@ -315,38 +320,23 @@ def contact_side(i: int, t: int, x: wp.array(dtype=wp.vec3), x_prev: wp.array(dt
 
 
 @wp.func
-def self_contact_correction(me: int, i: int, t: int, side: int, x_in: wp.array(dtype=wp.vec3),
-                            inv_mass: wp.array(dtype=float), sc: SelfContacts):
-    """Correction of vertex `me` (i or a corner of t) from the contact (i, t, side), and whether the contact is
-    active: the inequality side * n . (x_i - sum_k b_k x_k) >= thickness with compliance 0 and the normal held
-    fixed, active while violated and while x_i projects into t (down to -SOLVE_SLACK). Every vertex of the contact
-    evaluates the same expression, so all four agree on the multiplier and move by their mass-weighted share."""
-    tri = sc.faces[t]
-    xa = x_in[tri[0]]
-    xb = x_in[tri[1]]
-    xc = x_in[tri[2]]
-    n, ok = triangle_normal(xa, xb, xc)
-    if not ok:
-        return wp.vec3(0.0), False
-    n = float(side) * n
-    r = x_in[i] - xa
-    gap = wp.dot(n, r) - sc.thickness
+def contact_multiplier(xi: wp.vec3, wi: float, xa: wp.vec3, xb: wp.vec3, xc: wp.vec3, w: wp.vec3, n: wp.vec3,
+                       side: int, thickness: float):
+    """Multiplier update, barycentric weights and activity of the contact between vertex i (at xi, inverse mass wi)
+    and the triangle (corners xa, xb, xc, inverse masses w, unit normal n) on the given side: the inequality
+    side * n . (x_i - sum_k b_k x_k) >= thickness with compliance 0 and the normal held fixed, active while violated
+    and while x_i projects into the triangle (down to -SOLVE_SLACK). The vertex moves by wi dl side n, corner k by
+    -w_k b_k dl side n. All four vertices evaluate this with the same arguments, so they agree exactly."""
+    r = xi - xa
+    gap = float(side) * wp.dot(n, r) - thickness
     if gap >= 0.0:
-        return wp.vec3(0.0), False
+        return 0.0, wp.vec3(0.0), False
     bary = barycentric(r, xb - xa, xc - xa)
     if wp.min(bary) < -SOLVE_SLACK:
-        return wp.vec3(0.0), False
+        return 0.0, wp.vec3(0.0), False
     bary = wp.max(bary, wp.vec3(0.0))
     bary = bary / (bary[0] + bary[1] + bary[2])
-    wi = inv_mass[i]
-    w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
-    d_lambda = -gap / (wi + wp.dot(wp.cw_mul(bary, bary), w))
-    if me == i:
-        return (wi * d_lambda) * n, True
-    for k in range(3):
-        if me == tri[k]:
-            return (-w[k] * bary[k] * d_lambda) * n, True
-    return wp.vec3(0.0), True
+    return -gap / (wi + wp.dot(wp.cw_mul(bary, bary), w)), bary, True
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -406,27 +396,29 @@ def predict_with_body(
     body.push[i] = push
 
 
+@wp.func
+def projection_box(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
+    """Box of the points that project into the triangle down to -DETECT_SLACK: the triangle scaled by
+    1 + 3 DETECT_SLACK about its centroid."""
+    center = (xa + xb + xc) / 3.0
+    grow = 1.0 + 3.0 * DETECT_SLACK
+    a = center + grow * (xa - center)
+    b = center + grow * (xb - center)
+    c = center + grow * (xc - center)
+    return wp.min(wp.min(a, b), c), wp.max(wp.max(a, b), c)
+
+
 @wp.kernel
 def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts):
-    """Swept box over the substep (start to prediction) of every triangle, padded by `reach` plus 2 DETECT_SLACK
-    times its extent (a point that projects into the triangle down to -DETECT_SLACK lies at most that far beyond
-    the corners' box); empties the triangle's contact list."""
+    """Box of every triangle's projection_box at the substep start and at the prediction, padded by `reach`;
+    empties the triangle's contact list."""
     t = wp.tid()
     tri = sc.faces[t]
-    lo = wp.min(x_prev[tri[0]], x[tri[0]])
-    hi = wp.max(x_prev[tri[0]], x[tri[0]])
-    for k in range(1, 3):
-        lo = wp.min(lo, wp.min(x_prev[tri[k]], x[tri[k]]))
-        hi = wp.max(hi, wp.max(x_prev[tri[k]], x[tri[k]]))
-    pad = wp.vec3(sc.reach) + (2.0 * DETECT_SLACK) * (hi - lo)
-    sc.face_lower[t] = lo - pad
-    sc.face_upper[t] = hi + pad
+    lo, hi = projection_box(x[tri[0]], x[tri[1]], x[tri[2]])
+    lo_start, hi_start = projection_box(x_prev[tri[0]], x_prev[tri[1]], x_prev[tri[2]])
+    sc.face_lower[t] = wp.min(lo, lo_start) - wp.vec3(sc.reach)
+    sc.face_upper[t] = wp.max(hi, hi_start) + wp.vec3(sc.reach)
     sc.face_count[t] = 0
-
-
-VERTEX_LIST = 32  # capacity of a vertex's list of the triangles it touches
-FACE_LIST = 32    # capacity of a triangle's list of the vertices touching it
-vertex_list = wp.types.vector(length=VERTEX_LIST, dtype=int)
 
 
 @wp.kernel
@@ -451,16 +443,23 @@ def find_self_contacts(
         n_old = sc.vertex_count[i]
         for a in range(n_old):
             old[a] = sc.vertex_contacts[i, a]
+        neighbors = neighbor_list()
+        first = sc.edge_offsets[i]
+        n_neighbors = sc.edge_offsets[i + 1] - first
+        for a in range(n_neighbors):
+            neighbors[a] = sc.vertex_neighbors[first + a]
         query = wp.bvh_query_aabb(sc.face_bvh, wp.min(x_prev[i], x[i]), wp.max(x_prev[i], x[i]))
         t = int(0)
         while wp.bvh_query_next(query, t):
-            side = contact_side(i, t, x, x_prev, sc)
+            side = contact_side(i, neighbors, n_neighbors, t, x, x_prev, sc)
             if side != 0:
                 for a in range(n_old):
                     if wp.abs(old[a]) == t + 1:
                         side = wp.sign(old[a])
-                slot = wp.atomic_add(sc.face_count, t, 1)
-                if count < VERTEX_LIST and slot < FACE_LIST:
+                slot = FACE_LIST
+                if count < VERTEX_LIST:
+                    slot = wp.atomic_add(sc.face_count, t, 1)
+                if slot < FACE_LIST:
                     sc.vertex_contacts[i, count] = side * (t + 1)
                     sc.face_contacts[t, slot] = side * (i + 1)
                     count += 1
@@ -511,25 +510,47 @@ def solve_with_collisions(
     xi = x_in[i]
     dx = k.distance_correction(i, xi, x_in, inv_mass, offsets, neighbor, constraint, rest_min, rest_max,
                                alpha_tilde, scale, lambda_in, lambda_carry, lambda_out)
-    # Self-contacts, averaged over the active ones (Jacobi mass splitting): the vertex's own list, then those of
-    # the triangles around it (all empty with self-collision off; a pinned vertex takes no correction).
+    # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
+    # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
     contact = wp.vec3(0.0)
     active = int(0)
+    wi = inv_mass[i]
     for a in range(sc.vertex_count[i]):
         code = sc.vertex_contacts[i, a]
-        delta, on = self_contact_correction(i, i, wp.abs(code) - 1, wp.sign(code), x_in, inv_mass, sc)
-        if on:
-            contact = contact + delta
-            active += 1
-    if inv_mass[i] > 0.0:
+        tri = sc.faces[wp.abs(code) - 1]
+        xa = x_in[tri[0]]
+        xb = x_in[tri[1]]
+        xc = x_in[tri[2]]
+        n, ok = triangle_normal(xa, xb, xc)
+        if ok:
+            w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
+            dl, bary, on = contact_multiplier(xi, wi, xa, xb, xc, w, n, wp.sign(code), sc.thickness)
+            if on:
+                contact = contact + (wi * dl * float(wp.sign(code))) * n
+                active += 1
+    if wi > 0.0:
         for f in range(sc.face_offsets[i], sc.face_offsets[i + 1]):
             t = sc.vertex_faces[f]
-            for a in range(sc.face_count[t]):
-                code = sc.face_contacts[t, a]
-                delta, on = self_contact_correction(i, wp.abs(code) - 1, t, wp.sign(code), x_in, inv_mass, sc)
-                if on:
-                    contact = contact + delta
-                    active += 1
+            if sc.face_count[t] > 0:
+                tri = sc.faces[t]
+                xa = x_in[tri[0]]
+                xb = x_in[tri[1]]
+                xc = x_in[tri[2]]
+                n, ok = triangle_normal(xa, xb, xc)
+                if ok:
+                    w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
+                    corner = int(0)
+                    for k in range(3):
+                        if tri[k] == i:
+                            corner = k
+                    for a in range(sc.face_count[t]):
+                        code = sc.face_contacts[t, a]
+                        j = wp.abs(code) - 1
+                        dl, bary, on = contact_multiplier(x_in[j], inv_mass[j], xa, xb, xc, w, n, wp.sign(code),
+                                                          sc.thickness)
+                        if on:
+                            contact = contact - (wi * bary[corner] * dl * float(wp.sign(code))) * n
+                            active += 1
     if active > 0:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.

@@ -239,6 +239,9 @@ class ClothSolver:
         sc.face_offsets = arr(np.concatenate([[0], np.cumsum(np.bincount(faces.ravel(), minlength=n))]), int)
         sc.vertex_faces = arr(face_ids[order], int)
         edge_offsets, neighbors, _ = _vertex_incidence(unique_edges(faces), n)
+        if np.diff(edge_offsets).max() > ck.MAX_VALENCE:
+            raise ValueError(f"self-collision handles vertices of up to {ck.MAX_VALENCE} neighbours; this mesh has "
+                             f"one with {np.diff(edge_offsets).max()}")
         sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
         sc.face_lower = arr(np.zeros((len(faces), 3)), wp.vec3)
         sc.face_upper = arr(np.zeros((len(faces), 3)), wp.vec3)

@@ -5,7 +5,7 @@ import pytest
 import yaml
 
 from pipeline.config import resolve_scene, write_settings
-from pipeline.dataset import held_out_frames, to_reference_frame
+from pipeline.dataset import held_out_frames, split_dataset, to_reference_frame
 from pipeline.errors import PipelineError
 from pipeline.scene import build_scene, main as scene_main
 from sim.body import (body_signed_distance, capsules_world, default_skeleton, quat_to_matrix, rest_transforms,
@@ -70,11 +70,13 @@ def test_scene_file_round_trips_the_skeleton_and_is_deterministic(tmp_path):
         assert skel.names == default_skeleton().names and np.allclose(skel.capsule_b, default_skeleton().capsule_b)
         for name in ("rest/vertices", "pins/targets", "capsules/a", "pose", "motion/clip"):
             assert np.array_equal(one[name][()], two[name][()])
-    train, test = held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["walk"])
+    held = held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["walk"])
     with h5py.File(tmp_path / "one.h5") as f:
         clip, names = f["motion/clip"][()], [n.decode() for n in f["motion/clip_names"][()]]
-    assert np.array_equal(test, np.flatnonzero(clip == names.index("walk")))
-    assert len(train) + len(test) == settings["frames"] and len(test) == 60
+    assert np.array_equal(held, np.flatnonzero(clip == names.index("walk"))) and len(held) == 60
+    train, test, held_again = split_dataset(settings["frames"], 0.1, 0, held)
+    assert np.array_equal(held_again, held) and not np.intersect1d(np.union1d(train, test), held).size
+    assert len(train) + len(test) == settings["frames"] - 60 and len(test) == 15
     with pytest.raises(PipelineError, match="no clip 'tango'"):
         held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["tango"])
 
