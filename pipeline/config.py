@@ -17,7 +17,6 @@ import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
-import jsonschema
 import yaml
 
 from pipeline import cli
@@ -45,13 +44,15 @@ def load_config(path: str | os.PathLike) -> dict:
 
 def validate_config(config: Any, source: str = "config") -> None:
     """Check `config` against the schema; the first problem becomes one error naming the key."""
+    import jsonschema  # here, not at the top: stages that only read resolved settings do not need it
     validator = jsonschema.Draft202012Validator(load_schema())
     error = jsonschema.exceptions.best_match(validator.iter_errors(config))
     if error is not None:
         raise PipelineError(f"{source}: {_describe(error)}")
 
 
-def _describe(error: jsonschema.ValidationError) -> str:
+def _describe(error) -> str:
+    """One line for a jsonschema.ValidationError."""
     where = ".".join(str(p) for p in error.absolute_path) or "top level"
     if error.validator == "additionalProperties":
         patterns = [re.compile(p) for p in error.schema.get("patternProperties", {})]
