@@ -24,6 +24,16 @@ wildcard_constraints:
     scene="|".join(SETTINGS),
 
 
+def setting(*keys):
+    """A params function reading settings[keys...] of the job's scene; a list comes as one comma-joined word."""
+    def get(wildcards):
+        value = SETTINGS[wildcards.scene]
+        for key in keys:
+            value = value[key]
+        return ",".join(map(str, value)) if isinstance(value, list) else value
+    return get
+
+
 rule settings:
     output: f"{OUT}/settings.json"
     params: settings=lambda w: SETTINGS[w.scene]  # a changed setting reruns the scene
@@ -41,8 +51,8 @@ rule subdivide:
     input: f"{OUT}/scene.h5"
     output: f"{OUT}/subdiv.h5"
     params:
-        levels=lambda w: SETTINGS[w.scene]["high_res"]["subdivision_levels"],
-        per_harmonic=lambda w: SETTINGS[w.scene]["high_res"]["vertices_per_harmonic"],
+        levels=setting("high_res", "subdivision_levels"),
+        per_harmonic=setting("high_res", "vertices_per_harmonic"),
     shell: "{PY} -m pipeline.subdivide {input} {output} --levels {params.levels} --vertices-per-harmonic {params.per_harmonic}"
 
 
@@ -60,26 +70,11 @@ rule simulate_high:
     shell: "{PY} -m pipeline.simulate high {input.settings} {input.scene} {input.subdiv} {input.sim_low} {output}"
 
 
-def setting(*keys):
-    """A params function reading settings[keys...] of the job's scene."""
-    def get(wildcards):
-        value = SETTINGS[wildcards.scene]
-        for key in keys:
-            value = value[key]
-        return value
-    return get
-
-
-def shown(value):
-    """A setting as a shell word: lists comma-joined."""
-    return ",".join(map(str, value)) if isinstance(value, list) else value
-
-
 rule operators:
     input: f"{OUT}/subdiv.h5"
     output: f"{OUT}/operators.h5"
     params:
-        conv=lambda w: shown(SETTINGS[w.scene]["operators"]["conv"]),
+        conv=setting("operators", "conv"),
         levels=setting("operators", "levels"),
     shell: "{PY} -m pipeline.operators {input} {output} --conv {params.conv} --levels {params.levels} --quiet"
 
@@ -91,7 +86,7 @@ rule dataset:
     output: f"{OUT}/dataset.h5"
     params:
         frame=setting("dataset", "frame"),
-        split=lambda w: ("--test-clips " + shown(SETTINGS[w.scene]["drivers"]["mannequin"]["test_clips"])
+        split=lambda w: ("--test-clips " + setting("drivers", "mannequin", "test_clips")(w)
                          if SETTINGS[w.scene]["dataset"]["split"] == "held_out" else ""),
         fraction=setting("dataset", "test_fraction"),
         seed=setting("dataset", "seed"),

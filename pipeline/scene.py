@@ -16,12 +16,12 @@ from pipeline.artifacts import atomic_h5
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
-from sim.body import (TORSO, Skeleton, capsule_velocities, capsules_world, default_skeleton, quat_conjugate,
-                      quat_multiply, quat_rotate, quat_to_matrix, rest_transforms)
-from sim.cloth import apply_rigid, first_row_pins, grid_cloth, sway_driver
+from sim.body import (TORSO, Skeleton, capsule_velocities, capsules_world, default_skeleton, quat_to_matrix,
+                      rest_transforms)
+from sim.cloth import first_row_pins, grid_cloth, sway_driver
 from sim.garments import make_garment
 from sim.motion import body_state, play_clips, pose_vectors
-from sim.skinning import skinning_weights
+from sim.skinning import rest_to_posed, skinning_weights
 
 
 def rigid_targets(transforms: np.ndarray, parts: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
@@ -67,10 +67,11 @@ def grid_scene(settings: dict) -> dict[str, np.ndarray]:
     transforms = np.tile(np.eye(4), (n_frames, 1, 1, 1))
     transforms[:, 0, :3, :3] = rotation
     transforms[:, 0, :3, 3] = pivot + translation - rotation @ pivot
+    part = np.zeros(len(pin_ids), np.int64)   # one rigid group: the rod
     return {
         "rest/vertices": vertices, "rest/faces": faces.astype(np.int32), "pins/ids": pin_ids.astype(np.int32),
-        "pins/targets": apply_rigid(rotation, translation, pivot, vertices[pin_ids]).astype(np.float32),
-        "pins/part": np.zeros(len(pin_ids), np.int32), "pins/transforms": transforms,
+        "pins/targets": rigid_targets(transforms, part, vertices[pin_ids]).astype(np.float32),
+        "pins/part": part.astype(np.int32), "pins/transforms": transforms,
         "driver/rotation": rotation, "driver/translation": translation, "driver/pivot": pivot,
     }
 
@@ -95,10 +96,8 @@ def garment_scene(settings: dict, skel: Skeleton) -> dict[str, np.ndarray]:
     pin_ids = garment.attachment if settings["physics"]["pins"] else np.zeros(0, np.int64)
     # An attachment vertex is rigidly bound to one part: it moves with that part's rest-to-posed transform.
     parts = garment.attachment_part[:len(pin_ids)]
-    relative = quat_multiply(state.rotation, quat_conjugate(rest[0]))
     transforms = np.tile(np.eye(4), (clips.motion.n_frames, skel.n_parts, 1, 1))
-    transforms[..., :3, :3] = quat_to_matrix(relative)
-    transforms[..., :3, 3] = state.translation - quat_rotate(relative, rest[1])
+    transforms[..., :3, :] = rest_to_posed(rest, state.transforms)
     targets = rigid_targets(transforms, parts, garment.vertices[pin_ids])
     torso = skel.index(TORSO)
     torso_transforms = np.tile(np.eye(4), (clips.motion.n_frames, 1, 1))
@@ -141,6 +140,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             f[name].attrs.update(values)
         f.attrs.update(scene=settings["scene"], frames=settings["frames"], dt=settings["solver"]["dt"],
                        generator=settings["mesh"]["generator"])
+
 
 if __name__ == "__main__":
     cli.run(main)

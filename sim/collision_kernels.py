@@ -320,6 +320,16 @@ def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, t: int, x: 
 
 
 @wp.func
+def contact_triangle(tri: wp.vec3i, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float)):
+    """Corners, corner inverse masses, unit normal and whether it has one, of a triangle in a contact."""
+    xa = x[tri[0]]
+    xb = x[tri[1]]
+    xc = x[tri[2]]
+    n, ok = triangle_normal(xa, xb, xc)
+    return xa, xb, xc, wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]]), n, ok
+
+
+@wp.func
 def contact_multiplier(xi: wp.vec3, wi: float, xa: wp.vec3, xb: wp.vec3, xc: wp.vec3, w: wp.vec3, n: wp.vec3,
                        side: int, thickness: float):
     """Multiplier update, barycentric weights and activity of the contact between vertex i (at xi, inverse mass wi)
@@ -517,13 +527,8 @@ def solve_with_collisions(
     wi = inv_mass[i]
     for a in range(sc.vertex_count[i]):
         code = sc.vertex_contacts[i, a]
-        tri = sc.faces[wp.abs(code) - 1]
-        xa = x_in[tri[0]]
-        xb = x_in[tri[1]]
-        xc = x_in[tri[2]]
-        n, ok = triangle_normal(xa, xb, xc)
+        xa, xb, xc, w, n, ok = contact_triangle(sc.faces[wp.abs(code) - 1], x_in, inv_mass)
         if ok:
-            w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
             dl, bary, on = contact_multiplier(xi, wi, xa, xb, xc, w, n, wp.sign(code), sc.thickness)
             if on:
                 contact = contact + (wi * dl * float(wp.sign(code))) * n
@@ -533,12 +538,8 @@ def solve_with_collisions(
             t = sc.vertex_faces[f]
             if sc.face_count[t] > 0:
                 tri = sc.faces[t]
-                xa = x_in[tri[0]]
-                xb = x_in[tri[1]]
-                xc = x_in[tri[2]]
-                n, ok = triangle_normal(xa, xb, xc)
+                xa, xb, xc, w, n, ok = contact_triangle(tri, x_in, inv_mass)
                 if ok:
-                    w = wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]])
                     corner = int(0)
                     for k in range(3):
                         if tri[k] == i:

@@ -46,6 +46,17 @@ def skinning_weights(skel: Skeleton, rest_vertices: np.ndarray, faces: np.ndarra
     return order.astype(np.int64), top / top.sum(axis=1, keepdims=True)
 
 
+def rest_to_posed(rest_transforms: tuple[np.ndarray, np.ndarray],
+                  transforms: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Affine maps (..., P, 3, 4) [R_p R0_p^T | t_p - R_p R0_p^T t0_p] carrying a rest-pose point rigidly with each
+    part, from the rest part transforms (P, 4), (P, 3) to posed ones (..., P, 4), (..., P, 3)."""
+    rest_rotation, rest_translation = rest_transforms
+    rotation, translation = transforms
+    relative = quat_multiply(rotation, quat_conjugate(rest_rotation))
+    offset = translation - quat_rotate(relative, rest_translation)
+    return np.concatenate([quat_to_matrix(relative), offset[..., None]], axis=-1)
+
+
 def _neighbour_average(n_vertices: int, edges: np.ndarray) -> sp.csr_matrix:
     """Row-stochastic matrix averaging each vertex's mesh neighbours (uniform graph Laplacian smoothing)."""
     rows = np.concatenate([edges[:, 0], edges[:, 1]])
@@ -64,12 +75,8 @@ def linear_blend_skinning(rest_vertices: np.ndarray, indices: np.ndarray, weight
     are the posed ones, (..., P, 4) and (..., P, 3) with any leading axes (e.g. frames). The per-vertex blended
     affine map is formed first, so memory is (..., V, 12) floats.
     """
-    rest_rotation, rest_translation = rest_transforms
-    rotation, translation = transforms
-    relative = quat_multiply(rotation, quat_conjugate(rest_rotation))                 # (..., P, 4)
-    offset = translation - quat_rotate(relative, rest_translation)                     # (..., P, 3)
-    affine = np.concatenate([quat_to_matrix(relative), offset[..., None]], axis=-1)    # (..., P, 3, 4)
-    dense = np.zeros((len(rest_vertices), rotation.shape[-2]))
+    affine = rest_to_posed(rest_transforms, transforms)                                # (..., P, 3, 4)
+    dense = np.zeros((len(rest_vertices), affine.shape[-3]))
     np.add.at(dense, (np.arange(len(rest_vertices))[:, None], indices), weights)
     blended = np.einsum("vp,...pij->...vij", dense, affine)
     return np.einsum("...vij,vj->...vi", blended[..., :3], rest_vertices) + blended[..., 3]
