@@ -13,10 +13,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from sim.cloth import first_row_pins, grid_cloth  # noqa: E402
-from sim.harmonics import harmonic_basis, harmonic_count  # noqa: E402
-from sim.loop import loop_subdivide  # noqa: E402
-from sim.xpbd import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
+from scenes.grid import first_row_pins, grid_cloth  # noqa: E402
+from geometry.harmonics import harmonic_basis, harmonic_count  # noqa: E402
+from geometry.loop_subdivision import loop_subdivide  # noqa: E402
+from sim.xpbd.solver import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
 
 CHECKPOINTS = (1, 10, 30, 60)
 

@@ -22,10 +22,10 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from meshops import build_operators  # noqa: E402
-from model.hierarchy import mesh_hierarchy  # noqa: E402
+from model.mesh_hierarchy import mesh_hierarchy  # noqa: E402
 from model.networks import NetworkSpec, NormalizedRegressor, build_network  # noqa: E402
-from sim.cloth import grid_cloth  # noqa: E402
-from sim.loop import loop_subdivide  # noqa: E402
+from scenes.grid import grid_cloth  # noqa: E402
+from geometry.loop_subdivision import loop_subdivide  # noqa: E402
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
 # Low-res grid edge lengths, as bench/sim.py: the CPU-profile flag, the paper-sized flag, a ~15k-vertex high-res.

@@ -21,14 +21,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from sim.body import capsules_world, default_skeleton, rest_transforms  # noqa: E402
-from sim.cloth import first_row_pins, grid_cloth  # noqa: E402
-from sim.garments import make_garment  # noqa: E402
-from sim.harmonics import harmonic_basis, harmonic_count  # noqa: E402
-from sim.loop import loop_subdivide  # noqa: E402
-from sim.motion import body_state, make_motion  # noqa: E402
-from sim.skinning import linear_blend_skinning  # noqa: E402
-from sim.xpbd import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
+from scenes.mannequin import capsules_world, default_skeleton, rest_transforms  # noqa: E402
+from scenes.grid import first_row_pins, grid_cloth  # noqa: E402
+from scenes.garments import make_garment  # noqa: E402
+from geometry.harmonics import harmonic_basis, harmonic_count  # noqa: E402
+from geometry.loop_subdivision import loop_subdivide  # noqa: E402
+from scenes.motion import body_state, make_motion  # noqa: E402
+from scenes.skinning import linear_blend_skinning  # noqa: E402
+from sim.xpbd.solver import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}

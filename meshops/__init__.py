@@ -4,6 +4,6 @@
 SPD) and the pooling/unpooling maps to the next coarser level. Plain numpy arrays in and out: this package knows
 nothing of HDF5 layouts, the pipeline or torch.
 """
-from meshops.hierarchy import Level, build_operators, parse_conv_kind, parse_conv_kinds
+from meshops.levels import Level, build_operators, parse_conv_kind, parse_conv_kinds
 
 __all__ = ["Level", "build_operators", "parse_conv_kind", "parse_conv_kinds"]

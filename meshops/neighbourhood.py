@@ -10,7 +10,7 @@ import numpy as np
 from meshops.geodesic import geodesic_distance, geodesic_sources
 from meshops.rings import (boundary_walk, mean_edge_length, ordered_one_ring, pair_lookup, ring_distances,
                            vertex_normals)
-from sim.mesh import unique_edges
+from geometry.mesh import unique_edges
 
 DUMMY = -2  # marks the one-ring dummy inside `Neighbourhood.ring`; -1 is padding
 # Geometric keys (distances, angles) are rounded to this fraction of the mean edge length (or radian) before

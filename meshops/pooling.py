@@ -15,7 +15,7 @@ import scipy.sparse as sp
 
 from meshops.neighbourhood import QUANTUM, quantise
 from meshops.rings import mean_edge_length
-from sim.mesh import edge_faces, opposite_vertex, validate_mesh
+from geometry.mesh import edge_faces, opposite_vertex, validate_mesh
 
 # A collapse is refused if it leaves any face's normal more than ~84 degrees from where it was at the start of the
 # pass (a flip or near-flip)...

@@ -1,6 +1,6 @@
 """The paper's building blocks (sections 3.1-3.3) on channels-last features x of shape (B, V, C).
 
-Every operator is a gather over a precomputed table (`model.hierarchy`), so a network runs unchanged on any
+Every operator is a gather over a precomputed table (`model.mesh_hierarchy`), so a network runs unchanged on any
 mesh whose tables it is given.
 """
 from __future__ import annotations

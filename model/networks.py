@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from model.architecture import Architecture, ArchitectureError, parse_architecture, parse_conv
-from model.hierarchy import MeshHierarchy
+from model.mesh_hierarchy import MeshHierarchy
 from model.layers import POOLING, MeshConv, instance_norm, leaky_relu, unpool
 
 

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import torch
 
-from model.hierarchy import MeshHierarchy
+from model.mesh_hierarchy import MeshHierarchy
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.networks import NormalizedRegressor
 

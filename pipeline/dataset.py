@@ -16,18 +16,10 @@ from typing import Sequence
 
 import numpy as np
 
+from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
-from pipeline.artifacts import atomic_h5, open_artifact, read, read_csr
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr
 from pipeline.errors import PipelineError
-
-
-def to_reference_frame(positions: np.ndarray, transforms: np.ndarray | None) -> np.ndarray:
-    """Positions (F, V, 3) expressed in per-frame frames given as world-from-frame 4x4 transforms (F, 4, 4):
-    x_frame = R^T (x_world - t). None keeps world coordinates."""
-    if transforms is None:
-        return positions
-    rotation, translation = transforms[:, :3, :3], transforms[:, :3, 3]
-    return np.einsum("fvi,fij->fvj", positions - translation[:, None, :], rotation)
 
 
 def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -99,8 +91,9 @@ def build_dataset(low_path: str, high_path: str, subdiv_path: str, frame: str,
     if len(low) != len(high):
         raise PipelineError(f"{high_path}: {len(high)} frames but {low_path} has {len(low)}")
     transforms = _torso_transforms(scene_path, len(low)) if frame == "torso" else None
-    low = to_reference_frame(low, transforms)
-    high = to_reference_frame(high, transforms)
+    if transforms is not None:
+        low = apply_rigid_inverse(transforms[:, None], low)
+        high = apply_rigid_inverse(transforms[:, None], high)
     subdivided = np.stack([subdivision @ x for x in low])
     return {"input": subdivided.astype(np.float32), "target": (high - subdivided).astype(np.float32),
             "faces": subdiv_faces, "rest_vertices": rest, "low/positions": low.astype(np.float32),

@@ -24,14 +24,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from geometry.rigid import apply_rigid_inverse
 from model.losses import LossWeights
 from model.training import split_errors
 from pipeline import cli
-from pipeline.artifacts import atomic_h5, open_artifact, read
-from pipeline.dataset import to_reference_frame
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
 from pipeline.errors import PipelineError
 from pipeline.train import add_threads, configure_torch, load_dataset, load_model
-from sim.body import body_mesh, skeleton_from_h5
+from scenes.mannequin import body_mesh, skeleton_from_h5
 from viz.export import write_glb, write_obj_sequence
 from viz.render import Panel, render_panels, value_colors
 
@@ -94,7 +94,7 @@ def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str) -> 
     for i in range(len(frames)):
         vertices, faces = body_mesh(skel, (rotation[i], translation[i]), segments=32)
         if torso is not None:
-            vertices = to_reference_frame(vertices[None], torso[i:i + 1])[0]
+            vertices = apply_rigid_inverse(torso[i], vertices)
         meshes.append((vertices, faces))
     return meshes
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts import open_artifact, read
+from pipeline.artifacts.h5 import open_artifact, read
 from pipeline.errors import PipelineError
-from sim.mesh import validate_mesh
+from geometry.mesh import validate_mesh
 
 # Where each artifact kind keeps its mesh: the first group path found in a file wins.
 _H5_MESH_GROUPS = ("", "rest", "levels/0")

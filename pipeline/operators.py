@@ -16,8 +16,8 @@ from typing import Sequence
 import numpy as np
 
 from meshops import Level, build_operators, parse_conv_kind, parse_conv_kinds
-from meshops.hierarchy import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
-from pipeline.artifacts import atomic_h5
+from meshops.levels import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
+from pipeline.artifacts.h5 import atomic_h5
 from pipeline.cli import add_quiet, run
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh

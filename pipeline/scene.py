@@ -11,24 +11,18 @@ from typing import Sequence
 
 import numpy as np
 
+from geometry.rigid import apply_rigid
 from pipeline import cli
-from pipeline.artifacts import atomic_h5
+from pipeline.artifacts.h5 import atomic_h5
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
-from sim.body import (TORSO, Skeleton, capsule_velocities, capsules_world, default_skeleton, quat_to_matrix,
+from scenes.mannequin import (TORSO, Skeleton, capsule_velocities, capsules_world, default_skeleton, quat_to_matrix,
                       rest_transforms)
-from sim.cloth import first_row_pins, grid_cloth, sway_driver
-from sim.garments import make_garment
-from sim.motion import body_state, play_clips, pose_vectors
-from sim.skinning import rest_to_posed, skinning_weights
-
-
-def rigid_targets(transforms: np.ndarray, parts: np.ndarray, rest_points: np.ndarray) -> np.ndarray:
-    """Positions (F, N, 3) of rest points each carried by the world-from-rest transform (F, G, 4, 4) of its
-    group `parts` (N,)."""
-    chosen = transforms[:, parts]                                        # (F, N, 4, 4)
-    return np.einsum("fnij,nj->fni", chosen[..., :3, :3], rest_points) + chosen[..., :3, 3]
+from scenes.grid import first_row_pins, grid_cloth, sway_driver
+from scenes.garments import make_garment
+from scenes.motion import body_state, play_clips, pose_vectors
+from scenes.skinning import rest_to_posed, skinning_weights
 
 
 def build_scene(settings: dict) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
@@ -70,7 +64,7 @@ def grid_scene(settings: dict) -> dict[str, np.ndarray]:
     part = np.zeros(len(pin_ids), np.int64)   # one rigid group: the rod
     return {
         "rest/vertices": vertices, "rest/faces": faces.astype(np.int32), "pins/ids": pin_ids.astype(np.int32),
-        "pins/targets": rigid_targets(transforms, part, vertices[pin_ids]).astype(np.float32),
+        "pins/targets": apply_rigid(transforms[:, part], vertices[pin_ids]).astype(np.float32),
         "pins/part": part.astype(np.int32), "pins/transforms": transforms,
         "driver/rotation": rotation, "driver/translation": translation, "driver/pivot": pivot,
     }
@@ -98,7 +92,7 @@ def garment_scene(settings: dict, skel: Skeleton) -> dict[str, np.ndarray]:
     parts = garment.attachment_part[:len(pin_ids)]
     transforms = np.tile(np.eye(4), (clips.motion.n_frames, skel.n_parts, 1, 1))
     transforms[..., :3, :] = rest_to_posed(rest, state.transforms)
-    targets = rigid_targets(transforms, parts, garment.vertices[pin_ids])
+    targets = apply_rigid(transforms[:, parts], garment.vertices[pin_ids])
     torso = skel.index(TORSO)
     torso_transforms = np.tile(np.eye(4), (clips.motion.n_frames, 1, 1))
     torso_transforms[:, :3, :3] = quat_to_matrix(state.rotation[:, torso])

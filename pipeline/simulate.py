@@ -18,12 +18,12 @@ import scipy.sparse as sp
 import warp as wp
 from tqdm import tqdm
 
+from geometry.rigid import apply_rigid
 from pipeline import cli
-from pipeline.artifacts import atomic_h5, open_artifact, read, read_csr
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
-from pipeline.scene import rigid_targets
 from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, harmonic_constraint
 
 
@@ -126,7 +126,7 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
     if len(x_low) != settings["frames"]:
         raise PipelineError(f"{low_path}: has {len(x_low)} frames, settings ask for {settings['frames']}")
     pins, part = subdivided_pins(S, drive.pins, drive.part)
-    targets = rigid_targets(drive.transforms, part, rest[pins])
+    targets = apply_rigid(drive.transforms[:, part], rest[pins])
     try:
         constraint = harmonic_constraint(basis, mass, pins)
     except ValueError as err:

@@ -14,12 +14,12 @@ from typing import Sequence
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.artifacts import atomic_h5, write_csr
+from pipeline.artifacts.h5 import atomic_h5, write_csr
 from pipeline.cli import add_quiet, run
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
-from sim.harmonics import harmonic_basis, harmonic_count
-from sim.loop import loop_subdivide
+from geometry.harmonics import harmonic_basis, harmonic_count
+from geometry.loop_subdivision import loop_subdivide
 
 
 def _int_at_least(minimum: int):

@@ -24,12 +24,12 @@ import torch
 from tqdm import tqdm
 
 from model.architecture import ArchitectureError
-from model.hierarchy import MeshHierarchy, mesh_hierarchy
+from model.mesh_hierarchy import MeshHierarchy, mesh_hierarchy
 from model.losses import LossWeights
 from model.networks import NetworkSpec, NormalizedRegressor, build_network
 from model.training import Frames, TrainSettings, fit
 from pipeline import cli
-from pipeline.artifacts import atomic_h5, open_artifact, read
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
 from pipeline.errors import PipelineError
 
 MODEL_FORMAT = "trimesh-cnn/model-1"

@@ -1,0 +1,3 @@
+"""Physics solvers, side by side (one subpackage each, like NVIDIA Newton's `solvers/`): today `sim.xpbd`, the
+XPBD cloth solver. A solver knows nothing of Snakemake, HDF5 layouts, torch or where a body comes from: it takes
+meshes, settings and per-frame kinematic inputs as arrays."""

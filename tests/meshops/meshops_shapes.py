@@ -9,7 +9,7 @@ import functools
 import numpy as np
 import scipy.spatial
 
-from sim.mesh import validate_mesh
+from geometry.mesh import validate_mesh
 
 
 def _checked(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,8 +132,8 @@ def irregular_disk(n_points: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray
 def flag_high_res(max_edge: float = 0.12) -> tuple[np.ndarray, np.ndarray]:
     """The flag scene's high-res mesh as the pipeline builds it (CPU profile: max edge 0.12, ~2.4k vertices):
     a grid cloth with alternating diagonals (valence 4 and 8 vertices), Loop-subdivided twice."""
-    from sim.cloth import grid_cloth
-    from sim.loop import loop_subdivide
+    from scenes.grid import grid_cloth
+    from geometry.loop_subdivision import loop_subdivide
     low, low_faces = grid_cloth(1.0, 1.0, max_edge, plane="xy", origin=(-0.5, 1.5, 0.0))
     subdivision, faces = loop_subdivide(low, low_faces, levels=2)
     return _checked(subdivision @ low, faces)

@@ -4,7 +4,7 @@ import numpy as np
 from meshops.geodesic import (fixed_vertex, geodesic_distance, geodesic_sources, graph_geodesic_distance,
                               heat_geodesic_distance)
 from meshops_shapes import cube_sphere, grid_patch, mesh_of
-from sim.mesh import unique_edges
+from geometry.mesh import unique_edges
 
 
 def test_fixed_vertex_is_the_top_centre_of_the_bounding_box_with_y_up():

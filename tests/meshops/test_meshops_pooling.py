@@ -5,7 +5,7 @@ import trimesh
 
 from meshops.pooling import collapse_pass, quadric_errors
 from meshops_shapes import TEST_MESHES, grid_patch, mesh_of, operators_of
-from sim.mesh import edge_faces, validate_mesh
+from geometry.mesh import edge_faces, validate_mesh
 
 
 def _loops_and_euler(vertices, faces):

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from model.hierarchy import MeshHierarchy, mesh_hierarchy
-from sim.mesh import unique_edges
+from model.mesh_hierarchy import MeshHierarchy, mesh_hierarchy
+from geometry.mesh import unique_edges
 
 
 def grid_mesh(n_rows: int, n_cols: int) -> tuple[np.ndarray, np.ndarray]:

@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from model.hierarchy import mesh_hierarchy
+from model.mesh_hierarchy import mesh_hierarchy
 from model.layers import MeshConv, avg_pool, instance_norm, max_pool, mesh_conv, unpool
 
 

@@ -5,10 +5,11 @@ import pytest
 import yaml
 
 from pipeline.config import resolve_scene, write_settings
-from pipeline.dataset import held_out_frames, split_dataset, to_reference_frame
+from geometry.rigid import apply_rigid, apply_rigid_inverse
+from pipeline.dataset import held_out_frames, split_dataset
 from pipeline.errors import PipelineError
 from pipeline.scene import build_scene, main as scene_main
-from sim.body import (body_signed_distance, capsules_world, default_skeleton, quat_to_matrix, rest_transforms,
+from scenes.mannequin import (body_signed_distance, capsules_world, default_skeleton, quat_to_matrix, rest_transforms,
                       skeleton_from_h5)
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
@@ -56,7 +57,7 @@ def test_body_arrays_agree_with_the_library(pants):
 
 def test_attachment_is_still_in_the_torso_frame(pants):
     _, a, _ = pants
-    local = to_reference_frame(a["pins/targets"].astype(np.float64), a["torso_transforms"])
+    local = apply_rigid_inverse(a["torso_transforms"][:, None], a["pins/targets"].astype(np.float64))
     assert np.abs(local - local[0]).max() < 1e-5
 
 
@@ -89,18 +90,17 @@ def test_too_few_frames_for_the_clips_is_one_clear_error():
 
 
 def test_high_res_pins_follow_their_parts_rigidly(pants):
-    from pipeline.scene import rigid_targets
     from pipeline.simulate import subdivided_pins
-    from sim.loop import loop_subdivide
+    from geometry.loop_subdivision import loop_subdivide
     _, a, _ = pants
     S, _ = loop_subdivide(a["rest/vertices"], a["rest/faces"].astype(np.int64), 2)
     high_rest = S @ a["rest/vertices"]
     pins, part = subdivided_pins(S, a["pins/ids"].astype(np.int64), a["pins/part"].astype(np.int64))
     assert len(pins) > len(a["pins/ids"]) and np.array_equal(pins[:len(a["pins/ids"])], np.sort(a["pins/ids"]))
-    targets = rigid_targets(a["pins/transforms"], part, high_rest[pins])
+    targets = apply_rigid(a["pins/transforms"][:, part], high_rest[pins])
     assert np.abs(targets[0] - high_rest[pins]).max() < 1e-9     # frame 0 is the rest pose
     # in the torso frame the waist band does not move at all
-    local = to_reference_frame(targets, a["torso_transforms"])
+    local = apply_rigid_inverse(a["torso_transforms"][:, None], targets)
     assert np.abs(local - local[0]).max() < 1e-9
 
 
@@ -109,8 +109,8 @@ def test_every_garment_scene_builds_and_simulates(scene):
     """The first frames of each shipped garment scene (CPU profile) with its physics switches: finite, pins on
     their targets, and the cloth outside the moving body up to a small tolerance."""
     from pipeline.simulate import solver_settings
-    from sim.body import capsule_signed_distance
-    from sim.xpbd import ClothSolver
+    from scenes.mannequin import capsule_signed_distance
+    from sim.xpbd.solver import ClothSolver
     settings = resolve_scene(CONFIG, scene, "cpu")
     a, _ = build_scene(settings)
     capsules = np.stack([a["capsules/a"], a["capsules/b"]], axis=2).astype(np.float64)

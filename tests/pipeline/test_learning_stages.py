@@ -16,8 +16,8 @@ import torch
 import trimesh
 
 from pipeline import cli, dataset, evaluate, operators, train
-from pipeline.artifacts import atomic_h5, read_csr, write_csr
-from sim.loop import loop_subdivide
+from pipeline.artifacts.h5 import atomic_h5, read_csr, write_csr
+from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
 N_FRAMES = 12

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.artifacts import config_of, read_csr
-from sim.loop import loop_subdivide
+from pipeline.artifacts.h5 import config_of, read_csr
+from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
 

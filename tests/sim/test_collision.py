@@ -1,16 +1,16 @@
 """Body contact (capsules) and self-contact in the XPBD solver, checked against independent distance computations
-(sim.body.capsule_signed_distance, a brute-force point-triangle distance here) and analytic cases."""
+(scenes.mannequin.capsule_signed_distance, a brute-force point-triangle distance here) and analytic cases."""
 import numpy as np
 import pytest
 import warp as wp
 
-from sim.body import (body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton,
+from scenes.mannequin import (body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton,
                       rest_transforms)
-from sim.cloth import grid_cloth
-from sim.garments import make_garment
-from sim.motion import body_state, make_motion
-from sim.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, SolverSettings
+from scenes.grid import grid_cloth
+from scenes.garments import make_garment
+from scenes.motion import body_state, make_motion
+from scenes.skinning import linear_blend_skinning
+from sim.xpbd.solver import ClothSolver, SolverSettings
 
 THICKNESS = SolverSettings().collision_thickness
 SELF_THICKNESS = SolverSettings().self_thickness
@@ -75,7 +75,7 @@ def test_fast_capsule_pushes_a_curtain_instead_of_passing_through():
     # A 4 cm-radius limb moves at 5 units/s, 8.3 cm per frame, through a curtain pinned at its top and bottom, with
     # one substep a frame: in one substep its axis jumps past the cloth. The projection to the nearest surface
     # point alone then pushes the cloth out behind the limb (checked by disabling the sweep in
-    # collision_kernels.keep_outside: all 70 vertices of the band end behind the axis after the first frame).
+    # sim.xpbd.collision.keep_outside: all 70 vertices of the band end behind the axis after the first frame).
     rest, faces = grid_cloth(0.6, 0.6, 0.025, plane="xy", origin=(-0.3, 1.2, 0.0))
     pins = np.flatnonzero(np.isclose(rest[:, 1], 1.2) | np.isclose(rest[:, 1], 0.6))
     radii = np.array([[0.04, 0.04]])

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from sim.cloth import first_row_pins, grid_cloth
-from sim.harmonics import harmonic_basis, lumped_mass
-from sim.loop import loop_subdivide
-from sim.mesh import unique_edges
-from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, cloth_constraints, harmonic_constraint
+from scenes.grid import first_row_pins, grid_cloth
+from geometry.harmonics import harmonic_basis, lumped_mass
+from geometry.loop_subdivision import loop_subdivide
+from geometry.mesh import unique_edges
+from sim.xpbd.solver import ClothSolver, SolverSettings, UnstableSimulation, cloth_constraints, harmonic_constraint
 
 
 def edge_ratios(x, rest, faces):

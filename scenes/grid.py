@@ -68,11 +68,6 @@ def sway_driver(n_frames: int, dt: float, amplitude: tuple[float, float, float],
     return rotation, translation
 
 
-def apply_rigid(rotation: np.ndarray, translation: np.ndarray, pivot: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Per-frame positions (F, P, 3) of `points` (P, 3) under rotations about `pivot` followed by translations."""
-    return np.einsum("fij,pj->fpi", rotation, points - pivot) + pivot + translation[:, None, :]
-
-
 def first_row_pins(vertices: np.ndarray, plane: str, rule: str) -> np.ndarray:
     """Pinned vertex ids of a `grid_cloth`: its first row (the top edge when hanging, the -z edge when flat),
     either whole (`top_edge`) or only its two end corners (`corners`)."""

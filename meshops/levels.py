@@ -11,7 +11,7 @@ import numpy as np
 from meshops.conv import conv_table, spiral_depth
 from meshops.neighbourhood import build_neighbourhood
 from meshops.pooling import Coarsening, collapse_pass
-from sim.mesh import validate_mesh
+from geometry.mesh import validate_mesh
 
 CONV_KINDS = ("RC", "EC", "SP", "SPD")
 DEFAULT_CONV = ("RC13", "EC13", "SP13", "SPD13")

@@ -6,8 +6,8 @@ import scipy.sparse as sp
 import trimesh
 import trimesh.remesh
 
-from sim.loop import loop_beta, loop_subdivide, loop_subdivision_matrix
-from sim.mesh import boundary_vertex_mask, edge_faces, unique_edges, validate_mesh
+from geometry.loop_subdivision import loop_beta, loop_subdivide, loop_subdivision_matrix
+from geometry.mesh import boundary_vertex_mask, edge_faces, unique_edges, validate_mesh
 
 
 def grid_patch(n, seed=0, corner_diagonals=True):

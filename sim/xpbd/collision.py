@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim import xpbd_kernels as k
+from sim.xpbd import kernels as k
 
 SWEEP_STEPS = 24            # sphere-tracing steps of the continuous body test (a head-on approach needs one)
 SWEEP_TOLERANCE = 1.0e-3    # the trace has touched when within this fraction of the level
@@ -88,7 +88,7 @@ def any_perpendicular(e: wp.vec3) -> wp.vec3:
 @wp.func
 def capsule_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float):
     """Signed distance from p to the tapered capsule (convex hull of the spheres (a, ra) and (b, rb)) and the
-    outward unit normal there (the distance's gradient): the formula of sim.body.capsule_signed_distance."""
+    outward unit normal there (the distance's gradient): the formula of scenes.mannequin.capsule_signed_distance."""
     axis = b - a
     length = wp.length(axis)
     e = axis / length

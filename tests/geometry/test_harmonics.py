@@ -5,7 +5,7 @@ import pytest
 import scipy.linalg
 import trimesh
 
-from sim.harmonics import cotan_laplacian, harmonic_basis, harmonic_count, lumped_mass
+from geometry.harmonics import cotan_laplacian, harmonic_basis, harmonic_count, lumped_mass
 
 
 def bumpy_sphere(subdivisions=1, seed=0):

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.body import (capsule_pair_clearance, capsules_world, default_skeleton, forward_kinematics,
+from scenes.mannequin import (capsule_pair_clearance, capsules_world, default_skeleton, forward_kinematics,
                       rest_transforms, self_collision_pairs)
-from sim.motion import MOTION_KINDS, body_state, make_motion, pose_vectors, soft_limit
+from scenes.motion import MOTION_KINDS, body_state, make_motion, pose_vectors, soft_limit
 
 SKEL = default_skeleton()
 MOVING = [k for k in MOTION_KINDS if k != "rest"]
@@ -194,7 +194,7 @@ def test_fk_of_motion_frames_matches_body_state(motions):
 
 
 def test_play_clips_joins_rest_to_rest_and_stays_c1():
-    from sim.motion import play_clips
+    from scenes.motion import play_clips
     fps, blend = 60.0, 20
     seq = play_clips(["dance", "karate", "walk"], 210, 30, blend, seed=3, fps=fps)
     m = seq.motion
@@ -216,6 +216,6 @@ def test_play_clips_joins_rest_to_rest_and_stays_c1():
 
 
 def test_play_clips_refuses_clips_too_short_to_blend():
-    from sim.motion import play_clips
+    from scenes.motion import play_clips
     with pytest.raises(ValueError, match="each needs more than"):
         play_clips(["dance", "walk"], 100, 40, 20, seed=0)

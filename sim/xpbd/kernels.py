@@ -9,7 +9,7 @@ kernel does as much as it can per launch:
 - one `update_velocities` per substep, which also flags NaN/blow-up per substep for the host.
 The harmonic-constraint projection of the high-res run adds three launches per iteration (partial reduction,
 finalisation, application) because B^T M x is a reduction over all vertices. The per-vertex work of the first
-three is in wp.funcs, which `sim.collision_kernels` calls to fuse contacts into the same launches.
+three is in wp.funcs, which `sim.xpbd.collision` calls to fuse contacts into the same launches.
 """
 from __future__ import annotations
 

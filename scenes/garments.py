@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.body import Skeleton, body_signed_distance, capsules_world, default_skeleton, rest_transforms
-from sim.mesh import validate_mesh
+from scenes.mannequin import Skeleton, body_signed_distance, capsules_world, default_skeleton, rest_transforms
+from geometry.mesh import validate_mesh
 
 GARMENT_KINDS = ("patch", "cape", "skirt", "pants", "tshirt", "dress")
 BOUNDARY_LOOPS = {"patch": 1, "cape": 1, "skirt": 2, "pants": 3, "tshirt": 4, "dress": 4}

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from sim.body import Skeleton, capsule_signed_distance, capsules_world, quat_conjugate, quat_multiply, \
+from scenes.mannequin import Skeleton, capsule_signed_distance, capsules_world, quat_conjugate, quat_multiply, \
     quat_rotate, quat_to_matrix, rest_transforms
-from sim.mesh import unique_edges
+from geometry.mesh import unique_edges
 
 
 def skinning_weights(skel: Skeleton, rest_vertices: np.ndarray, faces: np.ndarray, max_influences: int = 4,

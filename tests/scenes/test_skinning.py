@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.body import capsule_signed_distance, capsules_world, default_skeleton, forward_kinematics, \
+from scenes.mannequin import capsule_signed_distance, capsules_world, default_skeleton, forward_kinematics, \
     joint_quaternions, rest_transforms
-from sim.garments import make_garment
-from sim.mesh import unique_edges
-from sim.skinning import linear_blend_skinning, skinning_weights
+from scenes.garments import make_garment
+from geometry.mesh import unique_edges
+from scenes.skinning import linear_blend_skinning, skinning_weights
 
 SKEL = default_skeleton()
 REST = rest_transforms(SKEL)

@@ -3,7 +3,7 @@
 Loop's weights depend only on connectivity, so one level is a matrix S (V+E, V) with fine = S @ coarse for any
 per-vertex quantity (positions, velocities, displacements). Even (old) vertices keep their indices 0..V-1, so
 pinned coarse vertices map to the same indices on the fine mesh; odd (edge) vertices follow in the order of
-`sim.mesh.unique_edges`.
+`geometry.mesh.unique_edges`.
 
 Boundaries use the true crease rule (boundary curve = cubic B-spline subdivision of the boundary polygon), so the
 fine boundary depends only on the coarse boundary vertices.
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from sim.mesh import edge_faces, opposite_vertex, validate_mesh
+from geometry.mesh import edge_faces, opposite_vertex, validate_mesh
 
 
 def loop_beta(valence: np.ndarray) -> np.ndarray:

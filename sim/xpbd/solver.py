@@ -2,7 +2,7 @@
 
 A frame of length dt is split into `substeps`; each substep predicts positions, runs `iterations` Jacobi sweeps
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
-and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.collision_kernels`
+and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.collision`
 (contacts fused into them) plus, for self-collision, a broad phase once per substep. On CUDA the whole frame is
 captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
 arrays that are overwritten before each replay.
@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from sim import collision_kernels as ck
-from sim import xpbd_kernels as k
-from sim.harmonics import lumped_mass
-from sim.mesh import bending_pairs, unique_edges
+from sim.xpbd import collision as ck
+from sim.xpbd import kernels as k
+from geometry.harmonics import lumped_mass
+from geometry.mesh import bending_pairs, unique_edges
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from sim.body import (Skeleton, body_mesh, capsule_pair_clearance, capsule_signed_distance, capsule_velocities,
+from scenes.mannequin import (Skeleton, body_mesh, capsule_pair_clearance, capsule_signed_distance, capsule_velocities,
                       capsules_world, default_skeleton, forward_kinematics, joint_angular_velocity,
                       joint_quaternions, part_velocities, quat_canonical, quat_multiply, quat_rotate,
                       quat_to_matrix, rest_transforms, segment_closest_parameters, self_collision_pairs)

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import gaussian_filter1d
 
-from sim.body import (TORSO, Skeleton, capsule_pair_clearance, default_skeleton, forward_kinematics,
+from scenes.mannequin import (TORSO, Skeleton, capsule_pair_clearance, default_skeleton, forward_kinematics,
                       joint_angular_velocity, joint_quaternions, mirror_name, part_velocities, quat_canonical,
                       quat_conjugate, quat_multiply, quat_rotate, rest_transforms, self_collision_pairs)
 
@@ -38,7 +38,7 @@ class Motion:
     blend_frames: int
     root_position: np.ndarray      # (F, 3) world position of the pelvis origin
     root_velocity: np.ndarray      # (F, 3) units/s
-    joint_angles: np.ndarray       # (F, P, 3) radians, see sim.body
+    joint_angles: np.ndarray       # (F, P, 3) radians, see scenes.mannequin
     joint_angle_rates: np.ndarray  # (F, P, 3) radians/s
 
     @property

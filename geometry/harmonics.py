@@ -13,7 +13,7 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg
 
-from sim.mesh import validate_mesh
+from geometry.mesh import validate_mesh
 
 # Shift-invert needs L - σM nonsingular; L is singular (constants), so σ sits just below 0, relative to the
 # mesh's stiffest mode so that the shift means the same on meshes of any scale.

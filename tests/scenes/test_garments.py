@@ -6,10 +6,10 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import trimesh
 
-from sim.body import body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton, \
+from scenes.mannequin import body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton, \
     rest_transforms
-from sim.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
-from sim.mesh import edge_faces, unique_edges, validate_mesh
+from scenes.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
+from geometry.mesh import edge_faces, unique_edges, validate_mesh
 
 SKEL = default_skeleton()
 REST = rest_transforms(SKEL)
