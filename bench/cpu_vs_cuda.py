@@ -6,17 +6,13 @@ Reports max |x_cpu - x_cuda| relative to the cloth size after each checkpoint fr
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from scenes.grid import first_row_pins, grid_cloth  # noqa: E402
-from geometry.harmonics import harmonic_basis, harmonic_count  # noqa: E402
-from geometry.loop_subdivision import loop_subdivide  # noqa: E402
-from sim.xpbd.solver import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
+from geometry.harmonics import harmonic_basis, harmonic_count
+from geometry.loop_subdivision import loop_subdivide
+from scenes.grid import first_row_pins, grid_cloth
+from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 
 CHECKPOINTS = (1, 10, 30, 60)
 
@@ -27,9 +23,10 @@ def run(vertices, faces, pins, device, harmonic, frames):
                          harmonic=None if harmonic is None else harmonic[0], harmonic_target=target)
     out = {}
     for f in range(1, frames + 1):
-        solver.step(vertices[pins] + np.array([0.1, 0.0, 0.05]) * math.sin(f / 8), target)
+        pin_targets = vertices[pins] + np.array([0.1, 0.0, 0.05]) * math.sin(f / 8)
+        solver.step(solver.state, FrameInputs(pin_targets=pin_targets, harmonic_target=target))
         if f in CHECKPOINTS:
-            out[f] = solver.positions()
+            out[f] = solver.state.read_positions()
     return out
 
 

@@ -1,6 +1,6 @@
 """Upsampling inference speed: ms per frame for the paper's four Table 3 network sizes, next to the paper's figures.
 
-For each mesh (the flag cloth of bench/sim.py's cases, Loop-subdivided twice, operators built by meshops) and each
+For each mesh (the flag cloth of bench/cloth_solver.py's cases, Loop-subdivided twice, operators built by meshops) and each
 size (RC13, RC9, RC9 x/2, RC9 x/4 of D62 D124 D248 D D248 D_3 D248), times one frame: the network alone, and Loop
 subdivision S x_low (a padded-stencil gather on the device) + the network, as the paper's "DL + SubD" column.
 Median over repeats after warm-up, for each mode: eager, or CUDA-graph replay ("graph"), each optionally with TF32
@@ -19,16 +19,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from meshops import build_operators  # noqa: E402
-from model.mesh_hierarchy import mesh_hierarchy  # noqa: E402
-from model.networks import NetworkSpec, NormalizedRegressor, build_network  # noqa: E402
-from scenes.grid import grid_cloth  # noqa: E402
-from geometry.loop_subdivision import loop_subdivide  # noqa: E402
+from geometry.loop_subdivision import loop_subdivide
+from meshops import build_operators
+from model.mesh_hierarchy import mesh_hierarchy
+from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from scenes.flag_mesh import flag_cloth
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
-# Low-res grid edge lengths, as bench/sim.py: the CPU-profile flag, the paper-sized flag, a ~15k-vertex high-res.
+# Low-res grid edge lengths, as bench/cloth_solver.py: the CPU-profile flag, the paper-sized flag, a ~15k-vertex high-res.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
 SIZES = {"RC13": ("RC13", 1.0), "RC9": ("RC9", 1.0), "RC9x/2": ("RC9", 0.5), "RC9x/4": ("RC9", 0.25)}
 # Paper Table 3, "DL + SubD" ms on an RTX 2080 Ti, by high-res vertex count.
@@ -38,7 +36,7 @@ PAPER_MS = {4063: {"RC13": 9.4, "RC9": 5.7, "RC9x/2": 3.7, "RC9x/4": 2.2},
 
 
 def build_case(max_edge: float, convs: list[str], levels: int):
-    low, low_faces = grid_cloth(1.0, 1.0, max_edge, plane="xy", origin=(-0.5, 1.5, 0.0))
+    low, low_faces = flag_cloth(max_edge)
     subdivision, faces = loop_subdivide(low, low_faces, levels=2)
     start = time.perf_counter()
     hierarchy = build_operators(subdivision @ low, faces, conv=convs, pooling_steps=levels - 1)

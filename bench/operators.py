@@ -2,34 +2,28 @@
 one CPU core (issue #3 budget: 60 s), plus the choice of assignment solver for the many tiny RC/EC problems.
 
 Meshes: `flag` is the flag scene's high-res mesh (grid cloth, max edge 0.046, Loop-subdivided twice), `pants` a
-stretched sphere with three holes cut, `sphere` a closed cube-sphere. Before numpy loads, the process is pinned to
-one core and BLAS to one thread; CPU time next to wall time shows how much other processes on that core slowed a
-run (the per-part columns are wall time). Usage:
+stretched sphere with three holes cut, `sphere` a closed cube-sphere. The process restarts itself pinned to one
+core with one BLAS thread; CPU time next to wall time shows how much other processes on that core slowed a run
+(the per-part columns are wall time). Usage:
   python bench/operators.py [--meshes flag,pants,sphere] [--repeat 1] [--problems 20000] [--out table.md]
 """
 from __future__ import annotations
 
+import argparse
 import os
+import sys
+import time
+from pathlib import Path
 
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_name] = "1"
-os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+import lap
+import numpy as np
+from scipy.optimize import linear_sum_assignment
 
-import argparse  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+from geometry.shapes import cube_sphere, pants
+from meshops import build_operators
+from scenes.flag_mesh import flag_high_res
 
-import lap  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy.optimize import linear_sum_assignment  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "meshops")]  # the procedural test surfaces live with the tests
-
-from meshops import build_operators  # noqa: E402
-from meshops_shapes import cube_sphere, flag_high_res, pants  # noqa: E402
-
+ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 PARTS = ("neighbourhood", "RC13", "EC13", "SP13", "SPD13", "pooling")
 
 
@@ -78,7 +72,18 @@ def time_solvers(count: int) -> list[str]:
             f"{worse} of {count} above the optimum |"]
 
 
+def run_on_one_core() -> None:
+    """Restart this process pinned to one core with one BLAS thread, unless it already is: BLAS reads its thread
+    count once, when numpy loads, so the variables must be set before the imports above run."""
+    if all(os.environ.get(name) == "1" for name in ONE_THREAD) and len(os.sched_getaffinity(0)) == 1:
+        return
+    os.environ.update({name: "1" for name in ONE_THREAD})
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    os.execv(sys.executable, [sys.executable, *sys.argv])
+
+
 def main() -> None:
+    run_on_one_core()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--meshes", default=",".join(MESHES))
     parser.add_argument("--repeat", type=int, default=1, help="runs per mesh; the fastest (wall time) is reported")

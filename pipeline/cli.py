@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
+from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 
 
@@ -19,3 +20,47 @@ def run(main: Callable[[Sequence[str] | None], None], argv: Sequence[str] | None
 
 def add_quiet(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def add_threads(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threads", type=int, help="CPU threads for torch (Snakemake: the rule's threads)")
+
+
+def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
+                        flags_of: Callable[[dict], dict[str, Any]]) -> argparse.Namespace:
+    """Parse a stage's arguments, taking the defaults of its flags from `--settings SETTINGS.json`.
+
+    The resolved scene settings (written by `python -m pipeline.config`) are read first; `flags_of(settings)`
+    maps them to flag destinations, and those values become the flags' defaults, so a flag given by hand still
+    wins (a variant tried without editing the config). Each value is handed to argparse as the text the flag
+    would get on a command line (a list comma-joined; None leaves the flag without a value), which argparse
+    converts with the flag's own `type`: a setting and the same value typed by hand give the same argument.
+    (argparse does not check `choices` on defaults; the config schema has checked those values.) `settings` is
+    kept out of the returned namespace, so an artifact's recorded config holds the flags' values only.
+    """
+    parser.add_argument("--settings", metavar="SETTINGS.json",
+                        help="resolved scene settings (python -m pipeline.config): the defaults of the flags")
+    given = argparse.ArgumentParser(add_help=False)
+    given.add_argument("--settings")
+    settings_path = given.parse_known_args(argv)[0].settings
+    if settings_path is not None:
+        settings = read_settings(settings_path)
+        try:
+            defaults = flags_of(settings)
+        except KeyError as err:
+            raise PipelineError(f"{settings_path}: missing setting {err}") from None
+        except TypeError as err:     # a group that is not a JSON object
+            raise PipelineError(f"{settings_path}: settings of an unexpected shape ({err})") from None
+        parser.set_defaults(**{dest: _as_flag_text(value) for dest, value in defaults.items()})
+    args = parser.parse_args(argv)
+    del args.settings
+    return args
+
+
+def _as_flag_text(value: Any) -> str | None:
+    """A setting as the text of its command-line flag, the way a shell command spells it."""
+    if value is None:
+        return None
+    if isinstance(value, (list, tuple)):
+        return ",".join(map(str, value))
+    return str(value)

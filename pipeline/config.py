@@ -19,7 +19,6 @@ from typing import Any, Sequence
 
 import yaml
 
-from pipeline import cli
 from pipeline.errors import PipelineError
 
 SCHEMA_PATH = Path(__file__).resolve().parent.parent / "workflow" / "config.schema.yaml"
@@ -157,9 +156,12 @@ def read_settings(path: str | os.PathLike) -> dict:
     if not path.is_file():
         raise PipelineError(f"{path}: settings file does not exist")
     try:
-        return json.loads(path.read_text())
+        settings = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise PipelineError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(settings, dict):
+        raise PipelineError(f"{path}: not a JSON object of settings")
+    return settings
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -175,4 +177,6 @@ def main(argv: Sequence[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
+    from pipeline import cli  # here: pipeline.cli reads settings through this module
+
     cli.run(main)

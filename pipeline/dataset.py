@@ -1,24 +1,31 @@
 """Stage `dataset`: the cloth-upsampling learning problem of paper Table 2, with a seeded train/test split.
 
-    python -m pipeline.dataset SIM_LOW.h5 SIM_HIGH.h5 SUBDIV.h5 OUT.h5 [--frame world|torso] [--scene SCENE.h5]
-                               [--test-fraction 0.1] [--test-clips walk,...] [--seed 0] [--quiet]
+    python -m pipeline.dataset SIM_LOW.h5 SIM_HIGH.h5 SUBDIV.h5 OUT.h5 [--settings SETTINGS.json]
+                               [--frame world|torso] [--scene SCENE.h5] [--test-fraction 0.1]
+                               [--test-clips walk,...] [--seed 0] [--quiet]
 
 Input and predictor: the Loop-subdivided low-res positions S x_low; target: the displacement x_high - S x_low;
 all in the scene's reference frame (`world`, or `torso` using SCENE.h5's `torso_transforms`). Because every row
 of S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
 frames; with --test-clips every frame of those mannequin clips (SCENE.h5 `motion/clip`) is held out as well, in
 a third split that measures generalisation to an unseen motion. docs/artifacts.md lists every dataset.
+With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.test_fraction` and `dataset.seed` are
+the defaults of --frame, --test-fraction and --seed, and when `dataset.split` is `held_out`,
+`drivers.mannequin.test_clips` is that of --test-clips.
 """
 from __future__ import annotations
 
 import argparse
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr
+from pipeline.artifacts.dataset import Split, UpsamplingProblem, write_dataset
+from pipeline.artifacts.scene import read_clips, read_torso_transforms
+from pipeline.artifacts.simulation import read_trajectory
+from pipeline.artifacts.subdiv import read_subdivision
 from pipeline.errors import PipelineError
 
 
@@ -35,8 +42,7 @@ def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]
     """Sorted ids of the frames that belong to the mannequin clips `test_clips`."""
     if scene_path is None:
         raise PipelineError("--test-clips needs --scene SCENE.h5 holding 'motion/clip' and 'motion/clip_names'")
-    with open_artifact(scene_path) as f:
-        clip, names = read(f, "motion/clip", np.int64), [str(n) for n in f["motion/clip_names"].asstr()[()]]
+    clip, names = read_clips(scene_path)
     if len(clip) != n_frames:
         raise PipelineError(f"{scene_path}: 'motion/clip' has {len(clip)} frames, the simulation {n_frames}")
     unknown = sorted(set(test_clips) - set(names))
@@ -60,33 +66,20 @@ def split_dataset(n_frames: int, test_fraction: float, seed: int, held_out: np.n
 def _torso_transforms(scene_path: str | None, n_frames: int) -> np.ndarray:
     if scene_path is None:
         raise PipelineError("--frame torso needs --scene SCENE.h5 holding the 'torso_transforms' dataset")
-    with open_artifact(scene_path) as f:
-        if "torso_transforms" not in f:
-            raise PipelineError(f"{scene_path}: --frame torso needs dataset 'torso_transforms' (F, 4, 4), "
-                                f"world-from-torso per frame; this scene has no torso (use --frame world)")
-        transforms = read(f, "torso_transforms", np.float64)
-    if transforms.shape != (n_frames, 4, 4):
-        raise PipelineError(f"{scene_path}: 'torso_transforms' must be ({n_frames}, 4, 4), got {transforms.shape}")
-    rotation = transforms[:, :3, :3]
-    if not np.allclose(rotation @ rotation.transpose(0, 2, 1), np.eye(3), atol=1e-5):
-        raise PipelineError(f"{scene_path}: 'torso_transforms' rotations are not orthonormal")
-    return transforms
+    return read_torso_transforms(scene_path, n_frames)
 
 
 def build_dataset(low_path: str, high_path: str, subdiv_path: str, frame: str,
-                  scene_path: str | None) -> dict[str, np.ndarray]:
+                  scene_path: str | None) -> UpsamplingProblem:
     """Arrays of the learning problem; raises PipelineError naming the file that does not fit the others."""
-    with open_artifact(low_path) as f:
-        low, low_faces = read(f, "positions", np.float64), read(f, "faces", np.int32)
-    with open_artifact(high_path) as f:
-        high, high_faces = read(f, "positions", np.float64), read(f, "faces", np.int32)
-    with open_artifact(subdiv_path) as f:
-        subdivision = read_csr(f, "S")
-        rest, subdiv_faces = read(f, "vertices", np.float64), read(f, "faces", np.int32)
+    low_run, high_run = read_trajectory(low_path), read_trajectory(high_path)
+    low, high = low_run.positions, high_run.positions
+    mesh = read_subdivision(subdiv_path)
+    subdivision = mesh.S
     if subdivision.shape != (high.shape[1], low.shape[1]):
         raise PipelineError(f"{subdiv_path}: S is {subdivision.shape} but {high_path} has {high.shape[1]} and "
                             f"{low_path} {low.shape[1]} vertices")
-    if high_faces.shape != subdiv_faces.shape or not np.array_equal(high_faces, subdiv_faces):
+    if high_run.faces.shape != mesh.faces.shape or not np.array_equal(high_run.faces, mesh.faces):
         raise PipelineError(f"{high_path}: its faces differ from {subdiv_path}'s: not the same high-res mesh")
     if len(low) != len(high):
         raise PipelineError(f"{high_path}: {len(high)} frames but {low_path} has {len(low)}")
@@ -95,9 +88,15 @@ def build_dataset(low_path: str, high_path: str, subdiv_path: str, frame: str,
         low = apply_rigid_inverse(transforms[:, None], low)
         high = apply_rigid_inverse(transforms[:, None], high)
     subdivided = np.stack([subdivision @ x for x in low])
-    return {"input": subdivided.astype(np.float32), "target": (high - subdivided).astype(np.float32),
-            "faces": subdiv_faces, "rest_vertices": rest, "low/positions": low.astype(np.float32),
-            "low/faces": low_faces}
+    return UpsamplingProblem(subdivided.astype(np.float32), (high - subdivided).astype(np.float32), mesh.faces,
+                             mesh.vertices, low.astype(np.float32), low_run.faces)
+
+
+def flags_from_settings(settings: dict) -> dict[str, Any]:
+    dataset = settings["dataset"]
+    held_out = dataset["split"] == "held_out"
+    return {"frame": dataset["frame"], "test_fraction": dataset["test_fraction"], "seed": dataset["seed"],
+            "test_clips": settings["drivers"]["mannequin"]["test_clips"] if held_out else None}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -111,34 +110,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--test-clips", help="comma-separated motion clips held out as the test set (needs --scene)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
     cli.add_quiet(parser)
-    args = parser.parse_args(argv)
+    args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
-    arrays = build_dataset(args.sim_low, args.sim_high, args.subdiv, args.frame, args.scene)
-    n_frames = len(arrays["input"])
+    problem = build_dataset(args.sim_low, args.sim_high, args.subdiv, args.frame, args.scene)
+    n_frames = len(problem.inputs)
     test_clips = [c.strip() for c in (args.test_clips or "").split(",") if c.strip()]
     held = held_out_frames(args.scene, n_frames, test_clips) if test_clips else np.zeros(0, np.int64)
     train, test, held = split_dataset(n_frames, args.test_fraction, args.seed, held)
     config = {name: getattr(args, name) for name in ("sim_low", "sim_high", "subdiv", "frame", "scene",
                                                     "test_fraction", "test_clips", "seed")}
-    with atomic_h5(args.out, "dataset", config) as f:
-        for name, data in arrays.items():
-            f.create_dataset(name, data=data)
-        f["predictor"] = f["input"]          # a hard link: Table 2's predictor is the input itself
-        f.create_dataset("split/train", data=train.astype(np.int64))
-        f.create_dataset("split/test", data=test.astype(np.int64))
-        f.create_dataset("split/held_out", data=held)
-        f["split"].attrs["meaning"] = ("train: frames trained on; test: a seeded random share of the other frames of "
-                                       "the same motions; held_out: every frame of the clips named in attr "
-                                       "held_out_clips (unseen motion; may be empty)")
-        f["split"].attrs["held_out_clips"] = ",".join(test_clips)
-        f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=args.frame, n_frames=len(arrays["input"]),
-                       n_vertices=arrays["input"].shape[1], split_seed=args.seed, test_fraction=args.test_fraction)
-        f["input"].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
-        f["target"].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
+    write_dataset(args.out, config, problem, Split(train, test, held, tuple(test_clips)), args.frame, args.seed,
+                  args.test_fraction)
     if not args.quiet:
         print(f"dataset: {n_frames} frames ({len(train)} train, {len(test)} test, {len(held)} held out) of "
-              f"{arrays['input'].shape[1]} vertices, {args.frame} frame -> {args.out}")
+              f"{problem.inputs.shape[1]} vertices, {args.frame} frame -> {args.out}")
 
 
 if __name__ == "__main__":

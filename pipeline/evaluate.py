@@ -1,15 +1,16 @@
 """Stage `evaluate`: errors, timing, pictures and exported meshes of a trained upsampling network.
 
-    python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--renders DIR]
-        [--export DIR] [--render-frames 3] [--export-frames 60] [--timing-frames 30] [--device cpu] [--threads N]
-        [--scene SCENE.h5] [--quiet]
+    python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--settings SETTINGS.json]
+        [--renders DIR] [--export DIR] [--render-frames 3] [--export-frames 60] [--timing-frames 30]
+        [--device cpu] [--threads N] [--scene SCENE.h5] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (Loop subdivision, no network), so the network's gain shows.
 Renders (default: `renders/` beside REPORT.md) put low-res input | ground truth | network output | error maps
 side by side; the export folder (default `export/`) holds the predicted sequence as OBJ files and a GLB scene
 comparing input, truth and prediction. With --scene of a garment scene, renders show the mannequin too.
-docs/artifacts.md lists eval.h5's datasets.
+docs/artifacts.md lists eval.h5's datasets. With --settings (a scene's resolved settings.json), `evaluation.*` and
+`device` are the defaults of the flags of the same names.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import dataclasses
 import os
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -28,10 +29,13 @@ from geometry.rigid import apply_rigid_inverse
 from model.losses import LossWeights
 from model.training import split_errors
 from pipeline import cli
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.artifacts.dataset import load_dataset, read_low_res
+from pipeline.artifacts.evaluation import Evaluation, write_evaluation
+from pipeline.artifacts.model import load_model
+from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.errors import PipelineError
-from pipeline.train import add_threads, configure_torch, load_dataset, load_model
-from scenes.mannequin import body_mesh, skeleton_from_h5
+from pipeline.torch_setup import configure_torch, frames_on
+from scenes.body_mesh import body_mesh
 from viz.export import write_glb, write_obj_sequence
 from viz.render import Panel, render_panels, value_colors
 
@@ -74,18 +78,15 @@ def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
     return frames[np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int))]
 
 
-def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str) -> list | None:
-    """The mannequin's mesh at each of `frames` in the dataset's reference frame, or None for a scene without
-    one (or no --scene)."""
-    if scene_path is None:
+def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str, n_frames: int) -> list | None:
+    """The mannequin's mesh at each of `frames` (of `n_frames`) in the dataset's reference frame, or None for a
+    scene without one (or no --scene)."""
+    body = None if scene_path is None else read_body(scene_path)
+    if body is None:
         return None
-    with open_artifact(scene_path) as f:
-        if "body" not in f:
-            return None
-        skel = skeleton_from_h5(f["body"])
-        rotation = read(f, "body/state/rotation", np.float64)[frames]
-        translation = read(f, "body/state/translation", np.float64)[frames]
-        torso = read(f, "torso_transforms", np.float64)[frames] if frame_name == "torso" else None
+    skel, state = body
+    rotation, translation = state.rotation[frames], state.translation[frames]
+    torso = read_torso_transforms(scene_path, n_frames)[frames] if frame_name == "torso" else None
     # Drawn a little inside its collision surface and finely cut: matplotlib sorts whole faces by depth, and
     # large body faces a few mm under the cloth would otherwise poke through it.
     inset = 0.01 * skel.height / 1.7
@@ -116,6 +117,12 @@ def render_frame(path: Path, frame: int, low: np.ndarray, low_faces: np.ndarray,
                          value_label="|error| (scene units, clipped at 99th pct.)")
 
 
+def flags_from_settings(settings: dict) -> dict[str, Any]:
+    evaluation = settings["evaluation"]
+    return {"render_frames": evaluation["render_frames"], "export_frames": evaluation["export_frames"],
+            "timing_frames": evaluation["timing_frames"], "device": settings["device"]}
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.evaluate", description=__doc__.splitlines()[0])
     for name in ("dataset", "operators", "model"):
@@ -128,9 +135,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--scene", help="scene.h5: draws the mannequin in the renders of a garment scene")
-    add_threads(parser)
+    cli.add_threads(parser)
     cli.add_quiet(parser)
-    args = parser.parse_args(argv)
+    args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if args.timing_frames < 1 or args.render_frames < 0:
         raise PipelineError("--timing-frames must be >= 1 and --render-frames >= 0")
     report_dir = Path(args.report).parent
@@ -143,12 +150,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if mesh.vertex_counts[0] != data.inputs.shape[1]:
         raise PipelineError(f"{args.dataset}: {data.inputs.shape[1]} vertices, but the model's mesh has "
                             f"{mesh.vertex_counts[0]}")
-    with open_artifact(args.dataset) as f:
-        low_positions, low_faces = read(f, "low/positions", np.float64), read(f, "low/faces", np.int64)
-        frame_name = str(f.attrs.get("frame", "world"))
-        held_clips = str(f["split"].attrs.get("held_out_clips", ""))
+    low_positions, low_faces = read_low_res(args.dataset)
     steps = tqdm(total=4, desc="evaluate", unit="step", disable=args.quiet)
-    frames = data.frames(device)
+    frames = frames_on(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
     predict = {"network": lambda x: model(x, mesh), "predictor": torch.zeros_like}
     errors = {who: {split: split_errors(fn, frames, torch.as_tensor(ids, device=device), 8, weights)
@@ -166,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     # With an unseen motion, half the pictures show it.
     n_held = args.render_frames // 2 if len(data.held_out) else 0
     rendered = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
-    bodies = body_meshes(args.scene, rendered, frame_name) or [None] * len(rendered)
+    bodies = body_meshes(args.scene, rendered, data.frame, len(data.inputs)) or [None] * len(rendered)
     pictures = [render_frame(renders_dir / f"frame_{frame:04d}.png", frame, low_positions[frame], low_faces,
                              data.inputs[frame], truth[frame], predicted[frame], data.faces, body,
                              "held-out" if frame in data.held_out else "test")
@@ -181,39 +185,19 @@ def main(argv: Sequence[str] | None = None) -> None:
                   [("low_res_input", low_positions[frame], low_faces, None),
                    ("ground_truth", truth[frame], data.faces, None),
                    ("network_output", predicted[frame], data.faces, value_colors(error, float(error.max())))])
-    _write_eval(args, errors, network_frame, predictor_frame, predicted, times, timed, where, state)
-    _write_report(Path(args.report), args, errors, times, where, state, data, (frame_name, held_clips), pictures,
-                  export_dir, n_export, low_positions.shape[1])
+    config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
+    write_evaluation(args.eval, config, Evaluation(errors, {"network": network_frame, "predictor": predictor_frame},
+                                                   predicted, times, timed, where, WARMUP_RUNS,
+                                                   state["parameter_count"]))
+    _write_report(Path(args.report), args, errors, times, where, state, data, pictures, export_dir, n_export,
+                  low_positions.shape[1])
     steps.update()
     steps.close()
 
 
-def _write_eval(args, errors, network_frame, predictor_frame, predicted, times, timed, device, state) -> None:
-    config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
-    with atomic_h5(args.eval, "evaluate", config) as f:
-        for who, splits in errors.items():
-            for split, values in splits.items():
-                for term, value in values.items():
-                    f.create_dataset(f"errors/{who}/{split}/{term}", data=np.float64(value))
-        f["errors"].attrs["meaning"] = ("split-wide L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and the training loss's "
-                                        "weighted total; network = predictor + network output, predictor = "
-                                        "Loop-subdivided low-res alone")
-        f["errors"].attrs["unit"] = "scene units (~m); Ln dimensionless"
-        for name, values in (("network", network_frame), ("predictor", predictor_frame)):
-            for term, per_frame in values.items():
-                f.create_dataset(f"per_frame/{name}_{term}", data=per_frame.astype(np.float64))
-        f.create_dataset("predicted", data=predicted.astype(np.float32))
-        f["predicted"].attrs["meaning"] = "predicted high-res positions per frame (F, V, 3), dataset's frame"
-        f.create_dataset("inference_ms", data=times)
-        f.create_dataset("inference_frames", data=np.asarray(timed, dtype=np.int64))
-        f.attrs.update(device=device, inference_ms_median=float(np.median(times)), warmup_runs=WARMUP_RUNS,
-                       parameter_count=state["parameter_count"], timing="network only, batch of one frame")
-
-
-def _write_report(path: Path, args, errors, times, device, state, data, names, pictures, export_dir,
-                  n_export, n_low) -> None:
+def _write_report(path: Path, args, errors, times, device, state, data, pictures, export_dir, n_export,
+                  n_low) -> None:
     spec, training = state["spec"], state["training"]
-    frame_name, held_clips = names
     rel = lambda p: os.path.relpath(p, path.parent)  # noqa: E731
     scaled = lambda who, split, term: errors[who][split][term] / PAPER_UNIT  # noqa: E731
     splits = list(data.splits())
@@ -224,7 +208,7 @@ def _write_report(path: Path, args, errors, times, device, state, data, names, p
     gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in splits for t in ("l1", "l2")]
     rows.append("| gain (predictor / network) | " + " | ".join(f"{g:.2f}x" for g in gains) + " | |")
     header = "| | " + " | ".join(f"{s.replace('_', '-')} {t}" for s in splits for t in ("L1", "L2")) + " | test Ln |"
-    held_note = ([f"Held-out: every frame of the motion clip(s) `{held_clips}`, never seen in training (the "
+    held_note = ([f"Held-out: every frame of the motion clip(s) `{data.held_out_clips}`, never seen in training (the "
                   "generalisation test); test: a random share of the frames of the trained motions.", ""]
                  if "held_out" in splits else [])
     lines = [
@@ -237,7 +221,7 @@ def _write_report(path: Path, args, errors, times, device, state, data, names, p
         f"Ln {training['loss_weights']['normal']:g}.",
         f"- Data: `{args.dataset}`, {len(data.inputs)} frames ("
         + ", ".join(f"{len(ids)} {name.replace('_', '-')}" for name, ids in data.splits().items()) + "), "
-        f"{n_low} low-res -> {data.inputs.shape[1]} high-res vertices, positions in the {frame_name} frame.", "",
+        f"{n_low} low-res -> {data.inputs.shape[1]} high-res vertices, positions in the {data.frame} frame.", "",
         "## Errors (x 1e-3 scene units, as paper Table 3)", "",
         header, "|---" * (2 * len(splits) + 2) + "|", *rows, "", *held_note,
         "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "

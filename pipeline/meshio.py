@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts.h5 import open_artifact, read
+from pipeline.artifacts.h5 import open_artifact
 from pipeline.errors import PipelineError
 from geometry.mesh import validate_mesh
 
@@ -61,7 +61,3 @@ def _load_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise PipelineError(f"{path}: file holds no triangle mesh")
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
 
-
-def read_mesh_group(f, group: str) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces stored as `{group}/vertices`, `{group}/faces` in an open artifact."""
-    return read(f, f"{group}/vertices", np.float64), read(f, f"{group}/faces", np.int64)

@@ -1,29 +1,28 @@
 """Stage `operators`: convolution tables and the pooling hierarchy of one mesh (paper 3.1-3.2).
 
-    python -m pipeline.operators MESH OUT.h5 [--conv RC13,EC13,SP13,SPD13] [--levels 10]
-                                            [--quadric-threshold 0.01] [--quiet]
+    python -m pipeline.operators MESH OUT.h5 [--settings SETTINGS.json] [--conv RC13,EC13,SP13,SPD13]
+                                            [--levels 10] [--quadric-threshold 0.01] [--quiet]
 
 MESH is an OBJ/PLY/OFF/STL file or a pipeline HDF5 artifact holding `vertices` and `faces` (root, `rest/` or
-`levels/0/`). The layout of OUT.h5 is documented in docs/artifacts.md (section "operators.h5").
+`levels/0/`). The layout of OUT.h5 is documented in docs/artifacts.md (section "operators.h5"). With --settings
+(a scene's resolved settings.json), `operators.conv` and `operators.levels` are the defaults of --conv and --levels.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
-import numpy as np
-
-from meshops import Level, build_operators, parse_conv_kind, parse_conv_kinds
+from meshops import Level, build_operators, parse_conv_kinds
 from meshops.levels import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
-from pipeline.artifacts.h5 import atomic_h5
-from pipeline.cli import add_quiet, run
+from pipeline.artifacts.operators import write_operators
+from pipeline.cli import add_quiet, parse_with_settings, run
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
 
-INDEX_CONVENTION = ("conv tables: vertex id + 1, 0 = the zero-padding slot; pool, unpool, fixed_vertex, "
-                    "geodesic_sources: plain 0-based vertex ids")
+
+def flags_from_settings(settings: dict) -> dict[str, Any]:
+    return {"conv": settings["operators"]["conv"], "levels": settings["operators"]["levels"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -38,7 +37,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="quadric error, in squared mean edge lengths, past which a pooling pass stops once "
                              "below 60%% of its vertices (default %(default)s)")
     add_quiet(parser)
-    args = parser.parse_args(argv)
+    args = parse_with_settings(parser, argv, flags_from_settings)
 
     conv = _parse_conv(args.conv)
     if args.levels < 0:
@@ -65,34 +64,6 @@ def _report(index: int, level: Level) -> None:
     seconds = sum(level.seconds.values())
     print(f"level {index}: {len(level.vertices)} vertices, {len(level.faces)} faces, {seconds:.2f} s",
           file=sys.stderr)
-
-
-def write_operators(path: str, levels: list[Level], config: dict) -> None:
-    with atomic_h5(path, "operators", config) as f:
-        f.attrs["n_levels"] = len(levels)
-        f.attrs["conv"] = json.dumps(list(levels[0].conv))
-        f.attrs["index_convention"] = INDEX_CONVENTION
-        for index, level in enumerate(levels):
-            group = f.create_group(f"levels/{index}")
-            group.create_dataset("vertices", data=level.vertices.astype(np.float32))
-            group["vertices"].attrs["unit"] = "scene unit (material space), y up"
-            group.create_dataset("faces", data=level.faces.astype(np.int32))
-            group.attrs["fixed_vertex"] = level.fixed_vertex
-            group.attrs["geodesic_method"] = level.geodesic_method
-            group.create_dataset("geodesic_sources", data=level.geodesic_sources.astype(np.int32))
-            for name, table in level.conv.items():
-                kind, length = parse_conv_kind(name)
-                dataset = group.create_dataset(f"conv/{name}", data=table.astype(np.int32))
-                dataset.attrs["kind"] = kind
-                dataset.attrs["filter_length"] = length
-                dataset.attrs["padding_index"] = 0
-                if name in level.ec_fallbacks:
-                    dataset.attrs["rc_fallback_vertices"] = level.ec_fallbacks[name]
-            if level.coarsening is not None:
-                group.create_dataset("pool", data=level.coarsening.pool.astype(np.int32))
-                group.create_dataset("unpool", data=level.coarsening.unpool.astype(np.int32))
-                group.attrs["collapsed_edges"] = level.coarsening.collapsed
-                group.attrs["largest_quadric_error"] = level.coarsening.largest_error
 
 
 if __name__ == "__main__":

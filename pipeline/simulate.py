@@ -20,11 +20,13 @@ from tqdm import tqdm
 
 from geometry.rigid import apply_rigid
 from pipeline import cli
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr
+from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
+from pipeline.artifacts.simulation import SimulationRun, read_trajectory, write_simulation
+from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
-from sim.xpbd import ClothSolver, SolverSettings, UnstableSimulation, harmonic_constraint
+from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
 
 
 def solver_settings(settings: dict) -> SolverSettings:
@@ -50,83 +52,62 @@ def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray, low_part: np.ndarray
     return high_pins, np.asarray(low_part, dtype=np.int64)[strongest]
 
 
-class SceneDrive:
-    """Per-frame kinematic inputs from scene.h5: pin targets and, when the body collides, capsule end points."""
+def solver_body(drive: SceneDrive) -> dict:
+    """ClothSolver constructor arguments for the body at frame 0 (none without body collision)."""
+    return {} if drive.capsules is None else {"capsules": drive.capsules[0], "capsule_radii": drive.capsule_radii}
 
-    def __init__(self, scene_path: str, n_frames: int, body_collision: bool):
-        with open_artifact(scene_path) as f:
-            self.pins, self.targets = read(f, "pins/ids", np.int64), read(f, "pins/targets", np.float64)
-            self.part, self.transforms = read(f, "pins/part", np.int64), read(f, "pins/transforms", np.float64)
-            if len(self.targets) != n_frames:
-                raise PipelineError(f"{scene_path}: has {len(self.targets)} frames of pin targets, settings ask for "
-                                    f"{n_frames}")
-            self.capsules = self.radii = None
-            if body_collision:
-                if "capsules" not in f:
-                    raise PipelineError(f"{scene_path}: body_collision is on but the scene has no 'capsules' "
-                                        f"(a grid scene has no mannequin)")
-                self.capsules = np.stack([read(f, "capsules/a", np.float64), read(f, "capsules/b", np.float64)],
-                                         axis=2)
-                self.radii = np.stack([read(f, "capsules/radius_a", np.float64),
-                                       read(f, "capsules/radius_b", np.float64)], axis=1)
 
-    def solver_inputs(self) -> dict:
-        """ClothSolver constructor arguments for the body at frame 0."""
-        return {} if self.capsules is None else {"capsules": self.capsules[0], "capsule_radii": self.radii}
-
-    def frame(self, f: int, pin_targets: np.ndarray) -> dict:
-        """ClothSolver.step arguments for frame f."""
-        inputs = {"pin_targets": pin_targets}
-        if self.capsules is not None:
-            inputs["capsules"] = self.capsules[f]
-        return inputs
+def frame_inputs(drive: SceneDrive, f: int, pin_targets: np.ndarray,
+                 harmonic_target: np.ndarray | None = None) -> FrameInputs:
+    """ClothSolver.step inputs for frame f."""
+    return FrameInputs(pin_targets=pin_targets, harmonic_target=harmonic_target,
+                       capsules=None if drive.capsules is None else drive.capsules[f])
 
 
 def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s keyword arguments for frame f."""
-    positions = np.empty((n_frames, *solver.x.shape, 3), dtype=np.float32)
-    positions[0] = solver.positions()
+    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for frame f."""
+    state = solver.state
+    positions = np.empty((n_frames, *state.positions.shape, 3), dtype=np.float32)
+    positions[0] = state.read_positions()
     solve_ms = np.zeros(n_frames)
     for f in tqdm(range(1, n_frames), desc=label, disable=quiet, unit="frame"):
         start = time.perf_counter()
         try:
-            solver.step(**inputs(f))
+            solver.step(state, inputs(f))
         except UnstableSimulation as err:
             raise PipelineError(f"{label}: simulation blew up (NaN or speed > max_speed) at frame {f}, {err}") from None
-        positions[f] = solver.x.numpy()
+        positions[f] = state.positions.numpy()
         solve_ms[f] = (time.perf_counter() - start) * 1e3
     return positions, solve_ms
 
 
-def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool):
-    with open_artifact(scene_path) as f:
-        rest, faces = read(f, "rest/vertices", np.float64), read(f, "rest/faces", np.int64)
+def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool) -> SimulationRun:
+    rest, faces = read_rest_mesh(scene_path)
     check_mesh(scene_path, rest, faces)
     s = solver_settings(settings)
-    drive = SceneDrive(scene_path, settings["frames"], s.body_collision)
-    solver = ClothSolver(rest, faces, s, device, drive.pins, **drive.solver_inputs())
-    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: drive.frame(fr, drive.targets[fr]),
+    drive = read_scene_drive(scene_path, settings["frames"], s.body_collision)
+    pins = drive.pins
+    solver = ClothSolver(rest, faces, s, device, pins.ids, **solver_body(drive))
+    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: frame_inputs(drive, fr, pins.targets[fr]),
                                      f"{settings['scene']} low-res", quiet)
-    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": drive.pins,
-            "solve_ms": solve_ms}, {"n_constraints": solver.n_constraints}
+    return SimulationRun(positions, faces, rest, pins.ids, solve_ms, solver.n_constraints)
 
 
-def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str, quiet: bool):
+def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str,
+                  quiet: bool) -> SimulationRun:
     s = solver_settings(settings)
-    drive = SceneDrive(scene_path, settings["frames"], s.body_collision)
-    with open_artifact(subdiv_path) as f:
-        S = read_csr(f, "S")
-        rest, faces = read(f, "vertices", np.float64), read(f, "faces", np.int64)
-        basis, mass = read(f, "harmonics/basis", np.float64), read(f, "harmonics/mass", np.float64)
-    with open_artifact(low_path) as f:
-        x_low = read(f, "positions", np.float64)
+    drive = read_scene_drive(scene_path, settings["frames"], s.body_collision)
+    subdivision, harmonics = read_subdivision(subdiv_path), read_harmonics(subdiv_path)
+    S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
+    basis, mass = harmonics.basis, harmonics.mass
+    x_low = read_trajectory(low_path).positions
     if S.shape != (len(rest), x_low.shape[1]):
         raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
                             f"{low_path} has {x_low.shape[1]}")
     if len(x_low) != settings["frames"]:
         raise PipelineError(f"{low_path}: has {len(x_low)} frames, settings ask for {settings['frames']}")
-    pins, part = subdivided_pins(S, drive.pins, drive.part)
-    targets = apply_rigid(drive.transforms[:, part], rest[pins])
+    pins, part = subdivided_pins(S, drive.pins.ids, drive.pins.part)
+    targets = apply_rigid(drive.pins.transforms[:, part], rest[pins])
     try:
         constraint = harmonic_constraint(basis, mass, pins)
     except ValueError as err:
@@ -135,18 +116,16 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
     mass_basis_t = (mass[:, None] * basis).T
     harmonic_targets = np.einsum("kv,fvc->fkc", mass_basis_t, np.stack([S @ x for x in x_low]))
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=S @ x_low[0],
-                         harmonic=constraint, harmonic_target=harmonic_targets[0], **drive.solver_inputs())
+                         harmonic=constraint, harmonic_target=harmonic_targets[0], **solver_body(drive))
 
-    def inputs(fr: int) -> dict:
-        return dict(drive.frame(fr, targets[fr]), harmonic_target=harmonic_targets[fr])
+    def inputs(fr: int) -> FrameInputs:
+        return frame_inputs(drive, fr, targets[fr], harmonic_targets[fr])
 
     positions, solve_ms = run_frames(solver, settings["frames"], inputs, f"{settings['scene']} high-res", quiet)
     high_content = np.einsum("kv,fvc->fkc", mass_basis_t, positions.astype(np.float64))
     residual = (np.linalg.norm((high_content - harmonic_targets).reshape(len(positions), -1), axis=1)
                 / np.linalg.norm(high_content.reshape(len(positions), -1), axis=1))
-    return {"positions": positions, "faces": faces.astype(np.int32), "rest_vertices": rest, "pins/ids": pins,
-            "solve_ms": solve_ms, "harmonic_residual": residual}, \
-        {"n_constraints": solver.n_constraints, "n_harmonics": basis.shape[1]}
+    return SimulationRun(positions, faces, rest, pins, solve_ms, solver.n_constraints, residual, basis.shape[1])
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -166,16 +145,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     if device.startswith("cuda") and not wp.get_cuda_device_count():
         raise PipelineError(f"device '{device}' requested but Warp finds no CUDA device (use --device cpu)")
     if args.level == "low":
-        arrays, attrs = simulate_low(settings, args.scene, device, args.quiet)
+        run = simulate_low(settings, args.scene, device, args.quiet)
     else:
-        arrays, attrs = simulate_high(settings, args.scene, args.subdiv, args.sim_low, device, args.quiet)
-    with atomic_h5(args.out, f"simulate_{args.level}", settings) as f:
-        for name, data in arrays.items():
-            f.create_dataset(name, data=data)
-        f.attrs.update(attrs, level=args.level, device=device, frames=settings["frames"])
-        f["solve_ms"].attrs["meaning"] = "wall time of each frame's solve in ms (frame 0: initial state, 0)"
-        if "harmonic_residual" in f:
-            f["harmonic_residual"].attrs["meaning"] = "|B^T M (x_high - S x_low)| / |B^T M x_high| per frame"
+        run = simulate_high(settings, args.scene, args.subdiv, args.sim_low, device, args.quiet)
+    write_simulation(args.out, args.level, settings, run, device)
 
 
 if __name__ == "__main__":

@@ -1,21 +1,22 @@
 """Stage `subdivide`: Loop-subdivide the low-res rest mesh and compute the high-res harmonic test functions.
 
-    python -m pipeline.subdivide MESH OUT.h5 [--levels 2] [--vertices-per-harmonic 40] [--quiet]
+    python -m pipeline.subdivide MESH OUT.h5 [--settings SETTINGS.json] [--levels 2] [--vertices-per-harmonic 40]
+                                 [--quiet]
 
 MESH is an OBJ/PLY mesh or an HDF5 artifact holding one (e.g. scene.h5's `rest/`). OUT.h5 holds the subdivision
 matrix S (high-res = S @ low-res), the subdivided rest mesh and the harmonic basis; docs/artifacts.md
-lists every dataset.
+lists every dataset. With --settings (a scene's resolved settings.json), `high_res.subdivision_levels` and
+`high_res.vertices_per_harmonic` are the defaults of --levels and --vertices-per-harmonic.
 """
 from __future__ import annotations
 
 import argparse
-from typing import Sequence
+from typing import Any, Sequence
 
-import numpy as np
 from tqdm import tqdm
 
-from pipeline.artifacts.h5 import atomic_h5, write_csr
-from pipeline.cli import add_quiet, run
+from pipeline.artifacts.subdiv import Harmonics, Subdivision, write_subdiv
+from pipeline.cli import add_quiet, parse_with_settings, run
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
 from geometry.harmonics import harmonic_basis, harmonic_count
@@ -31,6 +32,11 @@ def _int_at_least(minimum: int):
     return parse
 
 
+def flags_from_settings(settings: dict) -> dict[str, Any]:
+    high_res = settings["high_res"]
+    return {"levels": high_res["subdivision_levels"], "vertices_per_harmonic": high_res["vertices_per_harmonic"]}
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.subdivide", description=__doc__.splitlines()[0])
     parser.add_argument("mesh", help="low-res rest mesh: .obj/.ply or an .h5 artifact")
@@ -39,7 +45,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--vertices-per-harmonic", type=_int_at_least(1), default=40,
                         help="K = ceil(high-res vertices / this) harmonic test functions (paper: 40)")
     add_quiet(parser)
-    args = parser.parse_args(argv)
+    args = parse_with_settings(parser, argv, flags_from_settings)
 
     # Loaded before the progress bar starts, so that bad input prints nothing but its error line.
     low_vertices, low_faces = load_mesh(args.mesh)
@@ -57,21 +63,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         progress.update()
         progress.set_postfix_str("writing")
         config = {"mesh": str(args.mesh), "levels": args.levels, "vertices_per_harmonic": args.vertices_per_harmonic}
-        with atomic_h5(args.out, "subdivide", config) as f:
-            f.attrs["levels"] = args.levels
-            f.attrs["n_low_vertices"] = len(low_vertices)
-            f.attrs["n_high_vertices"] = len(high_vertices)
-            f.attrs["n_harmonics"] = n_harmonics
-            f.attrs["vertices_per_harmonic"] = args.vertices_per_harmonic
-            write_csr(f, "S", subdivision)
-            f.create_dataset("vertices", data=high_vertices.astype(np.float64))
-            f.create_dataset("faces", data=high_faces.astype(np.int32))
-            harmonics = f.create_group("harmonics")
-            harmonics.attrs["laplacian"] = "cotangent"
-            harmonics.attrs["mass"] = "barycentric lumped"
-            harmonics.create_dataset("basis", data=basis)
-            harmonics.create_dataset("eigenvalues", data=eigenvalues)
-            harmonics.create_dataset("mass", data=mass)
+        write_subdiv(args.out, config, args.levels, args.vertices_per_harmonic, len(low_vertices),
+                     Subdivision(subdivision, high_vertices, high_faces), Harmonics(basis, eigenvalues, mass))
         progress.update()
 
 

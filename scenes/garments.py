@@ -25,8 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenes.mannequin import Skeleton, body_signed_distance, capsules_world, default_skeleton, rest_transforms
 from geometry.mesh import validate_mesh
+from scenes.capsules import body_signed_distance, capsules_world
+from scenes.kinematics import rest_transforms
+from scenes.skeleton import Skeleton, default_skeleton
 
 GARMENT_KINDS = ("patch", "cape", "skirt", "pants", "tshirt", "dress")
 BOUNDARY_LOOPS = {"patch": 1, "cape": 1, "skirt": 2, "pants": 3, "tshirt": 4, "dress": 4}
@@ -55,7 +57,7 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
         raise ValueError(f"unknown garment kind '{kind}'; choose one of {', '.join(GARMENT_KINDS)}")
     if not max_edge > 0:
         raise ValueError(f"max_edge must be positive, got {max_edge}")
-    body = _Body(skel or default_skeleton())
+    body = _RestMannequin(skel or default_skeleton())
     builder = _MeshBuilder(SPACING * max_edge)
     attachment, part = _BUILDERS[kind](body, builder, np.random.default_rng(seed))
     vertices, faces = builder.vertices, builder.faces
@@ -73,8 +75,9 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
 # Geometry helpers
 
 
-class _Body:
-    """The rest-pose capsules, with distance queries and ring fitting."""
+class _RestMannequin:
+    """The mannequin in its rest pose, which every garment is fitted around: its capsules and joint positions,
+    with distance queries and ring fitting."""
 
     def __init__(self, skel: Skeleton):
         self.skel = skel
@@ -219,7 +222,7 @@ def _axis_point(chain: np.ndarray, y: np.ndarray) -> np.ndarray:
 class _Tube:
     """Rings of a horizontal tube around the torso: a superellipse template scaled per ring."""
 
-    def __init__(self, body: _Body, rx: float, rz: float, exponent: float = 3.0):
+    def __init__(self, body: _RestMannequin, rx: float, rz: float, exponent: float = 3.0):
         self.body, self.rx, self.rz, self.exponent = body, rx, rz, exponent
         self.directions = _ring_template(rx, rz, exponent, 128)
 
@@ -242,7 +245,7 @@ class _Tube:
         return base[:, None, :] + scales[:, None, None] * template[None]
 
 
-def _waist_tube(body: _Body, builder: _MeshBuilder, top: float, bottom: float, ease: float,
+def _waist_tube(body: _RestMannequin, builder: _MeshBuilder, top: float, bottom: float, ease: float,
                 flare: float = 0.0) -> np.ndarray:
     """Tube from the waist at height `top` down to `bottom`, hugging pelvis and thighs with `ease` and never
     narrowing downward; below its widest fitted ring it flares by `flare` (radius gained per unit of drop).
@@ -291,7 +294,7 @@ def _neckline(neck_point: np.ndarray, center: np.ndarray, neck_z: float) -> np.n
                            neck_z + (center[2] - neck_z) * np.sin(psi)], axis=1)
 
 
-def _upper_body(body: _Body, builder: _MeshBuilder, torso_rings: np.ndarray, ease: float) -> dict:
+def _upper_body(body: _RestMannequin, builder: _MeshBuilder, torso_rings: np.ndarray, ease: float) -> dict:
     """Front and back panels from the top ring of the torso tube (index (n,), vertex 0 at the left armpit, n/4
     in front) up to the shoulder seams and neckline. Each panel column is a quadratic Bezier curve from the ring
     up to the top row, bulging forward (backward) enough to open the armholes around the arms. Returns the two
@@ -359,7 +362,7 @@ def _upper_body(body: _Body, builder: _MeshBuilder, torso_rings: np.ndarray, eas
 # Garments: each adds its pieces to the builder and returns (attachment vertex indices, part they follow).
 
 
-def _pants(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _pants(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Waist at the top of the pelvis, crotch seam 3 cm under it, legs down to just above the ankles."""
     s = body.scale
     ease = 0.025 * s * rng.uniform(0.85, 1.15)
@@ -384,7 +387,7 @@ def _pants(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tupl
     return index[0], "pelvis"
 
 
-def _leg(body: _Body, builder: _MeshBuilder, loop: np.ndarray, side: str, top: float, hem: float,
+def _leg(body: _RestMannequin, builder: _MeshBuilder, loop: np.ndarray, side: str, top: float, hem: float,
          ease: float) -> None:
     """A trouser leg from a loop at the crotch down to the hem: circles around the thigh and shin, never closer
     to the midplane than a quarter of the gap between the thighs (so the two legs do not touch), reached from the
@@ -417,7 +420,7 @@ def _leg(body: _Body, builder: _MeshBuilder, loop: np.ndarray, side: str, top: f
     builder.tube(loop, (1 - blend[..., None]) * lowered + blend[..., None] * on_circle, np.array([0.0, -1.0, 0.0]))
 
 
-def _skirt(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _skirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """A-line skirt from the waist to just above the knees."""
     s = body.scale
     ease = 0.025 * s * rng.uniform(0.85, 1.15)
@@ -427,7 +430,7 @@ def _skirt(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tupl
     return index[0], "pelvis"
 
 
-def _torso(body: _Body, builder: _MeshBuilder, hem: float, ease: float, flare: float) -> np.ndarray:
+def _torso(body: _RestMannequin, builder: _MeshBuilder, hem: float, ease: float, flare: float) -> np.ndarray:
     """Torso tube from the armpits down to `hem` (top to bottom), straight around the chest, belly and hips,
     flaring below the hips by `flare`. Returns the index grid."""
     s = body.scale
@@ -450,7 +453,7 @@ def _torso(body: _Body, builder: _MeshBuilder, hem: float, ease: float, flare: f
     return index
 
 
-def _tshirt(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _tshirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Straight, loose tshirt down to the hips with short sleeves."""
     s = body.scale
     ease = 0.03 * s * rng.uniform(0.85, 1.15)
@@ -466,7 +469,7 @@ def _tshirt(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tup
     return upper["shoulder"], "chest"
 
 
-def _dress(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _dress(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Sleeveless dress, straight over the torso, flaring from the hips to below the knees."""
     s = body.scale
     ease = 0.03 * s * rng.uniform(0.85, 1.15)
@@ -484,7 +487,7 @@ def _circle_around(axis: np.ndarray, n: int) -> np.ndarray:
     return np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2
 
 
-def _cape(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _cape(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Hangs down the back from an arc that runs over both shoulders and behind the neck, widening downward."""
     s = body.scale
     arm = body.skel.index("upper_arm_l")
@@ -511,7 +514,7 @@ def _cape(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple
     return index[0], "chest"
 
 
-def _patch(body: _Body, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _patch(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """A flat bib hanging in front of the chest and belly, held along its top edge."""
     s = body.scale
     chest = body.skel.index("chest")

@@ -18,9 +18,11 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import gaussian_filter1d
 
-from scenes.mannequin import (TORSO, Skeleton, capsule_pair_clearance, default_skeleton, forward_kinematics,
-                      joint_angular_velocity, joint_quaternions, mirror_name, part_velocities, quat_canonical,
-                      quat_conjugate, quat_multiply, quat_rotate, rest_transforms, self_collision_pairs)
+from geometry.rotations import quat_canonical, quat_conjugate, quat_multiply, quat_rotate
+from scenes.capsules import capsule_pair_clearance, self_collision_pairs
+from scenes.kinematics import (forward_kinematics, joint_angular_velocity, joint_quaternions, part_velocities,
+                               rest_transforms)
+from scenes.skeleton import TORSO, Skeleton, default_skeleton, mirror_name
 
 MOTION_KINDS = ("rest", "walk", "dance", "karate", "random")
 SOFT_LIMIT_MARGIN = 0.05  # fraction of a joint's range over which the soft clamp bends values into the limit
@@ -38,7 +40,7 @@ class Motion:
     blend_frames: int
     root_position: np.ndarray      # (F, 3) world position of the pelvis origin
     root_velocity: np.ndarray      # (F, 3) units/s
-    joint_angles: np.ndarray       # (F, P, 3) radians, see scenes.mannequin
+    joint_angles: np.ndarray       # (F, P, 3) radians, see scenes.skeleton
     joint_angle_rates: np.ndarray  # (F, P, 3) radians/s
 
     @property

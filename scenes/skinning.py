@@ -11,9 +11,11 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from scenes.mannequin import Skeleton, capsule_signed_distance, capsules_world, quat_conjugate, quat_multiply, \
-    quat_rotate, quat_to_matrix, rest_transforms
 from geometry.mesh import unique_edges
+from geometry.rotations import quat_conjugate, quat_multiply, quat_rotate, quat_to_matrix
+from scenes.capsules import capsule_signed_distance, capsules_world
+from scenes.kinematics import rest_transforms
+from scenes.skeleton import Skeleton
 
 
 def skinning_weights(skel: Skeleton, rest_vertices: np.ndarray, faces: np.ndarray, max_influences: int = 4,

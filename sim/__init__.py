@@ -1,3 +1,4 @@
 """Physics solvers, side by side (one subpackage each, like NVIDIA Newton's `solvers/`): today `sim.xpbd`, the
-XPBD cloth solver. A solver knows nothing of Snakemake, HDF5 layouts, torch or where a body comes from: it takes
-meshes, settings and per-frame kinematic inputs as arrays."""
+XPBD cloth solver. Each has the shape of `sim.solver.Solver`: it makes the state it advances, and
+`step(state, inputs)` advances it one frame. A solver knows nothing of Snakemake, HDF5 layouts, torch or where a
+body comes from: it takes meshes, settings and per-frame kinematic inputs as arrays."""

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.xpbd import kernels as k
+from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
+                              predict_vertex, store_state)
 
 SWEEP_STEPS = 24            # sphere-tracing steps of the continuous body test (a head-on approach needs one)
 SWEEP_TOLERANCE = 1.0e-3    # the trace has touched when within this fraction of the level
@@ -37,8 +38,9 @@ neighbor_list = wp.types.vector(length=MAX_VALENCE, dtype=int)
 
 
 @wp.struct
-class Body:
-    """Capsules of the frame and per-vertex body-contact state of the substep."""
+class Capsules:
+    """The body as tapered capsules at the start and end of the frame, and per-vertex body-contact state of the
+    substep."""
     start: wp.array2d(dtype=wp.vec3)  # (P, 2) end points a, b at the start of the frame
     end: wp.array2d(dtype=wp.vec3)    # (P, 2) at its end
     radius: wp.array2d(dtype=float)   # (P, 2) radii at a and b
@@ -88,7 +90,7 @@ def any_perpendicular(e: wp.vec3) -> wp.vec3:
 @wp.func
 def capsule_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float):
     """Signed distance from p to the tapered capsule (convex hull of the spheres (a, ra) and (b, rb)) and the
-    outward unit normal there (the distance's gradient): the formula of scenes.mannequin.capsule_signed_distance."""
+    outward unit normal there (the distance's gradient): the formula of scenes.capsules.capsule_signed_distance."""
     axis = b - a
     length = wp.length(axis)
     e = axis / length
@@ -126,10 +128,10 @@ def segment_point_distance(p0: wp.vec3, p1: wp.vec3, q: wp.vec3) -> float:
 
 
 @wp.func
-def capsule_at(body: Body, c: int, fraction: float):
+def capsule_at(capsules: Capsules, c: int, fraction: float):
     """End points of capsule c at `fraction` of the frame (linear interpolation, like the pins)."""
-    return (wp.lerp(body.start[c, 0], body.end[c, 0], fraction),
-            wp.lerp(body.start[c, 1], body.end[c, 1], fraction))
+    return (wp.lerp(capsules.start[c, 0], capsules.end[c, 0], fraction),
+            wp.lerp(capsules.start[c, 1], capsules.end[c, 1], fraction))
 
 
 @wp.func
@@ -204,22 +206,22 @@ def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float,
 
 
 @wp.func
-def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, body: Body, fraction: float) -> wp.vec3:
+def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules, fraction: float) -> wp.vec3:
     """keep_outside for every capsule watched by vertex i, one after the other, at `fraction` of the frame; the
     distances moved add to the vertex's push (the normal impulse that friction is limited by)."""
-    near = body.near[i]
+    near = capsules.near[i]
     while near != 0:
         c = (near & 255) - 1
         near = near >> 8
-        a, b = capsule_at(body, c, fraction)
-        x, moved = keep_outside(x_from, x, a, b, body.radius[c, 0], body.radius[c, 1], body.thickness)
+        a, b = capsule_at(capsules, c, fraction)
+        x, moved = keep_outside(x_from, x, a, b, capsules.radius[c, 0], capsules.radius[c, 1], capsules.thickness)
         if moved > 0.0:
-            body.push[i] = body.push[i] + moved
+            capsules.push[i] = capsules.push[i] + moved
     return x
 
 
 @wp.func
-def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, body: Body, f0: float, f1: float) -> wp.vec3:
+def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, capsules: Capsules, f0: float, f1: float) -> wp.vec3:
     """Position-based Coulomb friction (Macklin et al. 2014, "Unified particle physics", sec. 6.1) against the
     touching capsule: the vertex's displacement relative to where the capsule would have carried it loses its
     tangential part up to friction * push (stick), or that much of it (slide). The tangent plane of a convex body
@@ -227,21 +229,21 @@ def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, body: Body, f0: float, 
     best = int(0)
     best_d = float(1.0e30)
     best_n = wp.vec3(0.0)
-    for c in range(body.start.shape[0]):
-        a, b = capsule_at(body, c, f1)
-        d, n = capsule_distance(x, a, b, body.radius[c, 0], body.radius[c, 1])
+    for c in range(capsules.start.shape[0]):
+        a, b = capsule_at(capsules, c, f1)
+        d, n = capsule_distance(x, a, b, capsules.radius[c, 0], capsules.radius[c, 1])
         if d < best_d:
             best = c
             best_d = d
             best_n = n
-    if best_d > 1.01 * body.thickness:  # pushed during the substep but no longer touching
+    if best_d > 1.01 * capsules.thickness:  # pushed during the substep but no longer touching
         return x
-    a0, b0 = capsule_at(body, best, f0)
-    a1, b1 = capsule_at(body, best, f1)
+    a0, b0 = capsule_at(capsules, best, f0)
+    a1, b1 = capsule_at(capsules, best, f1)
     rel = x - carry(x_start, a0, b0, a1, b1)
     tangential = rel - wp.dot(rel, best_n) * best_n
     slip = wp.length(tangential)
-    limit = body.friction * body.push[i]
+    limit = capsules.friction * capsules.push[i]
     if slip <= limit:
         return x - tangential
     return x - tangential * (limit / slip)
@@ -354,56 +356,41 @@ def contact_multiplier(xi: wp.vec3, wi: float, xa: wp.vec3, xb: wp.vec3, xc: wp.
 
 
 @wp.kernel
-def predict_with_body(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    pin_slot: wp.array(dtype=int),
-    pin_target_start: wp.array(dtype=wp.vec3),
-    pin_target_end: wp.array(dtype=wp.vec3),
-    f1: float,
-    gravity: wp.vec3,
-    h: float,
-    damping_factor: float,
-    x_prev: wp.array(dtype=wp.vec3),
-    body: Body,
-    f0: float,
-):
-    """The inertial prediction (k.predict_vertex, substep from frame fraction f0 to f1), then, per capsule, the
+def predict_with_body(sub: Substep, pins: PinDrive, capsules: Capsules):
+    """The inertial prediction (predict_vertex, substep from frame fraction f0 to f1), then, per capsule, the
     continuous test: the vertex's start position is carried with the capsule to the substep end, and the path
     from there to the prediction (the vertex's motion relative to the capsule) goes through keep_outside, so a
     limb that moves farther than its radius in a substep still meets the cloth on its front side. The first
     WATCHED capsules within `reach` of the result are watched in the iterations (a list, not a mask, so that an
     iteration costs nothing for the many vertices far from the body); finish_substep checks them all."""
     i = wp.tid()
-    xi = k.predict_vertex(i, x, v, inv_mass, pin_slot, pin_target_start, pin_target_end, f1, gravity, h,
-                          damping_factor, x_prev)
+    xi = predict_vertex(i, sub, pins)
     near = int(0)
     watched = int(0)
     push = float(0.0)
-    if inv_mass[i] > 0.0:
-        x_start = x_prev[i]
-        for c in range(body.start.shape[0]):
-            ra = body.radius[c, 0]
-            rb = body.radius[c, 1]
-            a0, b0 = capsule_at(body, c, f0)
-            a1, b1 = capsule_at(body, c, f1)
+    if sub.inv_mass[i] > 0.0:
+        x_start = sub.x_prev[i]
+        for c in range(capsules.start.shape[0]):
+            ra = capsules.radius[c, 0]
+            rb = capsules.radius[c, 1]
+            a0, b0 = capsule_at(capsules, c, sub.f0)
+            a1, b1 = capsule_at(capsules, c, sub.f1)
             # Most capsules are far: skip those whose whole sweep over the substep (within a ball around the
             # mean of the four end points) stays farther than `reach` from the vertex's path.
             center = 0.25 * (a0 + b0 + a1 + b1)
             bound = wp.max(wp.max(wp.length(a0 - center), wp.length(b0 - center)),
                            wp.max(wp.length(a1 - center), wp.length(b1 - center)))
-            if segment_point_distance(x_start, xi, center) > bound + wp.max(ra, rb) + body.reach:
+            if segment_point_distance(x_start, xi, center) > bound + wp.max(ra, rb) + capsules.reach:
                 continue
-            xi, moved = keep_outside(carry(x_start, a0, b0, a1, b1), xi, a1, b1, ra, rb, body.thickness)
+            xi, moved = keep_outside(carry(x_start, a0, b0, a1, b1), xi, a1, b1, ra, rb, capsules.thickness)
             push = push + moved
             d, n = capsule_distance(xi, a1, b1, ra, rb)
-            if d < body.reach and watched < WATCHED:
+            if d < capsules.reach and watched < WATCHED:
                 near = near | ((c + 1) << (8 * watched))
                 watched += 1
-    x[i] = xi
-    body.near[i] = near
-    body.push[i] = push
+    sub.x[i] = xi
+    capsules.near[i] = near
+    capsules.push[i] = push
 
 
 @wp.func
@@ -432,23 +419,19 @@ def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), 
 
 
 @wp.kernel
-def find_self_contacts(
-    x: wp.array(dtype=wp.vec3),
-    x_prev: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    sc: SelfContacts,
-    flags: wp.array(dtype=int),
-    overflow_flag: int,
-):
+def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     """Contact lists: vertex i queries the triangle BVH with its swept box and lists each candidate triangle t,
     and adds itself to t's list (a slot taken with an integer atomic; sort_face_lists then restores a fixed order).
     A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
     on the wrong side of the plane is pushed back rather than through. The BVH traversal order is fixed by the
     tree, so the lists are deterministic. A full list drops the rest and raises flags[overflow_flag]. Pinned
-    vertices list nothing: they take no correction and move no triangle."""
+    vertices list nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
+    predictions, x_prev the substep's start positions."""
     i = wp.tid()
+    x = sub.x
+    x_prev = sub.x_prev
     count = int(0)
-    if inv_mass[i] > 0.0:
+    if sub.inv_mass[i] > 0.0:
         old = vertex_list()
         n_old = sc.vertex_count[i]
         for a in range(n_old):
@@ -474,7 +457,7 @@ def find_self_contacts(
                     sc.face_contacts[t, slot] = side * (i + 1)
                     count += 1
                 else:
-                    flags[overflow_flag] = 1
+                    sub.flags[overflow_flag] = 1
     sc.vertex_count[i] = count
 
 
@@ -495,31 +478,16 @@ def sort_face_lists(sc: SelfContacts):
 
 
 @wp.kernel
-def solve_with_collisions(
-    x_in: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    offsets: wp.array(dtype=int),
-    neighbor: wp.array(dtype=int),
-    constraint: wp.array(dtype=int),
-    rest_min: wp.array(dtype=float),
-    rest_max: wp.array(dtype=float),
-    alpha_tilde: wp.array(dtype=float),
-    scale: wp.array(dtype=float),
-    lambda_in: wp.array(dtype=float),
-    lambda_carry: float,
-    lambda_out: wp.array(dtype=float),
-    x_out: wp.array(dtype=wp.vec3),
-    sc: SelfContacts,
-    body: Body,
-    f1: float,
-):
-    """One Jacobi sweep: distance constraints (k.distance_correction) and self-contacts gathered from x_in, then
-    projection out of the body. Empty contact lists and no watched capsule leave exactly x_in + distance
+def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, sc: SelfContacts,
+                          capsules: Capsules):
+    """One Jacobi sweep: distance constraints (distance_correction) and self-contacts gathered from x_in, then
+    projection out of the capsules. Empty contact lists and no watched capsule leave exactly x_in + distance
     correction, as solve_distance_constraints computes it."""
     i = wp.tid()
+    x_in = sweep.x_in
+    inv_mass = sub.inv_mass
     xi = x_in[i]
-    dx = k.distance_correction(i, xi, x_in, inv_mass, offsets, neighbor, constraint, rest_min, rest_max,
-                               alpha_tilde, scale, lambda_in, lambda_carry, lambda_out)
+    dx = distance_correction(i, xi, sub, constraints, sweep)
     # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
     # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
     contact = wp.vec3(0.0)
@@ -555,46 +523,33 @@ def solve_with_collisions(
     if active > 0:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
-    x_out[i] = push_out_of_body(i, xi, xi + dx, body, f1)
+    sweep.x_out[i] = push_out_of_body(i, xi, xi + dx, capsules, sub.f1)
 
 
 @wp.kernel
-def finish_substep(
-    x_solved: wp.array(dtype=wp.vec3),
-    x_prev: wp.array(dtype=wp.vec3),
-    inv_h: float,
-    max_speed: float,
-    substep: int,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    flags: wp.array(dtype=int),
-    inv_mass: wp.array(dtype=float),
-    body: Body,
-    f0: float,
-    f1: float,
-):
+def finish_substep(sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Capsules):
     """Friction for vertices the body pushed in this substep, then a nearest-point projection out of every
     capsule, watched or not: the constraints may have pulled a vertex into a capsule it was far from at the
     prediction, the harmonic projection may have moved it since the last sweep, and friction slides it along one
-    capsule's tangent plane, which may enter a neighbouring capsule. Then k.store_state."""
+    capsule's tangent plane, which may enter a neighbouring capsule. Then store_state."""
     i = wp.tid()
     xi = x_solved[i]
-    if inv_mass[i] > 0.0:
-        if body.friction > 0.0:
-            if body.push[i] > 0.0:
-                xi = apply_friction(i, xi, x_prev[i], body, f0, f1)
+    if sub.inv_mass[i] > 0.0:
+        if capsules.friction > 0.0:
+            if capsules.push[i] > 0.0:
+                xi = apply_friction(i, xi, sub.x_prev[i], capsules, sub.f0, sub.f1)
         # Capsules overlap at the joints; in the crook between two, leaving one may enter the other, so the
         # capsules take turns a few times (alternating projections converge to the crease).
         for _ in range(FINAL_PASSES):
             total = float(0.0)
-            for c in range(body.start.shape[0]):
-                a, b = capsule_at(body, c, f1)
-                ra = body.radius[c, 0]
-                rb = body.radius[c, 1]
-                if wp.length(xi - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + body.thickness:
+            for c in range(capsules.start.shape[0]):
+                a, b = capsule_at(capsules, c, sub.f1)
+                ra = capsules.radius[c, 0]
+                rb = capsules.radius[c, 1]
+                if wp.length(xi - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + capsules.thickness:
                     continue
-                xi, moved = keep_outside(xi, xi, a, b, ra, rb, body.thickness)
+                xi, moved = keep_outside(xi, xi, a, b, ra, rb, capsules.thickness)
                 total = total + moved
             if total == 0.0:
                 break
-    k.store_state(i, xi, x_prev, inv_h, max_speed, substep, x, v, flags)
+    store_state(i, xi, sub)

@@ -10,6 +10,10 @@ kernel does as much as it can per launch:
 The harmonic-constraint projection of the high-res run adds three launches per iteration (partial reduction,
 finalisation, application) because B^T M x is a reduction over all vertices. The per-vertex work of the first
 three is in wp.funcs, which `sim.xpbd.collision` calls to fuse contacts into the same launches.
+
+The kernels take their arrays in structs grouped by what they describe (the substep, the pins, the distance
+constraints, one Jacobi sweep's buffers, the harmonic projection), so that the collision kernels, which replace
+the first three, take the same groups plus their own.
 """
 from __future__ import annotations
 
@@ -18,73 +22,94 @@ import warp as wp
 wp.config.quiet = True
 
 
+@wp.struct
+class Substep:
+    """The vertices and integration constants of one substep, and where the substep lies in the frame."""
+    x: wp.array(dtype=wp.vec3)       # positions: at the substep start, then the prediction, then the result
+    v: wp.array(dtype=wp.vec3)       # velocities
+    x_prev: wp.array(dtype=wp.vec3)  # positions at the substep start
+    inv_mass: wp.array(dtype=float)  # 0 for pinned vertices
+    gravity: wp.vec3
+    h: float                         # substep length
+    inv_h: float
+    damping_factor: float            # e^{-damping h}
+    max_speed: float                 # a vertex faster than this flags the substep
+    f0: float                        # fraction of the frame at the substep start
+    f1: float                        # at its end
+    index: int                       # the substep's number in the frame, its slot in `flags`
+    flags: wp.array(dtype=int)       # one per substep (blow-up), then one for overflowing self-contact lists
+
+
+@wp.struct
+class PinDrive:
+    """Kinematic pins: vertex i with slot[i] >= 0 follows target slot[i], interpolated linearly within the frame."""
+    slot: wp.array(dtype=int)        # (V,) -1 for a free vertex
+    start: wp.array(dtype=wp.vec3)   # (P,) targets at the start of the frame
+    end: wp.array(dtype=wp.vec3)     # (P,) at its end
+
+
+@wp.struct
+class DistanceConstraints:
+    """Constraints rest_min[c] <= |x_i - x_j| <= rest_max[c], listed per vertex (CSR) for a Jacobi gather."""
+    offsets: wp.array(dtype=int)     # (V + 1,) vertex i's entries are offsets[i] .. offsets[i + 1] - 1
+    neighbor: wp.array(dtype=int)    # the other endpoint of each entry
+    constraint: wp.array(dtype=int)  # the constraint id c of each entry
+    rest_min: wp.array(dtype=float)  # (C,)
+    rest_max: wp.array(dtype=float)  # (C,)
+    alpha_tilde: wp.array(dtype=float)  # (C,) compliance / h^2
+    scale: wp.array(dtype=float)     # (C,) relaxation / max(n_i, n_j), see distance_correction
+
+
+@wp.struct
+class JacobiSweep:
+    """The buffers of one Jacobi iteration: it reads x_in and lambda_in and writes x_out and lambda_out (the next
+    iteration swaps them), so no thread reads what another writes."""
+    x_in: wp.array(dtype=wp.vec3)
+    x_out: wp.array(dtype=wp.vec3)
+    lambda_in: wp.array(dtype=float)
+    lambda_out: wp.array(dtype=float)
+    lambda_carry: float              # 0 on a substep's first iteration: resets the multipliers without a launch
+
+
+@wp.struct
+class HarmonicProjection:
+    """The hard constraint B^T M (x - S x_low) = 0 on the device, with its reduction buffers."""
+    mass_basis: wp.array2d(dtype=float)          # (V, K) M B
+    correction_basis_t: wp.array2d(dtype=float)  # (K, V) A^T, A = P_free B (B^T M P_free B)^{-1}
+    rows_per_chunk: int
+    partial: wp.array2d(dtype=wp.vec3)           # (V / rows_per_chunk, K) partial sums of B^T M x
+    residual: wp.array(dtype=wp.vec3)            # (K,)
+    target_start: wp.array(dtype=wp.vec3)        # (K,) B^T M S x_low at the start of the frame
+    target_end: wp.array(dtype=wp.vec3)          # (K,) at its end
+
+
 @wp.func
-def predict_vertex(
-    i: int,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    pin_slot: wp.array(dtype=int),
-    pin_target_start: wp.array(dtype=wp.vec3),
-    pin_target_end: wp.array(dtype=wp.vec3),
-    pin_fraction: float,
-    gravity: wp.vec3,
-    h: float,
-    damping_factor: float,
-    x_prev: wp.array(dtype=wp.vec3),
-) -> wp.vec3:
+def predict_vertex(i: int, sub: Substep, pins: PinDrive) -> wp.vec3:
     """Symplectic-Euler prediction x* = x + h (v + h g) e^{-k h}; pinned vertices jump to their target at the
     end of the substep (linear interpolation of the frame's start and end targets). Stores x in x_prev and the
     predicted velocity in v; returns x*."""
-    xi = x[i]
-    x_prev[i] = xi
-    slot = pin_slot[i]
+    xi = sub.x[i]
+    sub.x_prev[i] = xi
+    slot = pins.slot[i]
     if slot >= 0:
-        return wp.lerp(pin_target_start[slot], pin_target_end[slot], pin_fraction)
-    if inv_mass[i] > 0.0:
-        vi = (v[i] + gravity * h) * damping_factor
-        v[i] = vi
-        return xi + vi * h
+        return wp.lerp(pins.start[slot], pins.end[slot], sub.f1)
+    if sub.inv_mass[i] > 0.0:
+        vi = (sub.v[i] + sub.gravity * sub.h) * sub.damping_factor
+        sub.v[i] = vi
+        return xi + vi * sub.h
     return xi
 
 
 @wp.kernel
-def predict_positions(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    pin_slot: wp.array(dtype=int),
-    pin_target_start: wp.array(dtype=wp.vec3),
-    pin_target_end: wp.array(dtype=wp.vec3),
-    pin_fraction: float,
-    gravity: wp.vec3,
-    h: float,
-    damping_factor: float,
-    x_prev: wp.array(dtype=wp.vec3),
-):
+def predict_positions(sub: Substep, pins: PinDrive):
     """The prediction of every vertex (see predict_vertex)."""
     i = wp.tid()
-    x[i] = predict_vertex(i, x, v, inv_mass, pin_slot, pin_target_start, pin_target_end, pin_fraction, gravity, h,
-                          damping_factor, x_prev)
+    sub.x[i] = predict_vertex(i, sub, pins)
 
 
 @wp.func
-def distance_correction(
-    i: int,
-    xi: wp.vec3,
-    x_in: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    offsets: wp.array(dtype=int),
-    neighbor: wp.array(dtype=int),
-    constraint: wp.array(dtype=int),
-    rest_min: wp.array(dtype=float),
-    rest_max: wp.array(dtype=float),
-    alpha_tilde: wp.array(dtype=float),
-    scale: wp.array(dtype=float),
-    lambda_in: wp.array(dtype=float),
-    lambda_carry: float,
-    lambda_out: wp.array(dtype=float),
-) -> wp.vec3:
+def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: DistanceConstraints,
+                        sweep: JacobiSweep) -> wp.vec3:
     """One Jacobi XPBD iteration over distance constraints rest_min <= |x_i - x_j| <= rest_max (XPBD eq. 18):
     the correction of vertex i (at xi = x_in[i]).
 
@@ -96,134 +121,85 @@ def distance_correction(
     inside its range is inactive and its multiplier is released (lambda = 0). `lambda_carry` is 0 on a substep's
     first iteration, which resets the multipliers without a separate launch.
     """
-    wi = inv_mass[i]
+    wi = sub.inv_mass[i]
     dx = wp.vec3(0.0)
-    for a in range(offsets[i], offsets[i + 1]):
-        j = neighbor[a]
-        c = constraint[a]
-        d = xi - x_in[j]
+    for a in range(constraints.offsets[i], constraints.offsets[i + 1]):
+        j = constraints.neighbor[a]
+        c = constraints.constraint[a]
+        d = xi - sweep.x_in[j]
         dist = wp.length(d)
-        err = dist - wp.clamp(dist, rest_min[c], rest_max[c])
-        w_sum = wi + inv_mass[j]
-        lam = lambda_in[c] * lambda_carry
+        err = dist - wp.clamp(dist, constraints.rest_min[c], constraints.rest_max[c])
+        w_sum = wi + sub.inv_mass[j]
+        lam = sweep.lambda_in[c] * sweep.lambda_carry
         lam_new = float(0.0)
         if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
-            alpha = alpha_tilde[c]
-            d_lambda = scale[c] * (-err - alpha * lam) / (w_sum + alpha)
+            alpha = constraints.alpha_tilde[c]
+            d_lambda = constraints.scale[c] * (-err - alpha * lam) / (w_sum + alpha)
             dx = dx + (wi * d_lambda / dist) * d
             lam_new = lam + d_lambda
         if i < j:
-            lambda_out[c] = lam_new
+            sweep.lambda_out[c] = lam_new
     return dx
 
 
 @wp.kernel
-def solve_distance_constraints(
-    x_in: wp.array(dtype=wp.vec3),
-    inv_mass: wp.array(dtype=float),
-    offsets: wp.array(dtype=int),
-    neighbor: wp.array(dtype=int),
-    constraint: wp.array(dtype=int),
-    rest_min: wp.array(dtype=float),
-    rest_max: wp.array(dtype=float),
-    alpha_tilde: wp.array(dtype=float),
-    scale: wp.array(dtype=float),
-    lambda_in: wp.array(dtype=float),
-    lambda_carry: float,
-    lambda_out: wp.array(dtype=float),
-    x_out: wp.array(dtype=wp.vec3),
-):
+def solve_distance_constraints(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep):
     """One Jacobi sweep over the distance constraints, reading x_in and writing x_out (see distance_correction)."""
     i = wp.tid()
-    xi = x_in[i]
-    x_out[i] = xi + distance_correction(i, xi, x_in, inv_mass, offsets, neighbor, constraint, rest_min, rest_max,
-                                        alpha_tilde, scale, lambda_in, lambda_carry, lambda_out)
+    xi = sweep.x_in[i]
+    sweep.x_out[i] = xi + distance_correction(i, xi, sub, constraints, sweep)
 
 
 @wp.func
-def store_state(
-    i: int,
-    xi: wp.vec3,
-    x_prev: wp.array(dtype=wp.vec3),
-    inv_h: float,
-    max_speed: float,
-    substep: int,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    flags: wp.array(dtype=int),
-):
+def store_state(i: int, xi: wp.vec3, sub: Substep):
     """x = xi, v = (xi - x_prev) / h; flags the substep if the position is not finite or the speed exceeds
     `max_speed` (the host turns the flag into an error)."""
-    vi = (xi - x_prev[i]) * inv_h
-    x[i] = xi
-    v[i] = vi
+    vi = (xi - sub.x_prev[i]) * sub.inv_h
+    sub.x[i] = xi
+    sub.v[i] = vi
     speed = wp.length(vi)
-    if not (speed <= max_speed):  # also true for NaN
-        flags[substep] = 1
+    if not (speed <= sub.max_speed):  # also true for NaN
+        sub.flags[sub.index] = 1
 
 
 @wp.kernel
-def update_velocities(
-    x_solved: wp.array(dtype=wp.vec3),
-    x_prev: wp.array(dtype=wp.vec3),
-    inv_h: float,
-    max_speed: float,
-    substep: int,
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    flags: wp.array(dtype=int),
-):
+def update_velocities(sub: Substep, x_solved: wp.array(dtype=wp.vec3)):
     """Copies the solved positions into the state buffer and derives velocities (see store_state)."""
     i = wp.tid()
-    store_state(i, x_solved[i], x_prev, inv_h, max_speed, substep, x, v, flags)
+    store_state(i, x_solved[i], sub)
 
 
 @wp.kernel
-def harmonic_partial_sums(
-    x: wp.array(dtype=wp.vec3),
-    mass_basis: wp.array2d(dtype=float),
-    rows_per_chunk: int,
-    partial: wp.array2d(dtype=wp.vec3),
-):
+def harmonic_partial_sums(x: wp.array(dtype=wp.vec3), hp: HarmonicProjection):
     """partial[c, k] = sum over the rows i of chunk c of (M B)[i, k] x_i: the first half of the reduction
     B^T M x. Threads with consecutive k read consecutive entries of row i, so loads coalesce on GPU."""
     c, k = wp.tid()
-    n = mass_basis.shape[0]
-    start = c * rows_per_chunk
-    end = wp.min(start + rows_per_chunk, n)
+    n = hp.mass_basis.shape[0]
+    start = c * hp.rows_per_chunk
+    end = wp.min(start + hp.rows_per_chunk, n)
     acc = wp.vec3(0.0)
     for i in range(start, end):
-        acc = acc + mass_basis[i, k] * x[i]
-    partial[c, k] = acc
+        acc = acc + hp.mass_basis[i, k] * x[i]
+    hp.partial[c, k] = acc
 
 
 @wp.kernel
-def harmonic_residual(
-    partial: wp.array2d(dtype=wp.vec3),
-    target_start: wp.array(dtype=wp.vec3),
-    target_end: wp.array(dtype=wp.vec3),
-    target_fraction: float,
-    residual: wp.array(dtype=wp.vec3),
-):
+def harmonic_residual(hp: HarmonicProjection, target_fraction: float):
     """r_k = (B^T M x)_k - (B^T M S x_low)_k, the low-res side interpolated linearly within the frame."""
     k = wp.tid()
     acc = wp.vec3(0.0)
-    for c in range(partial.shape[0]):
-        acc = acc + partial[c, k]
-    residual[k] = acc - wp.lerp(target_start[k], target_end[k], target_fraction)
+    for c in range(hp.partial.shape[0]):
+        acc = acc + hp.partial[c, k]
+    hp.residual[k] = acc - wp.lerp(hp.target_start[k], hp.target_end[k], target_fraction)
 
 
 @wp.kernel
-def harmonic_project(
-    residual: wp.array(dtype=wp.vec3),
-    correction_basis_t: wp.array2d(dtype=float),
-    x: wp.array(dtype=wp.vec3),
-):
+def harmonic_project(hp: HarmonicProjection, x: wp.array(dtype=wp.vec3)):
     """x_i -= sum_k A[i, k] r_k with A = P_free B (B^T M P_free B)^{-1}: the M-orthogonal projection onto
     B^T M (x - S x_low) = 0 that leaves pinned vertices (zero rows of A) where they are. A is stored transposed
     (K, V) so that consecutive vertices read consecutive entries."""
     i = wp.tid()
     acc = wp.vec3(0.0)
-    for k in range(residual.shape[0]):
-        acc = acc + correction_basis_t[k, i] * residual[k]
+    for k in range(hp.residual.shape[0]):
+        acc = acc + hp.correction_basis_t[k, i] * hp.residual[k]
     x[i] = x[i] - acc

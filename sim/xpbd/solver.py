@@ -1,11 +1,12 @@
-"""Host side of the XPBD cloth solver: constraint assembly (numpy) and frame stepping (Warp, CPU or CUDA).
+"""Host side of the XPBD cloth solver: the device layout of the constraints and frame stepping (Warp, CPU or CUDA).
 
 A frame of length dt is split into `substeps`; each substep predicts positions, runs `iterations` Jacobi sweeps
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
 and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.collision`
 (contacts fused into them) plus, for self-collision, a broad phase once per substep. On CUDA the whole frame is
 captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
-arrays that are overwritten before each replay.
+arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the solver
+makes the state it steps.
 """
 from __future__ import annotations
 
@@ -16,92 +17,40 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from sim.xpbd import collision as ck
-from sim.xpbd import kernels as k
 from geometry.harmonics import lumped_mass
-from geometry.mesh import bending_pairs, unique_edges
+from geometry.mesh import unique_edges
+from sim.solver import Solver
+from sim.xpbd import collision, kernels
+from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
+from sim.xpbd.settings import SolverSettings
+
+
+@dataclass(frozen=True, eq=False)
+class ClothState:
+    """What a frame advances: the positions and velocities of the cloth's vertices, (V,) vec3 device arrays. Made
+    by ClothSolver (`solver.state`); stepping updates the arrays in place, so they are the same every frame."""
+    positions: wp.array
+    velocities: wp.array
+
+    def read_positions(self) -> np.ndarray:
+        """(V, 3) float64 copy on the host."""
+        return self.positions.numpy().astype(np.float64)
+
+    def read_velocities(self) -> np.ndarray:
+        return self.velocities.numpy().astype(np.float64)
+
+    def write_velocities(self, velocities: np.ndarray) -> None:
+        self.velocities.assign(np.asarray(velocities, dtype=np.float32))
 
 
 @dataclass(frozen=True)
-class SolverSettings:
-    """Everything that defines the integration; units are scene units (~m), seconds and kilograms."""
-    dt: float = 1.0 / 60.0
-    substeps: int = 8
-    iterations: int = 75
-    compression_allowance: float = 0.75  # stretch constraints allow compression down to this fraction of rest length
-    stretch_compliance: float = 0.0      # XPBD compliance of stretch constraints (inverse stiffness, m/N)
-    bending_compliance: float = 1.0e-3   # XPBD compliance of cross-edge bending links
-    damping: float = 0.1                 # velocity decay rate (1/s): v <- v exp(-damping h) every substep
-    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
-    density: float = 0.2                 # area density of the cloth (kg per square unit)
-    relaxation: float = 1.5              # Jacobi over-relaxation, see solve_distance_constraints
-    max_speed: float = 100.0             # a vertex faster than this (units/s) means the run has blown up
-    bending: bool = True                 # physics switch: cross-edge bending links
-    body_collision: bool = False         # physics switch: keep the cloth outside the body's capsules
-    self_collision: bool = False         # physics switch: vertex-triangle self-contact
-    collision_thickness: float = 0.005   # least distance of the cloth from every capsule surface
-    friction: float = 0.3                # Coulomb coefficient against the (moving) body
-    self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
-
-    def __post_init__(self):
-        checks = {
-            "dt": self.dt > 0, "substeps": self.substeps >= 1, "iterations": self.iterations >= 1,
-            "compression_allowance": 0 < self.compression_allowance <= 1,
-            "stretch_compliance": self.stretch_compliance >= 0, "bending_compliance": self.bending_compliance >= 0,
-            "damping": self.damping >= 0, "density": self.density > 0,
-            "relaxation": 0 < self.relaxation < 2, "max_speed": self.max_speed > 0,
-            "collision_thickness": self.collision_thickness > 0, "friction": self.friction >= 0,
-            "self_thickness": self.self_thickness > 0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            raise ValueError(f"solver setting '{bad[0]}' out of range: {getattr(self, bad[0])}")
-
-
-@dataclass(frozen=True)
-class DistanceConstraints:
-    """Two-vertex constraints rest_min <= |x_i - x_j| <= rest_max with a compliance each."""
-    pairs: np.ndarray       # (C, 2) int
-    rest_min: np.ndarray    # (C,)
-    rest_max: np.ndarray    # (C,)
-    compliance: np.ndarray  # (C,)
-
-
-def cloth_constraints(rest_vertices: np.ndarray, faces: np.ndarray, s: SolverSettings) -> DistanceConstraints:
-    """Stretch constraints on every edge (compression allowed to `compression_allowance`) and, if bending is on,
-    a link between the two vertices opposite each interior edge, at its rest length."""
-    edges = unique_edges(faces)
-    length = np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1)
-    parts = [(edges, s.compression_allowance * length, length, np.full(len(edges), s.stretch_compliance))]
-    if s.bending:
-        links = bending_pairs(faces)
-        link_length = np.linalg.norm(rest_vertices[links[:, 0]] - rest_vertices[links[:, 1]], axis=1)
-        parts.append((links, link_length, link_length, np.full(len(links), s.bending_compliance)))
-    return DistanceConstraints(*(np.concatenate(p) for p in zip(*parts)))
-
-
-@dataclass(frozen=True)
-class HarmonicConstraint:
-    """Hard constraint B^T M (x - S x_low) = 0 (compliance 0), solved by M-orthogonal projection.
-
-    `mass_basis` = M B (V, K) gives the residual; `correction_basis` = P_free B (B^T M P_free B)^{-1} (V, K)
-    maps a residual to the smallest (in the M-norm) correction that zeroes it without moving pinned vertices.
-    """
-    mass_basis: np.ndarray
-    correction_basis: np.ndarray
-
-
-def harmonic_constraint(basis: np.ndarray, mass: np.ndarray, pinned: np.ndarray) -> HarmonicConstraint:
-    """Build the projection for an M-orthonormal basis B (V, K), lumped mass (V,) and the pinned vertex ids."""
-    free = np.ones(len(mass), dtype=bool)
-    free[pinned] = False
-    free_basis = basis * free[:, None]
-    gram = basis.T @ (mass[:, None] * free_basis)
-    cond = np.linalg.cond(gram)
-    if not np.isfinite(cond) or cond > 1e8:
-        raise ValueError(f"pinned vertices leave the harmonic constraint unsatisfiable (condition number {cond:.3g})")
-    return HarmonicConstraint(mass_basis=mass[:, None] * basis,
-                              correction_basis=np.linalg.solve(gram, free_basis.T).T)
+class FrameInputs:
+    """The kinematic inputs of a frame, at its end; the solver interpolates each linearly across the substeps from
+    the previous frame's values. Each is needed exactly when the solver has what it drives (pinned vertices, a
+    harmonic constraint, body collision)."""
+    pin_targets: np.ndarray | None = None      # (P, 3) positions of the pinned vertices
+    harmonic_target: np.ndarray | None = None  # (K, 3) B^T M S x_low, for a run with the harmonic constraint
+    capsules: np.ndarray | None = None         # (N, 2, 3) capsule end points, with body collision
 
 
 class UnstableSimulation(RuntimeError):
@@ -116,13 +65,15 @@ BODY_MARGIN = 1.0
 SELF_MARGIN = 0.25
 
 
-class ClothSolver:
+class ClothSolver(Solver[ClothState, FrameInputs]):
     """Steps a cloth mesh frame by frame on one Warp device.
 
-    Inputs per frame: the pin targets at the end of the frame (P, 3), for a constrained run the harmonic target
-    B^T M S x_low at the end of the frame (K, 3) and, with body collision, the capsule end points at the end of
-    the frame (P, 2, 3); all are interpolated linearly across substeps from the previous frame's values.
-    `capsules` (P, 2, 3) and `capsule_radii` (P, 2) give the capsules at frame 0 and their radii at a and b.
+    `step(state, inputs)` advances `solver.state`, the one state the solver makes: a CUDA graph replays its launches
+    with the device arrays it was captured with, and the solver also keeps memory of the trajectory (the previous
+    frame's inputs, from which a frame interpolates, and the sides of the self-contacts), so a second trajectory
+    needs a second solver. The state starts at `initial_positions` (default: the rest positions) with zero
+    velocities; the pins start where the state has them, and `harmonic_target` (K, 3) and `capsules` (N, 2, 3) give
+    the other inputs at frame 0, `capsule_radii` (N, 2) the capsules' radii at a and b.
     """
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
@@ -138,50 +89,26 @@ class ClothSolver:
         pinned = np.asarray(pinned, dtype=np.int64)
         inv_mass = 1.0 / mass
         inv_mass[pinned] = 0.0
-        pin_slot = np.full(n, -1, dtype=np.int32)
-        pin_slot[pinned] = np.arange(len(pinned), dtype=np.int32)
         x0 = rest_vertices if initial_positions is None else initial_positions
 
-        con = cloth_constraints(rest_vertices, faces, s)
-        offsets, neighbor, constraint = _vertex_incidence(con.pairs, n)
-        count = np.diff(offsets)
-        scale = s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]])
-
         arr = self._array
-        self.x = arr(x0, wp.vec3)
-        self.x_prev = arr(x0, wp.vec3)
-        self.x_work = arr(x0, wp.vec3)
-        self.v = arr(np.zeros((n, 3)), wp.vec3)
-        self.inv_mass = arr(inv_mass, float)
-        self.pin_slot = arr(pin_slot, int)
-        start = x0[pinned] if len(pinned) else np.zeros((1, 3))
-        self.pin_start, self.pin_end = arr(start, wp.vec3), arr(start, wp.vec3)
-        self.offsets, self.neighbor, self.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
-        self.rest_min, self.rest_max = arr(con.rest_min, float), arr(con.rest_max, float)
-        self.alpha_tilde = arr(con.compliance / (h * h), float)
-        self.scale = arr(scale, float)
-        self.lambdas = (arr(np.zeros(len(con.pairs)), float), arr(np.zeros(len(con.pairs)), float))
+        self.state = ClothState(positions=arr(x0, wp.vec3), velocities=arr(np.zeros((n, 3)), wp.vec3))
+        x_prev = arr(x0, wp.vec3)
+        x_work = arr(x0, wp.vec3)
         # One flag per substep (blow-up) and a last one for overflowing self-contact lists.
         self.flags = arr(np.zeros(s.substeps + 1), int)
+        self._substeps = self._substep_structs(h, x_prev, arr(inv_mass, float))
+        self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
-        self.n_constraints = len(con.pairs)
-
-        self.harmonic = harmonic is not None
-        if self.harmonic:
-            n_modes = harmonic.mass_basis.shape[1]
-            self.rows_per_chunk = 64
-            n_chunks = math.ceil(n / self.rows_per_chunk)
-            self.mass_basis = wp.array(harmonic.mass_basis.astype(np.float32), dtype=float, device=self.device)
-            self.correction_basis_t = wp.array(np.ascontiguousarray(harmonic.correction_basis.T, dtype=np.float32),
-                                               dtype=float, device=self.device)
-            self.partial = wp.zeros((n_chunks, n_modes), dtype=wp.vec3, device=self.device)
-            self.residual = wp.zeros(n_modes, dtype=wp.vec3, device=self.device)
-            target = np.zeros((n_modes, 3)) if harmonic_target is None else harmonic_target
-            self.target_start, self.target_end = arr(target, wp.vec3), arr(target, wp.vec3)
+        self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n)
+        lambdas = (arr(np.zeros(self.n_constraints), float), arr(np.zeros(self.n_constraints), float))
+        self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
+        self.harmonic_projection = (None if harmonic is None
+                                    else self._harmonic_projection(harmonic, harmonic_target, n))
 
         edges = unique_edges(faces)
         mean_edge = float(np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1).mean())
-        self.body = self._body(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
+        self.capsules = self._capsules(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
         self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n)
         self._graph = None
 
@@ -189,45 +116,117 @@ class ClothSolver:
         np_dtype = np.int32 if dtype in (int, wp.vec3i) else np.float32
         return wp.array(np.ascontiguousarray(data, dtype=np_dtype), dtype=dtype, device=self.device)
 
-    def _body(self, capsules, radii, reach: float, n: int) -> ck.Body:
+    def _substep_structs(self, h: float, x_prev: wp.array, inv_mass: wp.array) -> list[kernels.Substep]:
+        """The kernels' view of each substep of a frame: the state's arrays, the integration constants and the
+        substep's place in the frame."""
+        s = self.settings
+        substeps = []
+        for index in range(s.substeps):
+            sub = kernels.Substep()
+            sub.x, sub.v, sub.x_prev, sub.inv_mass = self.state.positions, self.state.velocities, x_prev, inv_mass
+            sub.gravity = wp.vec3(*s.gravity)
+            sub.h, sub.inv_h, sub.damping_factor = h, 1.0 / h, math.exp(-s.damping * h)
+            sub.max_speed = s.max_speed
+            sub.f0, sub.f1 = index / s.substeps, (index + 1) / s.substeps
+            sub.index = index
+            sub.flags = self.flags
+            substeps.append(sub)
+        return substeps
+
+    def _pin_drive(self, pinned: np.ndarray, x0: np.ndarray, n: int) -> kernels.PinDrive:
+        """Each pinned vertex's slot, its targets starting where the vertex starts (one dummy slot without pins)."""
+        pins = kernels.PinDrive()
+        slot = np.full(n, -1, dtype=np.int32)
+        slot[pinned] = np.arange(len(pinned), dtype=np.int32)
+        pins.slot = self._array(slot, int)
+        start = x0[pinned] if len(pinned) else np.zeros((1, 3))
+        pins.start, pins.end = self._array(start, wp.vec3), self._array(start, wp.vec3)
+        return pins
+
+    def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
+                              n: int) -> tuple[kernels.DistanceConstraints, int]:
+        """The cloth's constraints listed per vertex, and how many there are."""
+        s = self.settings
+        con = cloth_constraints(rest_vertices, faces, s)
+        offsets, neighbor, constraint = vertex_incidence(con.pairs, n)
+        count = np.diff(offsets)
+        arr = self._array
+        dc = kernels.DistanceConstraints()
+        dc.offsets, dc.neighbor, dc.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
+        dc.rest_min, dc.rest_max = arr(con.rest_min, float), arr(con.rest_max, float)
+        dc.alpha_tilde = arr(con.compliance / (h * h), float)
+        dc.scale = arr(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]), float)
+        return dc, len(con.pairs)
+
+    def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
+                       lambdas: tuple[wp.array, wp.array]) -> list[kernels.JacobiSweep]:
+        """The buffers of each iteration of a substep: positions ping-pong between the state's positions and a work
+        array, multipliers between two arrays, and the first iteration starts from zero multipliers. The last
+        iteration's x_out holds the solved positions."""
+        sweeps = []
+        for it in range(self.settings.iterations):
+            sweep = kernels.JacobiSweep()
+            sweep.x_in, sweep.x_out = buffers[it % 2], buffers[(it + 1) % 2]
+            sweep.lambda_in, sweep.lambda_out = lambdas[it % 2], lambdas[(it + 1) % 2]
+            sweep.lambda_carry = 0.0 if it == 0 else 1.0
+            sweeps.append(sweep)
+        return sweeps
+
+    def _harmonic_projection(self, harmonic: HarmonicConstraint, target: np.ndarray | None,
+                             n: int) -> kernels.HarmonicProjection:
+        """The projection's bases and reduction buffers (in chunks of 64 rows), targets at frame 0."""
+        hp = kernels.HarmonicProjection()
+        n_modes = harmonic.mass_basis.shape[1]
+        hp.rows_per_chunk = 64
+        n_chunks = math.ceil(n / hp.rows_per_chunk)
+        hp.mass_basis = wp.array(harmonic.mass_basis.astype(np.float32), dtype=float, device=self.device)
+        hp.correction_basis_t = wp.array(np.ascontiguousarray(harmonic.correction_basis.T, dtype=np.float32),
+                                         dtype=float, device=self.device)
+        hp.partial = wp.zeros((n_chunks, n_modes), dtype=wp.vec3, device=self.device)
+        hp.residual = wp.zeros(n_modes, dtype=wp.vec3, device=self.device)
+        target = np.zeros((n_modes, 3)) if target is None else target
+        hp.target_start, hp.target_end = self._array(target, wp.vec3), self._array(target, wp.vec3)
+        return hp
+
+    def _capsules(self, ends, radii, reach: float, n: int) -> collision.Capsules:
         """The capsules and per-vertex body-contact state (with body collision off: no capsules, so the kernels'
         capsule loops are empty)."""
         s = self.settings
-        body = ck.Body()
-        body.near = self._array(np.zeros(n), int)
-        body.push = self._array(np.zeros(n), float)
+        capsules = collision.Capsules()
+        capsules.near = self._array(np.zeros(n), int)
+        capsules.push = self._array(np.zeros(n), float)
         if not s.body_collision:
-            if capsules is not None or radii is not None:
+            if ends is not None or radii is not None:
                 raise ValueError("capsules were given but settings.body_collision is off")
-            return body
-        if capsules is None or radii is None:
-            raise ValueError("body_collision needs capsules (P, 2, 3) and capsule_radii (P, 2) at frame 0")
-        capsules = np.asarray(capsules, dtype=np.float64)
+            return capsules
+        if ends is None or radii is None:
+            raise ValueError("body_collision needs capsules (N, 2, 3) and capsule_radii (N, 2) at frame 0")
+        ends = np.asarray(ends, dtype=np.float64)
         radii = np.asarray(radii, dtype=np.float64)
-        if capsules.ndim != 3 or capsules.shape[1:] != (2, 3) or radii.shape != capsules.shape[:2]:
-            raise ValueError(f"capsules must be (P, 2, 3) and capsule_radii (P, 2); got {capsules.shape} and "
+        if ends.ndim != 3 or ends.shape[1:] != (2, 3) or radii.shape != ends.shape[:2]:
+            raise ValueError(f"capsules must be (N, 2, 3) and capsule_radii (N, 2); got {ends.shape} and "
                              f"{radii.shape}")
-        if not 1 <= len(capsules) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
-            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(capsules)}")
-        length = np.linalg.norm(capsules[:, 1] - capsules[:, 0], axis=1)
+        if not 1 <= len(ends) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
+            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(ends)}")
+        length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
         if (radii <= 0).any() or (length <= np.abs(radii[:, 0] - radii[:, 1])).any():
             raise ValueError("capsule radii must be positive and each segment longer than the difference of its "
                              "end radii")
-        body.start = self._array(capsules, wp.vec3)
-        body.end = self._array(capsules, wp.vec3)
-        body.radius = self._array(radii, float)
-        body.thickness = s.collision_thickness
-        body.reach = reach
-        body.friction = s.friction
-        return body
+        capsules.start = self._array(ends, wp.vec3)
+        capsules.end = self._array(ends, wp.vec3)
+        capsules.radius = self._array(radii, float)
+        capsules.thickness = s.collision_thickness
+        capsules.reach = reach
+        capsules.friction = s.friction
+        return capsules
 
-    def _self_contacts(self, faces: np.ndarray, reach: float, n: int) -> ck.SelfContacts:
+    def _self_contacts(self, faces: np.ndarray, reach: float, n: int) -> collision.SelfContacts:
         """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only).
 
         The triangle BVH is built once over the initial boxes with the same (SAH) builder on every device, so CPU
         and CUDA traverse identical trees; each substep only refits it."""
         s = self.settings
-        sc = ck.SelfContacts()
+        sc = collision.SelfContacts()
         sc.vertex_count = self._array(np.zeros(n), int)
         if not s.self_collision:  # no lists and no triangles around any vertex: the iterations find no contact
             sc.face_offsets = self._array(np.zeros(n + 1), int)
@@ -238,45 +237,50 @@ class ClothSolver:
         order = np.argsort(faces.ravel(), kind="stable")
         sc.face_offsets = arr(np.concatenate([[0], np.cumsum(np.bincount(faces.ravel(), minlength=n))]), int)
         sc.vertex_faces = arr(face_ids[order], int)
-        edge_offsets, neighbors, _ = _vertex_incidence(unique_edges(faces), n)
-        if np.diff(edge_offsets).max() > ck.MAX_VALENCE:
-            raise ValueError(f"self-collision handles vertices of up to {ck.MAX_VALENCE} neighbours; this mesh has "
-                             f"one with {np.diff(edge_offsets).max()}")
+        edge_offsets, neighbors, _ = vertex_incidence(unique_edges(faces), n)
+        if np.diff(edge_offsets).max() > collision.MAX_VALENCE:
+            raise ValueError(f"self-collision handles vertices of up to {collision.MAX_VALENCE} neighbours; this "
+                             f"mesh has one with {np.diff(edge_offsets).max()}")
         sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
         sc.face_lower = arr(np.zeros((len(faces), 3)), wp.vec3)
         sc.face_upper = arr(np.zeros((len(faces), 3)), wp.vec3)
-        sc.vertex_contacts = arr(np.zeros((n, ck.VERTEX_LIST)), int)
-        sc.face_contacts = arr(np.zeros((len(faces), ck.FACE_LIST)), int)
+        sc.vertex_contacts = arr(np.zeros((n, collision.VERTEX_LIST)), int)
+        sc.face_contacts = arr(np.zeros((len(faces), collision.FACE_LIST)), int)
         sc.face_count = arr(np.zeros(len(faces)), int)
         sc.thickness = s.self_thickness
         sc.reach = reach
-        wp.launch(ck.contact_bounds, dim=len(faces), device=self.device, inputs=[self.x, self.x, sc])
+        x = self.state.positions
+        wp.launch(collision.contact_bounds, dim=len(faces), device=self.device, inputs=[x, x, sc])
         self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
         sc.face_bvh = self._face_bvh.id
         return sc
 
-    def step(self, pin_targets: np.ndarray | None = None, harmonic_target: np.ndarray | None = None,
-             capsules: np.ndarray | None = None) -> None:
-        """Advance one frame. Raises UnstableSimulation naming the first bad substep."""
+    def step(self, state: ClothState, inputs: FrameInputs = FrameInputs()) -> None:
+        """Advance `state` (which must be `self.state`) one frame. Raises UnstableSimulation naming the first bad
+        substep."""
+        if state is not self.state:
+            raise ValueError("a ClothSolver steps the state it made (solver.state); a second trajectory needs a "
+                             "second solver")
+        capsules = inputs.capsules
         if self.settings.body_collision:
-            if capsules is None or np.shape(capsules) != tuple(self.body.end.shape) + (3,):
+            if capsules is None or np.shape(capsules) != tuple(self.capsules.end.shape) + (3,):
                 raise ValueError(f"body_collision needs the capsules at the end of the frame, shape "
-                                 f"{tuple(self.body.end.shape) + (3,)}; got "
+                                 f"{tuple(self.capsules.end.shape) + (3,)}; got "
                                  f"{None if capsules is None else np.shape(capsules)}")
-            self.body.start.assign(self.body.end)
-            self.body.end.assign(np.asarray(capsules, dtype=np.float32))
+            self.capsules.start.assign(self.capsules.end)
+            self.capsules.end.assign(np.asarray(capsules, dtype=np.float32))
         elif capsules is not None:
             raise ValueError("capsules were given but settings.body_collision is off")
         if self.n_pins:
-            self.pin_start.assign(self.pin_end)
-            self.pin_end.assign(np.asarray(pin_targets, dtype=np.float32))
-        if self.harmonic:
-            self.target_start.assign(self.target_end)
-            self.target_end.assign(np.asarray(harmonic_target, dtype=np.float32))
+            self.pins.start.assign(self.pins.end)
+            self.pins.end.assign(np.asarray(inputs.pin_targets, dtype=np.float32))
+        if self.harmonic_projection is not None:
+            self.harmonic_projection.target_start.assign(self.harmonic_projection.target_end)
+            self.harmonic_projection.target_end.assign(np.asarray(inputs.harmonic_target, dtype=np.float32))
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                for module in (k, ck):  # compile before capture: no JIT inside a graph
+                for module in (kernels, collision):  # compile before capture: no JIT inside a graph
                     wp.load_module(module, device=self.device)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
@@ -291,81 +295,46 @@ class ClothSolver:
         if flags[:-1].any():
             raise UnstableSimulation(f"substep {int(np.argmax(flags[:-1]))}")
 
-    def positions(self) -> np.ndarray:
-        return self.x.numpy().astype(np.float64)
-
-    def velocities(self) -> np.ndarray:
-        return self.v.numpy().astype(np.float64)
-
-    def set_velocities(self, velocities: np.ndarray) -> None:
-        self.v.assign(np.asarray(velocities, dtype=np.float32))
-
     def _launch_frame(self) -> None:
         s = self.settings
-        h = s.dt / s.substeps
-        n = self.x.shape[0]
+        n = self.state.positions.shape[0]
         dev = self.device
-        gravity = wp.vec3(*s.gravity)
-        damping_factor = math.exp(-s.damping * h)
         collide = s.body_collision or s.self_collision
-        for sub in range(s.substeps):
-            f0, f1 = sub / s.substeps, (sub + 1) / s.substeps
-            predict = [self.x, self.v, self.inv_mass, self.pin_slot, self.pin_start, self.pin_end, f1, gravity, h,
-                       damping_factor, self.x_prev]
+        for sub in self._substeps:
             if s.body_collision:
-                wp.launch(ck.predict_with_body, dim=n, device=dev, inputs=predict + [self.body, f0])
+                wp.launch(collision.predict_with_body, dim=n, device=dev, inputs=[sub, self.pins, self.capsules])
             else:
-                wp.launch(k.predict_positions, dim=n, device=dev, inputs=predict)
+                wp.launch(kernels.predict_positions, dim=n, device=dev, inputs=[sub, self.pins])
             if s.self_collision:
-                self._launch_broad_phase()
-            # Ping-pong between x and x_work; the lambdas ping-pong in step.
-            buffers = (self.x, self.x_work)
-            for it in range(s.iterations):
-                src, dst = buffers[it % 2], buffers[(it + 1) % 2]
-                inputs = [src, self.inv_mass, self.offsets, self.neighbor, self.constraint, self.rest_min,
-                          self.rest_max, self.alpha_tilde, self.scale, self.lambdas[it % 2],
-                          0.0 if it == 0 else 1.0, self.lambdas[(it + 1) % 2], dst]
+                self._launch_broad_phase(sub)
+            for sweep in self._sweeps:
                 if collide:
-                    wp.launch(ck.solve_with_collisions, dim=n, device=dev,
-                              inputs=inputs + [self.contacts, self.body, f1])
+                    wp.launch(collision.solve_with_collisions, dim=n, device=dev,
+                              inputs=[sub, self.constraints, sweep, self.contacts, self.capsules])
                 else:
-                    wp.launch(k.solve_distance_constraints, dim=n, device=dev, inputs=inputs)
-                if self.harmonic:
-                    self._launch_projection(dst, f1)
-            solved = buffers[s.iterations % 2]
-            state = [solved, self.x_prev, 1.0 / h, s.max_speed, sub, self.x, self.v, self.flags]
+                    wp.launch(kernels.solve_distance_constraints, dim=n, device=dev,
+                              inputs=[sub, self.constraints, sweep])
+                if self.harmonic_projection is not None:
+                    self._launch_projection(sweep.x_out, sub.f1)
+            solved = self._sweeps[-1].x_out
             if collide:
-                wp.launch(ck.finish_substep, dim=n, device=dev, inputs=state + [self.inv_mass, self.body, f0, f1])
+                wp.launch(collision.finish_substep, dim=n, device=dev, inputs=[sub, solved, self.capsules])
             else:
-                wp.launch(k.update_velocities, dim=n, device=dev, inputs=state)
+                wp.launch(kernels.update_velocities, dim=n, device=dev, inputs=[sub, solved])
 
-    def _launch_broad_phase(self) -> None:
+    def _launch_broad_phase(self, sub: kernels.Substep) -> None:
         """Self-contact candidates of the substep, from the start positions (x_prev) and the predictions (x)."""
         n_faces = self.contacts.faces.shape[0]
-        wp.launch(ck.contact_bounds, dim=n_faces, device=self.device, inputs=[self.x, self.x_prev, self.contacts])
+        wp.launch(collision.contact_bounds, dim=n_faces, device=self.device,
+                  inputs=[sub.x, sub.x_prev, self.contacts])
         self._face_bvh.refit()
-        wp.launch(ck.find_self_contacts, dim=self.x.shape[0], device=self.device,
-                  inputs=[self.x, self.x_prev, self.inv_mass, self.contacts, self.flags, self.settings.substeps])
-        wp.launch(ck.sort_face_lists, dim=n_faces, device=self.device, inputs=[self.contacts])
+        wp.launch(collision.find_self_contacts, dim=sub.x.shape[0], device=self.device,
+                  inputs=[sub, self.contacts, self.settings.substeps])
+        wp.launch(collision.sort_face_lists, dim=n_faces, device=self.device, inputs=[self.contacts])
 
     def _launch_projection(self, x: wp.array, fraction: float) -> None:
-        n_chunks, n_modes = self.partial.shape
-        wp.launch(k.harmonic_partial_sums, dim=(n_chunks, n_modes), device=self.device,
-                  inputs=[x, self.mass_basis, self.rows_per_chunk, self.partial])
-        wp.launch(k.harmonic_residual, dim=n_modes, device=self.device,
-                  inputs=[self.partial, self.target_start, self.target_end, fraction, self.residual])
-        wp.launch(k.harmonic_project, dim=x.shape[0], device=self.device,
-                  inputs=[self.residual, self.correction_basis_t, x])
-
-
-def _vertex_incidence(pairs: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CSR of constraints per vertex: offsets (V+1,), the other endpoint and the constraint id of each entry."""
-    ids = np.arange(len(pairs))
-    first = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    cid = np.concatenate([ids, ids])
-    order = np.argsort(first, kind="stable")
-    offsets = np.zeros(n_vertices + 1, dtype=np.int64)
-    np.cumsum(np.bincount(first, minlength=n_vertices), out=offsets[1:])
-    return offsets, other[order], cid[order]
-
+        hp = self.harmonic_projection
+        n_chunks, n_modes = hp.partial.shape
+        wp.launch(kernels.harmonic_partial_sums, dim=(n_chunks, n_modes), device=self.device, inputs=[x, hp])
+        wp.launch(kernels.harmonic_residual, dim=n_modes, device=self.device, inputs=[hp, fraction])
+        wp.launch(kernels.harmonic_project, dim=x.shape[0], device=self.device, inputs=[hp, x])

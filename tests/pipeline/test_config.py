@@ -1,4 +1,6 @@
-"""workflow_config.yaml: schema validation, profile overlays, clear errors."""
+"""workflow_config.yaml: schema validation, profile overlays, clear errors; resolved settings as the defaults of
+a stage's flags."""
+import argparse
 import copy
 import subprocess
 import sys
@@ -6,7 +8,8 @@ import sys
 import pytest
 import yaml
 
-from pipeline.config import deep_merge, load_config, resolve_scene, validate_config
+from pipeline.cli import parse_with_settings
+from pipeline.config import deep_merge, load_config, resolve_scene, validate_config, write_settings
 from pipeline.errors import PipelineError
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
@@ -100,3 +103,60 @@ def test_inconsistent_settings_are_named(scene, change, message):
     config["scenes"][scene] = deep_merge(config["scenes"][scene], change)
     with pytest.raises(PipelineError, match=message):
         resolve_scene(config, scene, "paper")
+
+
+def _stage_parser() -> argparse.ArgumentParser:
+    """Flags of the kinds the stages have: typed, a comma-joined list, a required one, one without a setting."""
+    parser = argparse.ArgumentParser(prog="stage")
+    parser.add_argument("out")
+    parser.add_argument("--width", type=float, default=1.0)
+    parser.add_argument("--epochs", type=int, default=200)
+    parser.add_argument("--conv", default="RC13")
+    parser.add_argument("--test-clips")
+    parser.add_argument("--threads", type=int)
+    return parser
+
+
+def _flags(settings: dict) -> dict:
+    return {"width": settings["network"]["width"], "epochs": settings["training"]["epochs"],
+            "conv": settings["operators"]["conv"], "test_clips": settings["drivers"]["mannequin"]["test_clips"]}
+
+
+def test_settings_are_the_defaults_of_the_flags_with_their_types(tmp_path):
+    settings = resolve_scene(CONFIG, "pants", "cpu")
+    settings["network"]["width"] = 1            # an integer in YAML: the flag still makes a float of it
+    settings["operators"]["conv"] = ["RC9", "EC9"]
+    write_settings(settings, tmp_path / "s.json")
+    args = parse_with_settings(_stage_parser(), ["o.h5", "--settings", str(tmp_path / "s.json")], _flags)
+    assert vars(args) == {"out": "o.h5", "width": 1.0, "epochs": settings["training"]["epochs"], "conv": "RC9,EC9",
+                          "test_clips": "walk", "threads": None}
+    assert type(args.width) is float and type(args.epochs) is int
+
+
+def test_a_flag_given_by_hand_overrides_its_setting(tmp_path):
+    write_settings(resolve_scene(CONFIG, "pants", "cpu"), tmp_path / "s.json")
+    args = parse_with_settings(_stage_parser(), ["--epochs", "3", "--settings", str(tmp_path / "s.json"), "o.h5",
+                                                 "--width=0.5", "--threads", "2"], _flags)
+    assert (args.epochs, args.width, args.threads, args.test_clips) == (3, 0.5, 2, "walk")
+
+
+def test_without_settings_the_flags_keep_their_own_defaults():
+    args = parse_with_settings(_stage_parser(), ["o.h5"], _flags)
+    assert vars(args) == {"out": "o.h5", "width": 1.0, "epochs": 200, "conv": "RC13", "test_clips": None,
+                          "threads": None}
+
+
+@pytest.mark.parametrize("content, message", [
+    (None, "settings file does not exist"),
+    ("{not json", "not valid JSON"),
+    ('{"network": {"width": 1}}', "missing setting 'training'"),
+    ('{"network": 1, "training": {}}', "settings of an unexpected shape"),
+    ("[1, 2]", "not a JSON object of settings"),
+])
+def test_bad_settings_file_is_one_clear_error(tmp_path, content, message):
+    path = tmp_path / "s.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(PipelineError, match=message) as error:
+        parse_with_settings(_stage_parser(), ["o.h5", "--settings", str(path)], _flags)
+    assert str(error.value).startswith(f"{path}: ")

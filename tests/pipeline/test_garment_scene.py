@@ -1,25 +1,40 @@
-"""The scene stage for garment scenes: mannequin arrays, attachment pins, torso frames, held-out test clips."""
+"""The scene stage for garment scenes: mannequin arrays, attachment pins, torso frames, held-out test clips, and
+the typed readers of scene.h5."""
 import h5py
 import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import resolve_scene, write_settings
 from geometry.rigid import apply_rigid, apply_rigid_inverse
+from geometry.rotations import quat_to_matrix
+from pipeline.artifacts.scene import (read_body, read_clips, read_rest_mesh, read_scene_drive, read_torso_transforms,
+                                      write_scene)
+from pipeline.config import resolve_scene, write_settings
 from pipeline.dataset import held_out_frames, split_dataset
 from pipeline.errors import PipelineError
-from pipeline.scene import build_scene, main as scene_main
-from scenes.mannequin import (body_signed_distance, capsules_world, default_skeleton, quat_to_matrix, rest_transforms,
-                      skeleton_from_h5)
+from pipeline.scene import main as scene_main
+from scenes.capsules import body_signed_distance, capsules_world
+from scenes.kinematics import rest_transforms
+from scenes.registry import build_scene
+from scenes.skeleton import default_skeleton
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
 
 
+def scene_datasets(settings: dict, path) -> dict[str, np.ndarray]:
+    """Every dataset of the scene.h5 written for `settings`, keyed by path."""
+    write_scene(path, build_scene(settings), settings)
+    arrays = {}
+    with h5py.File(path) as f:
+        f.visititems(lambda name, obj: arrays.update({name: obj[()]}) if isinstance(obj, h5py.Dataset) else None)
+    return arrays
+
+
 @pytest.fixture(scope="module")
-def pants():
+def pants(tmp_path_factory):
     settings = resolve_scene(CONFIG, "pants", "cpu")
-    arrays, attrs = build_scene(settings)
-    return settings, arrays, attrs
+    path = tmp_path_factory.mktemp("pants") / "scene.h5"
+    return settings, scene_datasets(settings, path), path
 
 
 def test_pins_start_at_rest_and_move_rigidly_with_their_part(pants):
@@ -67,7 +82,7 @@ def test_scene_file_round_trips_the_skeleton_and_is_deterministic(tmp_path):
     for name in ("one.h5", "two.h5"):
         scene_main([str(tmp_path / "settings.json"), str(tmp_path / name)])
     with h5py.File(tmp_path / "one.h5") as one, h5py.File(tmp_path / "two.h5") as two:
-        skel = skeleton_from_h5(one["body"])
+        skel, _ = read_body(tmp_path / "one.h5")
         assert skel.names == default_skeleton().names and np.allclose(skel.capsule_b, default_skeleton().capsule_b)
         for name in ("rest/vertices", "pins/targets", "capsules/a", "pose", "motion/clip"):
             assert np.array_equal(one[name][()], two[name][()])
@@ -82,11 +97,15 @@ def test_scene_file_round_trips_the_skeleton_and_is_deterministic(tmp_path):
         held_out_frames(str(tmp_path / "one.h5"), settings["frames"], ["tango"])
 
 
-def test_too_few_frames_for_the_clips_is_one_clear_error():
+def test_too_few_frames_for_the_clips_is_one_clear_error(tmp_path):
     settings = resolve_scene(CONFIG, "tshirt", "cpu")
     settings["frames"] = 80
-    with pytest.raises(PipelineError, match="scene 'tshirt': 80 frames with 30 settle frames"):
+    with pytest.raises(ValueError, match="^80 frames with 30 settle frames"):
         build_scene(settings)
+    write_settings(settings, tmp_path / "settings.json")
+    with pytest.raises(PipelineError, match="scene 'tshirt': 80 frames with 30 settle frames"):
+        scene_main([str(tmp_path / "settings.json"), str(tmp_path / "scene.h5")])
+    assert not (tmp_path / "scene.h5").exists()
 
 
 def test_high_res_pins_follow_their_parts_rigidly(pants):
@@ -105,24 +124,51 @@ def test_high_res_pins_follow_their_parts_rigidly(pants):
 
 
 @pytest.mark.parametrize("scene", ["tshirt", "skirt", "dress", "cape"])
-def test_every_garment_scene_builds_and_simulates(scene):
+def test_every_garment_scene_builds_and_simulates(scene, tmp_path):
     """The first frames of each shipped garment scene (CPU profile) with its physics switches: finite, pins on
     their targets, and the cloth outside the moving body up to a small tolerance."""
     from pipeline.simulate import solver_settings
-    from scenes.mannequin import capsule_signed_distance
-    from sim.xpbd.solver import ClothSolver
+    from scenes.capsules import capsule_signed_distance
+    from sim.xpbd import ClothSolver, FrameInputs
     settings = resolve_scene(CONFIG, scene, "cpu")
-    a, _ = build_scene(settings)
+    a = scene_datasets(settings, tmp_path / "scene.h5")
     capsules = np.stack([a["capsules/a"], a["capsules/b"]], axis=2).astype(np.float64)
     radii = np.stack([a["capsules/radius_a"], a["capsules/radius_b"]], axis=1).astype(np.float64)
     solver = ClothSolver(a["rest/vertices"], a["rest/faces"].astype(np.int64), solver_settings(settings), "cpu",
                          a["pins/ids"].astype(np.int64), capsules=capsules[0], capsule_radii=radii)
     start = settings["drivers"]["mannequin"]["settle_frames"]
     for f in range(1, start + 25):   # the settle period, then the dance fading in
-        solver.step(pin_targets=a["pins/targets"][f], capsules=capsules[f])
-        x = solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=a["pins/targets"][f], capsules=capsules[f]))
+        x = solver.state.read_positions()
     assert np.isfinite(x).all()
     np.testing.assert_allclose(x[a["pins/ids"]], a["pins/targets"][f], atol=1e-5)
     free = np.setdiff1d(np.arange(len(x)), a["pins/ids"])
     depth = capsule_signed_distance(x[free], capsules[f, :, 0], capsules[f, :, 1], radii[:, 0], radii[:, 1])
     assert depth.min() > -0.01
+
+
+def test_readers_hand_the_stages_what_the_scene_holds(pants):
+    """The typed readers of scene.h5 against the arrays written: what simulate, dataset and evaluate read."""
+    settings, a, path = pants
+    vertices, faces = read_rest_mesh(path)
+    assert np.array_equal(vertices, a["rest/vertices"]) and faces.dtype == np.int64
+    drive = read_scene_drive(path, settings["frames"], body_collision=True)
+    assert np.array_equal(drive.pins.ids, a["pins/ids"]) and drive.pins.targets.dtype == np.float64
+    assert np.array_equal(drive.capsules[:, :, 1], a["capsules/b"]) and drive.capsule_radii.shape == (16, 2)
+    with pytest.raises(PipelineError, match="has 210 frames of pin targets, settings ask for 7"):
+        read_scene_drive(path, 7, body_collision=False)
+    clip, names = read_clips(path)
+    assert names == ["settle", "dance", "karate", "walk"] and np.array_equal(clip, a["motion/clip"])
+    assert np.array_equal(read_torso_transforms(path, settings["frames"]), a["torso_transforms"])
+    skeleton, state = read_body(path)
+    assert skeleton.height == 1.7 and np.array_equal(state.rotation, a["body/state/rotation"])
+
+
+def test_a_grid_scene_has_no_mannequin_to_read(tmp_path):
+    settings = resolve_scene(CONFIG, "patch", "cpu")
+    a = scene_datasets(settings, tmp_path / "scene.h5")
+    assert read_body(tmp_path / "scene.h5") is None
+    with pytest.raises(PipelineError, match="has no 'capsules'"):
+        read_scene_drive(tmp_path / "scene.h5", len(a["pins/targets"]), body_collision=True)
+    with pytest.raises(PipelineError, match="this scene has no torso"):
+        read_torso_transforms(tmp_path / "scene.h5", len(a["pins/targets"]))

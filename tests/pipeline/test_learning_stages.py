@@ -1,5 +1,6 @@
 """The learning stages end to end (dataset → train → evaluate) on small synthetic simulation artifacts, with the
-operators built by meshops; plus resume-after-kill and the clear errors of bad input."""
+operators built by meshops; plus resume-after-kill, the clear errors of bad input, and settings.json as the
+defaults of the stages' flags."""
 from __future__ import annotations
 
 import os
@@ -16,7 +17,8 @@ import torch
 import trimesh
 
 from pipeline import cli, dataset, evaluate, operators, train
-from pipeline.artifacts.h5 import atomic_h5, read_csr, write_csr
+from pipeline.artifacts.h5 import atomic_h5, config_of, read_csr, write_csr
+from pipeline.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
@@ -207,3 +209,83 @@ def test_bad_training_options_are_one_clear_error(work, tmp_path, capsys, bad, m
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and not (tmp_path / "m.pt").exists()
+
+
+def test_training_without_arch_is_a_usage_error(work, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        stage(train.main, work / "dataset.h5", work / "operators.h5", tmp_path / "m.pt", tmp_path / "t.h5")
+    assert exit_info.value.code == 2
+    assert "the following arguments are required: --arch" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def settings(work) -> dict:
+    """The smoke scene's resolved settings, sized to these tests' mesh and network, in work/settings.json."""
+    resolved = resolve_scene(load_config(REPO / "workflow_config.yaml"), "patch")
+    resolved["operators"].update(conv=["RC7"], levels=4)
+    resolved["network"].update(arch="D8 D16 D D16", conv="RC7", width=1)
+    resolved["training"].update(epochs=2, lr=0.002, loss={"l1": 1.0, "l2": 0.5, "normal": 0.0})
+    resolved["evaluation"].update(render_frames=1, export_frames=2, timing_frames=2)
+    write_settings(resolved, work / "settings.json")
+    return resolved
+
+
+def _spelled_out(settings: dict) -> dict[str, list]:
+    """Each stage's flags holding the values of `settings`, as a shell command would spell them."""
+    network, training, loss = settings["network"], settings["training"], settings["training"]["loss"]
+    evaluation = settings["evaluation"]
+    return {
+        "operators": ["--conv", ",".join(settings["operators"]["conv"]), "--levels", settings["operators"]["levels"]],
+        "dataset": ["--frame", settings["dataset"]["frame"], "--test-fraction", settings["dataset"]["test_fraction"],
+                    "--seed", settings["dataset"]["seed"]],
+        "train": ["--arch", network["arch"], "--conv", network["conv"], "--pool", network["pool"], "--width",
+                  network["width"], "--epochs", training["epochs"], "--batch-size", training["batch_size"], "--lr",
+                  training["lr"], "--seed", training["seed"], "--loss-l1", loss["l1"], "--loss-l2", loss["l2"],
+                  "--loss-normal", loss["normal"], "--device", settings["device"]],
+        "evaluate": ["--render-frames", evaluation["render_frames"], "--export-frames", evaluation["export_frames"],
+                     "--timing-frames", evaluation["timing_frames"], "--device", settings["device"]],
+    }
+
+
+def _made(artifact: Path, model: Path | None) -> tuple:
+    """What a stage run made: its artifact's config attr, a split if any, and the model it trained if any."""
+    with h5py.File(artifact) as f:
+        split = f["split/train"][()] if "split/train" in f else None
+        return config_of(f), split, torch.load(model, weights_only=True) if model else None
+
+
+def test_settings_make_the_artifacts_their_flags_make(work, settings, tmp_path):
+    """Each stage run with --settings records the same config, and makes the same data, as with the flags."""
+    flags, from_settings = _spelled_out(settings), ["--settings", work / "settings.json"]
+    dataset_h5, operators_h5, model_pt = tmp_path / "dataset.h5", tmp_path / "operators.h5", tmp_path / "model.pt"
+    runs = {
+        "operators": (operators.main, [work / "subdiv.h5", operators_h5], operators_h5, None),
+        "dataset": (dataset.main, [work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", dataset_h5],
+                    dataset_h5, None),
+        "train": (train.main, [dataset_h5, operators_h5, model_pt, tmp_path / "train.h5"], tmp_path / "train.h5",
+                  model_pt),
+        "evaluate": (evaluate.main, [dataset_h5, operators_h5, model_pt, tmp_path / "eval.h5",
+                                     tmp_path / "report.md"], tmp_path / "eval.h5", None),
+    }
+    configs = {}
+    for name, (main, paths, artifact, model) in runs.items():
+        stage(main, *paths, *flags[name], "--quiet")
+        config_a, split_a, model_a = _made(artifact, model)
+        stage(main, *paths, *from_settings, "--quiet")        # the same paths: it overwrites the run above
+        configs[name], split_b, model_b = _made(artifact, model)
+        assert configs[name] == config_a, name
+        assert split_a is None or np.array_equal(split_a, split_b)
+        if model:
+            assert model_a["training"] == model_b["training"] and model_a["spec"] == model_b["spec"]
+            assert all(torch.equal(model_a["state_dict"][k], model_b["state_dict"][k]) for k in model_a["state_dict"])
+    assert configs["train"]["width"] == 1.0 and configs["train"]["lr"] == 0.002 and configs["train"]["epochs"] == 2
+    assert configs["operators"]["conv"] == ["RC7"] and configs["evaluate"]["timing_frames"] == 2
+    assert not any("settings" in config for config in configs.values())
+
+
+def test_a_flag_given_by_hand_overrides_the_settings(work, settings, tmp_path):
+    stage(dataset.main, work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", tmp_path / "dataset.h5",
+          "--settings", work / "settings.json", "--seed", "7", "--quiet")
+    with h5py.File(tmp_path / "dataset.h5") as f:
+        assert f.attrs["split_seed"] == config_of(f)["seed"] == 7
+        assert f.attrs["test_fraction"] == settings["dataset"]["test_fraction"]

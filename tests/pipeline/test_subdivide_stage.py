@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from pipeline.artifacts.h5 import config_of, read_csr
+from pipeline.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
@@ -101,4 +102,33 @@ def test_too_many_harmonics_fails_cleanly(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: {mesh_path}: ") and "--vertices-per-harmonic" in lines[0]
+    assert not out.exists()
+
+
+def test_settings_give_levels_and_harmonics_and_a_flag_overrides(tmp_path):
+    mesh_path = tmp_path / "cloth.obj"
+    trimesh.Trimesh(*cloth_patch(), process=False).export(mesh_path)
+    settings = resolve_scene(load_config(REPO / "workflow_config.yaml"), "patch")
+    settings["high_res"].update(subdivision_levels=1, vertices_per_harmonic=20)
+    write_settings(settings, tmp_path / "settings.json")
+    for out, flags in (("a.h5", []), ("b.h5", ["--vertices-per-harmonic", "30"])):
+        result = run_stage(mesh_path, tmp_path / out, "--settings", tmp_path / "settings.json", *flags, "--quiet")
+        assert result.returncode == 0, result.stderr
+    with h5py.File(tmp_path / "a.h5") as a, h5py.File(tmp_path / "b.h5") as b:
+        assert config_of(a) == {"mesh": str(mesh_path), "levels": 1, "vertices_per_harmonic": 20}
+        assert (b.attrs["levels"], b.attrs["vertices_per_harmonic"]) == (1, 30)
+
+
+@pytest.mark.parametrize("content, problem", [(None, "settings file does not exist"), ("[1, 2", "not valid JSON"),
+                                              ("{}", "missing setting 'high_res'")],
+                         ids=["missing", "not-json", "no-key"])
+def test_bad_settings_fail_cleanly(tmp_path, content, problem):
+    mesh_path, settings, out = tmp_path / "cloth.obj", tmp_path / "settings.json", tmp_path / "subdiv.h5"
+    trimesh.Trimesh(*cloth_patch(), process=False).export(mesh_path)
+    if content is not None:
+        settings.write_text(content)
+    result = run_stage(mesh_path, out, "--settings", settings)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {settings}: ") and problem in lines[0]
     assert not out.exists()

@@ -6,10 +6,11 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import trimesh
 
-from scenes.mannequin import body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton, \
-    rest_transforms
-from scenes.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
 from geometry.mesh import edge_faces, unique_edges, validate_mesh
+from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
+from scenes.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
+from scenes.kinematics import rest_transforms
+from scenes.skeleton import default_skeleton
 
 SKEL = default_skeleton()
 REST = rest_transforms(SKEL)

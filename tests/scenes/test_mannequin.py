@@ -1,15 +1,18 @@
-"""Mannequin geometry and kinematics: quaternion helpers against scipy, forward kinematics against poses worked out
-by hand, velocities against finite differences, capsule distances against a brute-force union of spheres, and the
-render mesh against trimesh."""
+"""Mannequin geometry and kinematics: the skeleton's layout, forward kinematics against poses worked out by hand,
+velocities against finite differences, capsule distances against a brute-force union of spheres, and the render
+mesh against trimesh."""
 import numpy as np
 import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from scenes.mannequin import (Skeleton, body_mesh, capsule_pair_clearance, capsule_signed_distance, capsule_velocities,
-                      capsules_world, default_skeleton, forward_kinematics, joint_angular_velocity,
-                      joint_quaternions, part_velocities, quat_canonical, quat_multiply, quat_rotate,
-                      quat_to_matrix, rest_transforms, segment_closest_parameters, self_collision_pairs)
+from geometry.rotations import quat_canonical, quat_rotate
+from scenes.body_mesh import body_mesh
+from scenes.capsules import (capsule_pair_clearance, capsule_signed_distance, capsule_velocities, capsules_world,
+                             segment_closest_parameters, self_collision_pairs)
+from scenes.kinematics import (forward_kinematics, joint_angular_velocity, joint_quaternions, part_velocities,
+                               rest_transforms)
+from scenes.skeleton import Skeleton, default_skeleton
 
 SKEL = default_skeleton()
 IDENTITY = np.tile([0.0, 0.0, 0.0, 1.0], (SKEL.n_parts, 1))
@@ -21,17 +24,6 @@ def pose(**angles_deg):
     for name, values in angles_deg.items():
         angles[SKEL.index(name)] = np.radians(values)
     return joint_quaternions(angles)
-
-
-def test_quaternion_helpers_match_scipy():
-    rng = np.random.default_rng(0)
-    q, r = Rotation.random(50, random_state=1), Rotation.random(50, random_state=2)
-    v = rng.normal(size=(50, 3))
-    np.testing.assert_allclose(quat_rotate(q.as_quat(), v), q.apply(v), atol=1e-12)
-    np.testing.assert_allclose(quat_to_matrix(q.as_quat()), q.as_matrix(), atol=1e-12)
-    product = quat_canonical(quat_multiply(q.as_quat(), r.as_quat()))
-    np.testing.assert_allclose(product, quat_canonical((q * r).as_quat()), atol=1e-12)
-    assert (quat_canonical(-q.as_quat())[:, 3] >= 0).all()
 
 
 def test_joint_angles_compose_as_z_x_y():

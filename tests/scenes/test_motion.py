@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scenes.mannequin import (capsule_pair_clearance, capsules_world, default_skeleton, forward_kinematics,
-                      rest_transforms, self_collision_pairs)
+from scenes.capsules import capsule_pair_clearance, capsules_world, self_collision_pairs
+from scenes.kinematics import forward_kinematics, rest_transforms
+from scenes.skeleton import default_skeleton
 from scenes.motion import MOTION_KINDS, body_state, make_motion, pose_vectors, soft_limit
 
 SKEL = default_skeleton()

@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scenes.mannequin import capsule_signed_distance, capsules_world, default_skeleton, forward_kinematics, \
-    joint_quaternions, rest_transforms
-from scenes.garments import make_garment
 from geometry.mesh import unique_edges
+from scenes.capsules import capsule_signed_distance, capsules_world
+from scenes.garments import make_garment
+from scenes.kinematics import forward_kinematics, joint_quaternions, rest_transforms
+from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning, skinning_weights
 
 SKEL = default_skeleton()

@@ -1,16 +1,17 @@
 """Body contact (capsules) and self-contact in the XPBD solver, checked against independent distance computations
-(scenes.mannequin.capsule_signed_distance, a brute-force point-triangle distance here) and analytic cases."""
+(scenes.capsules.capsule_signed_distance, a brute-force point-triangle distance here) and analytic cases."""
 import numpy as np
 import pytest
 import warp as wp
 
-from scenes.mannequin import (body_signed_distance, capsule_signed_distance, capsules_world, default_skeleton,
-                      rest_transforms)
-from scenes.grid import grid_cloth
+from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
 from scenes.garments import make_garment
+from scenes.grid import grid_cloth
+from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
+from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd.solver import ClothSolver, SolverSettings
+from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
 
 THICKNESS = SolverSettings().collision_thickness
 SELF_THICKNESS = SolverSettings().self_thickness
@@ -61,8 +62,8 @@ def test_sheet_drapes_over_a_tapered_capsule_and_stays_outside():
     solver = ClothSolver(rest, faces, SolverSettings(substeps=4, iterations=20, body_collision=True, damping=2.0),
                          "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=radii)
     for _ in range(45):
-        solver.step(capsules=capsule)
-        x = solver.positions()
+        solver.step(solver.state, FrameInputs(capsules=capsule))
+        x = solver.state.read_positions()
         distance = capsule_distance(x, capsule, radii)
         assert distance.min() >= THICKNESS - 1e-5
     # It rests on the capsule (touching at the thickness, not hovering) and drapes: the sides hang well below the
@@ -87,8 +88,8 @@ def test_fast_capsule_pushes_a_curtain_instead_of_passing_through():
     solver = ClothSolver(rest, faces, SolverSettings(substeps=1, iterations=20, body_collision=True), "cpu", pins,
                          capsules=limb(0), capsule_radii=radii)
     for frame in range(1, 6):
-        solver.step(rest[pins], capsules=limb(frame))
-        x = solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=rest[pins], capsules=limb(frame)))
+        x = solver.state.read_positions()
         assert capsule_distance(x, limb(frame), radii).min() >= THICKNESS - 1e-5
         band = np.abs(x[:, 1] - 0.9) < 0.02
         assert (x[band, 2] > limb(frame)[0, 0, 2]).all()  # the cloth at the limb's height stays in front of it
@@ -128,10 +129,10 @@ def test_friction_drags_a_towel_along_a_bar_moving_along_its_axis(mu):
     settings = SolverSettings(substeps=4, iterations=20, body_collision=True, friction=mu, damping=0.0)
     solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int), capsules=bar(0), capsule_radii=radii)
     for frame in range(1, frames + 1):
-        solver.step(capsules=bar(frame))
+        solver.step(solver.state, FrameInputs(capsules=bar(frame)))
         if frame == 30:
-            start = solver.positions()[:, 0].mean()
-    moved = solver.positions()[:, 0].mean() - start
+            start = solver.state.read_positions()[:, 0].mean()
+    moved = solver.state.read_positions()[:, 0].mean() - start
     bar_moved = float(bar_displacement(frames / fps))
     if mu == 0.0:
         assert abs(moved) < 1e-4
@@ -162,7 +163,7 @@ def garment_run(kind, motion_kind, max_edge, settings, frames, settle_frames=100
     solver = ClothSolver(garment.vertices, garment.faces, settings, "cpu", ids, capsules=capsules[0],
                          capsule_radii=radii)
     for frame in range(1, frames + 1):
-        solver.step(targets[frame], capsules=capsules[frame])
+        solver.step(solver.state, FrameInputs(pin_targets=targets[frame], capsules=capsules[frame]))
         yield frame, solver, (skel, state, ids)
 
 
@@ -170,17 +171,17 @@ def test_pants_hang_and_settle_on_the_still_mannequin():
     settings = SolverSettings(substeps=2, iterations=15, body_collision=True, self_collision=True, damping=4.0)
     for frame, solver, (skel, state, ids) in garment_run("pants", "rest", 0.1, settings, 90):
         if frame % 10 == 0:
-            x = solver.positions()
+            x = solver.state.read_positions()
             free = np.setdiff1d(np.arange(len(x)), ids)
             distance = body_signed_distance(skel, (state.rotation[frame], state.translation[frame]), x[free])
             assert distance.min() >= THICKNESS - 1e-5
-    assert np.linalg.norm(solver.velocities(), axis=1).max() < 0.05
+    assert np.linalg.norm(solver.state.read_velocities(), axis=1).max() < 0.05
 
 
 def test_karate_at_one_substep_stays_finite():
     settings = SolverSettings(substeps=1, iterations=20, body_collision=True, self_collision=True)
     for frame, solver, _ in garment_run("pants", "karate", 0.08, settings, 45, settle_frames=0, blend_frames=10):
-        assert np.isfinite(solver.positions()).all()
+        assert np.isfinite(solver.state.read_positions()).all()
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -204,8 +205,8 @@ def test_a_sheet_falling_onto_another_stays_on_top(self_collision):
     solver = ClothSolver(vertices, faces, settings, "cpu", pins)
     clearance = []
     for _ in range(40):
-        solver.step(vertices[pins])
-        x = solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=vertices[pins]))
+        x = solver.state.read_positions()
         clearance.append(signed_surface_distance(x[n_bottom:], x[:n_bottom], bottom_faces).min())
     if self_collision:
         assert min(clearance) >= 0.5 * SELF_THICKNESS
@@ -225,8 +226,8 @@ def test_a_folding_sheet_does_not_pass_through_itself(self_collision):
     solver = ClothSolver(rest, faces, settings, "cpu", hinge)
     side = []
     for _ in range(60):
-        solver.step(rest[hinge])
-        x = solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=rest[hinge]))
+        x = solver.state.read_positions()
         # Folded down, half b's normals face away from half a: a stays on their negative side.
         side.append(signed_surface_distance(x[half_a], x, faces_b).max())
     if self_collision:
@@ -249,8 +250,9 @@ def test_collision_switches_change_nothing_without_contact():
         kw = dict(capsules=far, capsule_radii=np.array([[0.1, 0.1]])) if body else {}
         solver = ClothSolver(rest, faces, settings, "cpu", pins, **kw)
         for f in range(10):
-            solver.step(rest[pins] + np.array([0.05, 0.0, 0.03]) * np.sin(f / 3), **({"capsules": far} if body else {}))
-        runs[body, self_collision] = solver.positions()
+            solver.step(solver.state, FrameInputs(pin_targets=rest[pins] + np.array([0.05, 0.0, 0.03]) * np.sin(f / 3),
+                                                  capsules=far if body else None))
+        runs[body, self_collision] = solver.state.read_positions()
     for x in runs.values():
         np.testing.assert_array_equal(x, runs[False, False])
 
@@ -268,15 +270,15 @@ def contact_scene(device):
                          capsule_radii=radii)
     positions = []
     for frame in range(1, 31):
-        solver.step(capsules=capsule(frame))
-        positions.append(solver.positions())
+        solver.step(solver.state, FrameInputs(capsules=capsule(frame)))
+        positions.append(solver.state.read_positions())
     return np.array(positions), solver
 
 
 def test_runs_on_cpu_are_deterministic_with_contacts():
     first, solver = contact_scene("cpu")
     counts = solver.contacts.vertex_count.numpy()
-    assert counts.max() > 0 and (solver.body.push.numpy() > 0).any()  # the scene does exercise the contacts
+    assert counts.max() > 0 and (solver.capsules.push.numpy() > 0).any()  # the scene does exercise the contacts
     second, _ = contact_scene("cpu")
     np.testing.assert_array_equal(first, second)
 
@@ -308,9 +310,10 @@ def test_collision_inputs_are_checked():
         ClothSolver(rest, faces, body, "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=[[0.2, 0.05]])
     solver = ClothSolver(rest, faces, body, "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=radii)
     with pytest.raises(ValueError, match="end of the frame"):
-        solver.step()
+        solver.step(solver.state)
     with pytest.raises(ValueError, match="body_collision is off"):
-        ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int)).step(capsules=capsule)
+        solver = ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int))
+        solver.step(solver.state, FrameInputs(capsules=capsule))
     for field, value in [("collision_thickness", 0.0), ("friction", -0.1), ("self_thickness", -1.0)]:
         with pytest.raises(ValueError, match=field):
             SolverSettings(**{field: value})

@@ -6,7 +6,8 @@ from scenes.grid import first_row_pins, grid_cloth
 from geometry.harmonics import harmonic_basis, lumped_mass
 from geometry.loop_subdivision import loop_subdivide
 from geometry.mesh import unique_edges
-from sim.xpbd.solver import ClothSolver, SolverSettings, UnstableSimulation, cloth_constraints, harmonic_constraint
+from sim.xpbd import (ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints,
+                      harmonic_constraint)
 
 
 def edge_ratios(x, rest, faces):
@@ -29,9 +30,9 @@ def test_pinned_hanging_cloth_settles(hanging_cloth):
     settings = SolverSettings(substeps=8, iterations=30, damping=4.0)
     solver = ClothSolver(rest, faces, settings, "cpu", pins, initial_positions=start)
     for _ in range(300):
-        solver.step(start[pins])
-    x = solver.positions()
-    assert np.abs(solver.velocities()).max() < 1e-2
+        solver.step(solver.state, FrameInputs(pin_targets=start[pins]))
+    x = solver.state.read_positions()
+    assert np.abs(solver.state.read_velocities()).max() < 1e-2
     ratios = edge_ratios(x, rest, faces)
     assert ratios.max() <= 1.01
     assert ratios.min() >= 0.75 - 1e-4
@@ -44,8 +45,8 @@ def test_pins_follow_their_targets(hanging_cloth):
     rest, faces, pins = hanging_cloth
     solver = ClothSolver(rest, faces, SolverSettings(substeps=2, iterations=5), "cpu", pins)
     target = rest[pins] + np.array([0.1, 0.0, -0.05])
-    solver.step(target)
-    np.testing.assert_allclose(solver.positions()[pins], target, atol=1e-6)
+    solver.step(solver.state, FrameInputs(pin_targets=target))
+    np.testing.assert_allclose(solver.state.read_positions()[pins], target, atol=1e-6)
 
 
 def test_kinetic_energy_never_grows_without_damping_or_forces():
@@ -56,12 +57,12 @@ def test_kinetic_energy_never_grows_without_damping_or_forces():
     settings = SolverSettings(substeps=4, iterations=20, damping=0.0, gravity=(0.0, 0.0, 0.0),
                               stretch_compliance=0.0, bending=False)
     solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
-    solver.set_velocities(rng.normal(scale=0.5, size=rest.shape))
+    solver.state.write_velocities(rng.normal(scale=0.5, size=rest.shape))
     mass = lumped_mass(rest, faces)
     energies = []
     for _ in range(30):
-        solver.step()
-        energies.append(0.5 * np.sum(mass[:, None] * solver.velocities() ** 2))
+        solver.step(solver.state)
+        energies.append(0.5 * np.sum(mass[:, None] * solver.state.read_velocities() ** 2))
     energies = np.array(energies)
     assert np.all(np.diff(energies) <= 1e-6 * energies[0])
 
@@ -71,12 +72,12 @@ def test_momentum_is_conserved_by_the_constraints():
     settings = SolverSettings(substeps=2, iterations=10, damping=0.0, gravity=(0.0, 0.0, 0.0))
     solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
     rng = np.random.default_rng(0)
-    solver.set_velocities(rng.normal(size=rest.shape))
+    solver.state.write_velocities(rng.normal(size=rest.shape))
     mass = lumped_mass(rest, faces)
-    before = (mass[:, None] * solver.velocities()).sum(axis=0)
+    before = (mass[:, None] * solver.state.read_velocities()).sum(axis=0)
     for _ in range(5):
-        solver.step()
-    after = (mass[:, None] * solver.velocities()).sum(axis=0)
+        solver.step(solver.state)
+    after = (mass[:, None] * solver.state.read_velocities()).sum(axis=0)
     np.testing.assert_allclose(after, before, atol=1e-4 * np.abs(before).max())
 
 
@@ -89,13 +90,13 @@ def test_compression_is_free_down_to_the_allowance():
     squashed = rest * np.array([0.85, 1.0, 1.0])
     no_gravity = SolverSettings(bending=False, gravity=(0.0, 0.0, 0.0), substeps=2, iterations=20)
     solver = ClothSolver(rest, faces, no_gravity, "cpu", np.zeros(0, int), initial_positions=squashed)
-    solver.step()
-    np.testing.assert_allclose(solver.positions(), squashed, atol=1e-6)
+    solver.step(solver.state)
+    np.testing.assert_allclose(solver.state.read_positions(), squashed, atol=1e-6)
     # Squash to 50 %: edges come back to at least 75 %.
     solver = ClothSolver(rest, faces, no_gravity, "cpu", np.zeros(0, int), initial_positions=rest * [0.5, 1, 1])
     for _ in range(10):
-        solver.step()
-    assert edge_ratios(solver.positions(), rest, faces).min() > 0.74
+        solver.step(solver.state)
+    assert edge_ratios(solver.state.read_positions(), rest, faces).min() > 0.74
 
 
 def test_bending_switch_removes_bending_links():
@@ -117,8 +118,8 @@ def test_stable_at_the_extremes(changes):
     settings = SolverSettings(**{"substeps": 4, "iterations": 20, **changes})
     solver = ClothSolver(rest, faces, settings, "cpu", pins)
     for _ in range(20):
-        solver.step(rest[pins])
-    x = solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=rest[pins]))
+    x = solver.state.read_positions()
     assert np.isfinite(x).all()
     ratios = edge_ratios(x, rest, faces)
     # Bounded constraint error: even the softest, fewest-iteration runs stay within a factor of the rest length.
@@ -131,17 +132,17 @@ def test_sliver_triangle_stays_finite():
     faces = np.array([[0, 2, 1], [0, 1, 3]])
     solver = ClothSolver(rest, faces, SolverSettings(substeps=8, iterations=75), "cpu", np.array([3]))
     for _ in range(30):
-        solver.step(rest[[3]])
-    assert np.isfinite(solver.positions()).all()
+        solver.step(solver.state, FrameInputs(pin_targets=rest[[3]]))
+    assert np.isfinite(solver.state.read_positions()).all()
 
 
 def test_blow_up_is_reported_with_its_substep():
     rest, faces = grid_cloth(0.3, 0.3, 0.2, plane="xz")
     solver = ClothSolver(rest, faces, SolverSettings(substeps=4, iterations=2, max_speed=1.0), "cpu",
                          np.zeros(0, int))
-    solver.set_velocities(np.full(rest.shape, 50.0))
+    solver.state.write_velocities(np.full(rest.shape, 50.0))
     with pytest.raises(UnstableSimulation, match="substep 0"):
-        solver.step()
+        solver.step(solver.state)
 
 
 def test_settings_out_of_range_are_rejected():
@@ -172,6 +173,15 @@ def test_harmonic_constraint_holds_the_high_res_run_to_the_low_res_one():
     solver = ClothSolver(high, faces, SolverSettings(substeps=2, iterations=10), "cpu", pins,
                          harmonic=constraint, harmonic_target=target)
     for _ in range(3):
-        solver.step(high[pins], target)
-    content = (mass[:, None] * basis).T @ solver.positions()
+        solver.step(solver.state, FrameInputs(pin_targets=high[pins], harmonic_target=target))
+    content = (mass[:, None] * basis).T @ solver.state.read_positions()
     assert np.linalg.norm(content - target) / np.linalg.norm(content) < 1e-5
+
+
+def test_a_solver_steps_only_the_state_it_made():
+    rest, faces = grid_cloth(0.2, 0.2, 0.1, plane="xz")
+    settings = SolverSettings(substeps=1, iterations=1)
+    solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
+    other = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int)).state
+    with pytest.raises(ValueError, match="state it made"):
+        solver.step(other)

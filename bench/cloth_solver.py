@@ -5,30 +5,29 @@ graph). Each row's ratio is against the first variant of the same mesh and devic
 flags the stretch-only run, so the price of bending and of the harmonic constraint is visible; for the garments
 (`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the run without
 collisions, so the price of body and of self-collision is. Usage:
-  python bench/sim.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
+  python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
   [--substeps 8] [--iterations 75] [--out table.md]
-e.g. the collision cases on a GPU: python bench/sim.py --device cuda:0 --cases pants,tshirt
+e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
 """
 from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from scenes.mannequin import capsules_world, default_skeleton, rest_transforms  # noqa: E402
-from scenes.grid import first_row_pins, grid_cloth  # noqa: E402
-from scenes.garments import make_garment  # noqa: E402
-from geometry.harmonics import harmonic_basis, harmonic_count  # noqa: E402
-from geometry.loop_subdivision import loop_subdivide  # noqa: E402
-from scenes.motion import body_state, make_motion  # noqa: E402
-from scenes.skinning import linear_blend_skinning  # noqa: E402
-from sim.xpbd.solver import ClothSolver, SolverSettings, harmonic_constraint  # noqa: E402
+from geometry.harmonics import harmonic_basis, harmonic_count
+from geometry.loop_subdivision import loop_subdivide
+from scenes.capsules import capsules_world
+from scenes.garments import make_garment
+from scenes.grid import first_row_pins, grid_cloth
+from scenes.kinematics import rest_transforms
+from scenes.motion import body_state, make_motion
+from scenes.skeleton import default_skeleton
+from scenes.skinning import linear_blend_skinning
+from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
@@ -55,8 +54,8 @@ def time_run(vertices, faces, settings, device, pins, frames, warmup, harmonic=N
     for f in range(warmup + frames):
         pin_targets = vertices[pins] + sway * math.sin(f / 10)
         start = time.perf_counter()
-        solver.step(pin_targets, target)
-        solver.x.numpy()  # the positions a stage stores each frame; also synchronises the device
+        solver.step(solver.state, FrameInputs(pin_targets=pin_targets, harmonic_target=target))
+        solver.state.positions.numpy()  # the positions a stage stores each frame; also synchronises the device
         times.append((time.perf_counter() - start) * 1e3)
     return float(np.median(times[warmup:]))
 
@@ -84,8 +83,8 @@ def time_garment(vertices, faces, settings, device, pins, targets, capsules, rad
     times = []
     for f in range(1, warmup + frames + 1):
         start = time.perf_counter()
-        solver.step(targets[f], capsules=capsules[f] if body else None)
-        solver.x.numpy()
+        solver.step(solver.state, FrameInputs(pin_targets=targets[f], capsules=capsules[f] if body else None))
+        solver.state.positions.numpy()
         times.append((time.perf_counter() - start) * 1e3)
     return float(np.median(times[warmup:]))
 

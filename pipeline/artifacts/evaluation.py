@@ -1,0 +1,49 @@
+"""eval.h5, written by the `evaluate` stage: errors of the network and of its predictor alone, per-frame errors,
+predicted positions and inference times (docs/artifacts.md, section "eval.h5")."""
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Mapping
+
+import numpy as np
+
+from pipeline.artifacts.h5 import atomic_h5
+
+STAGE = "evaluate"
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """What the evaluation measured."""
+
+    errors: dict[str, dict[str, dict[str, float]]]   # "network"/"predictor" -> split -> term (l1, l2, ...) -> value
+    per_frame: dict[str, dict[str, np.ndarray]]      # "network"/"predictor" -> "l1"/"l2" -> (F,) error per frame
+    predicted: np.ndarray                            # (F, V, 3) predicted high-res positions, dataset's frame
+    inference_ms: np.ndarray                         # (T,) ms per timed frame
+    inference_frames: np.ndarray                     # (T,) the timed frame ids
+    device: str                                      # where it ran, in words (e.g. "cpu, 2 threads")
+    warmup_runs: int                                 # untimed runs before the timed ones
+    parameter_count: int
+
+
+def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
+    with atomic_h5(path, STAGE, config) as f:
+        for who, splits in evaluation.errors.items():
+            for split, values in splits.items():
+                for term, value in values.items():
+                    f.create_dataset(f"errors/{who}/{split}/{term}", data=np.float64(value))
+        f["errors"].attrs["meaning"] = ("split-wide L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and the training loss's "
+                                        "weighted total; network = predictor + network output, predictor = "
+                                        "Loop-subdivided low-res alone")
+        f["errors"].attrs["unit"] = "scene units (~m); Ln dimensionless"
+        for who, values in evaluation.per_frame.items():
+            for term, per_frame in values.items():
+                f.create_dataset(f"per_frame/{who}_{term}", data=per_frame.astype(np.float64))
+        f.create_dataset("predicted", data=evaluation.predicted.astype(np.float32))
+        f["predicted"].attrs["meaning"] = "predicted high-res positions per frame (F, V, 3), dataset's frame"
+        f.create_dataset("inference_ms", data=evaluation.inference_ms)
+        f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
+        f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
+                       warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
+                       timing="network only, batch of one frame")

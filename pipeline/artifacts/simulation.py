@@ -1,0 +1,55 @@
+"""sim_low.h5 and sim_high.h5, written by the `simulate` stage: one cloth run, frame by frame
+(docs/artifacts.md, section "sim_low.h5 / sim_high.h5")."""
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Literal, Mapping
+
+import numpy as np
+
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulationRun:
+    """What one run of the solver produced."""
+
+    positions: np.ndarray          # (F, V, 3) float32, frame 0 = the initial state
+    faces: np.ndarray              # (T, 3)
+    rest_vertices: np.ndarray      # (V, 3) float64
+    pin_ids: np.ndarray            # (P,) vertices that follow their pin targets
+    solve_ms: np.ndarray           # (F,) wall time of each frame's solve (frame 0: 0)
+    n_constraints: int
+    harmonic_residual: np.ndarray | None = None   # (F,) high-res run only
+    n_harmonics: int | None = None                # high-res run only
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """The positions of a run, as the later stages read them."""
+
+    positions: np.ndarray          # (F, V, 3) float64
+    faces: np.ndarray              # (T, 3) int64
+
+
+def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
+                     run: SimulationRun, device: str) -> None:
+    """Write one run; `settings` (the resolved scene settings) are its provenance `config`."""
+    with atomic_h5(path, f"simulate_{level}", settings) as f:
+        f.create_dataset("positions", data=run.positions.astype(np.float32))
+        f.create_dataset("faces", data=run.faces.astype(np.int32))
+        f.create_dataset("rest_vertices", data=run.rest_vertices.astype(np.float64))
+        f.create_dataset("pins/ids", data=run.pin_ids.astype(np.int64))
+        f.create_dataset("solve_ms", data=run.solve_ms.astype(np.float64))
+        f["solve_ms"].attrs["meaning"] = "wall time of each frame's solve in ms (frame 0: initial state, 0)"
+        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=settings["frames"])
+        if run.harmonic_residual is not None:
+            f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
+            f["harmonic_residual"].attrs["meaning"] = "|B^T M (x_high - S x_low)| / |B^T M x_high| per frame"
+            f.attrs["n_harmonics"] = run.n_harmonics
+
+
+def read_trajectory(path: str | os.PathLike) -> Trajectory:
+    with open_artifact(path) as f:
+        return Trajectory(read(f, "positions", np.float64), read(f, "faces", np.int64))

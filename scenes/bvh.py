@@ -1,0 +1,262 @@
+"""Reading Biovision BVH motion capture: the joint tree, its rest offsets and the per-frame local transforms.
+
+A small parser rather than a library: the format is a dozen keywords, and the one well-known reader (bvhio) adds
+two dependencies (PyGLM, spatial-transform), works joint by joint in Python objects and raises its own errors,
+where we want arrays and a one-line ValueError naming the line. Euler angles go through scipy's Rotation.
+
+Conventions (those of the BVH format as Blender and MotionBuilder read it): a joint's CHANNELS list its Euler
+rotations in the order they compose, R = R_first R_second R_third, in degrees; its local translation is its OFFSET,
+or its position channels where it has them; the rest pose has every rotation the identity. Quaternions are
+(x, y, z, w) like the mannequin's (scenes.kinematics). Lengths are converted to metres on reading (see UNITS);
+axes are kept as in the file (Y-up or Z-up): the retargeting works them out from the skeleton itself.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NoReturn
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+# Metres per file unit. CMU's ASF-derived files use 1/0.45 inch; the others are the usual ones.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "CMU ASF unit": 0.0254 / 0.45}
+TYPICAL_EXTENT = 1.7  # metres: a standing adult's rest pose spans about this much (height or arm span)
+
+
+@dataclass(frozen=True, eq=False)
+class BvhClip:
+    """A BVH file's skeleton and motion, lengths in metres. Joints are in file order (parents first)."""
+    name: str                         # the file's stem, for messages and clip names
+    names: tuple[str, ...]            # (J,) joint names
+    parents: np.ndarray               # (J,) int64, -1 for the root
+    offsets: np.ndarray               # (J, 3) rest position of each joint in its parent's frame
+    end_sites: dict[int, np.ndarray]  # joint index -> its End Site's offset (3,) in the joint's frame
+    frame_time: float                 # seconds
+    positions: np.ndarray             # (F, J, 3) local translation of each joint per frame
+    rotations: np.ndarray             # (F, J, 4) local rotation of each joint per frame
+    unit_scale: float                 # metres per file unit
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.positions)
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first frame to the last."""
+        return (self.n_frames - 1) * self.frame_time
+
+    def rest_positions(self) -> np.ndarray:
+        """World positions (J, 3) of the joints in the rest pose."""
+        return _chain_sums(self.parents, self.offsets)
+
+
+def read_bvh(path: str | Path, scale: float | None = None) -> BvhClip:
+    """Read a BVH file. `scale` is metres per file unit; by default it is the unit of UNITS whose rest-pose
+    extent comes closest to TYPICAL_EXTENT (inches, CMU's 1/0.45 inch, cm, mm and m are far apart)."""
+    path = Path(path)
+    return parse_bvh(path.read_text(), path.stem, str(path), scale)
+
+
+def parse_bvh(text: str, name: str = "clip", source: str = "<bvh>", scale: float | None = None) -> BvhClip:
+    """Parse BVH text; errors are one-line ValueErrors that start with `source` and the line number."""
+    tokens = _Tokens(text, source)
+    tokens.expect("HIERARCHY")
+    tokens.expect("ROOT")
+    tree = _Tree()
+    _parse_joint(tokens, tree, -1)
+    tokens.expect("MOTION")
+    tokens.expect("Frames:")
+    n_frames = tokens.count("frame count", 1)
+    tokens.expect("Frame")
+    tokens.expect("Time:")
+    frame_time = tokens.number("frame time")
+    if not frame_time > 0:
+        tokens.fail(f"frame time must be positive, got {frame_time}")
+    values = tokens.frames(n_frames, sum(len(c) for c in tree.channels))
+    offsets = np.array(tree.offsets)
+    if scale is None:
+        scale = _detect_unit_scale(tree, offsets, source)
+    elif not scale > 0:
+        raise ValueError(f"{source}: scale must be positive, got {scale}")
+    positions = np.broadcast_to(offsets, (n_frames,) + offsets.shape).copy()
+    rotations = np.tile([0.0, 0.0, 0.0, 1.0], (n_frames, len(offsets), 1))
+    column = 0
+    for joint, channels in enumerate(tree.channels):
+        order = "".join(axis for axis, kind in channels if kind == "rotation")
+        for k, (axis, kind) in enumerate(channels):
+            if kind == "position":
+                positions[:, joint, "XYZ".index(axis)] = values[:, column + k]
+        if order:
+            angles = values[:, [column + k for k, (_, kind) in enumerate(channels) if kind == "rotation"]]
+            rotations[:, joint] = Rotation.from_euler(order, angles, degrees=True).as_quat()
+        column += len(channels)
+    return BvhClip(name=name, names=tuple(tree.names), parents=np.array(tree.parents, dtype=np.int64),
+                   offsets=offsets * scale, end_sites={j: np.asarray(o) * scale for j, o in tree.end_sites.items()},
+                   frame_time=float(frame_time), positions=positions * scale, rotations=rotations,
+                   unit_scale=float(scale))
+
+
+def world_transforms(clip: BvhClip, frames: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (F, J, 4) and positions (F, J, 3) of every joint for the selected frames."""
+    local_rotation, local_position = clip.rotations[frames], clip.positions[frames]
+    rotation = np.empty_like(local_rotation)
+    position = np.empty_like(local_position)
+    for j, parent in enumerate(clip.parents):
+        if parent < 0:
+            rotation[:, j] = local_rotation[:, j]
+            position[:, j] = local_position[:, j]
+        else:
+            parent_rotation = Rotation.from_quat(rotation[:, parent])
+            rotation[:, j] = (parent_rotation * Rotation.from_quat(local_rotation[:, j])).as_quat()
+            position[:, j] = position[:, parent] + parent_rotation.apply(local_position[:, j])
+    return rotation, position
+
+
+def _chain_sums(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """World positions of joints whose rotations are all the identity."""
+    world = np.array(offsets, dtype=np.float64)
+    for j, parent in enumerate(parents):
+        if parent >= 0:
+            world[j] += world[parent]
+    return world
+
+
+def _detect_unit_scale(tree: _Tree, offsets: np.ndarray, source: str) -> float:
+    """The scale of UNITS that makes the rest pose (joints and End Sites) span closest to TYPICAL_EXTENT."""
+    joints = _chain_sums(np.array(tree.parents), offsets)
+    points = np.concatenate([joints] + [joints[j] + o[None] for j, o in tree.end_sites.items()])
+    extent = float((points.max(axis=0) - points.min(axis=0)).max())
+    if not extent > 0:
+        raise ValueError(f"{source}: the rest pose has no extent (all OFFSETs are zero); pass an explicit scale")
+    return min(UNITS.values(), key=lambda s: abs(np.log(extent * s / TYPICAL_EXTENT)))
+
+
+class _Tree:
+    """The hierarchy as it is parsed: per joint its name, parent, offset and channels ((axis, kind) pairs)."""
+
+    def __init__(self):
+        self.names: list[str] = []
+        self.parents: list[int] = []
+        self.offsets: list[np.ndarray] = []
+        self.channels: list[list[tuple[str, str]]] = []
+        self.end_sites: dict[int, np.ndarray] = {}
+
+
+def _parse_joint(tokens: _Tokens, tree: _Tree, parent: int) -> None:
+    """Parse one ROOT/JOINT block (the keyword already read) and, recursively, its children."""
+    name = tokens.name()
+    if name in tree.names:
+        tokens.fail(f"joint name '{name}' appears twice")
+    joint = len(tree.names)
+    tree.names.append(name)
+    tree.parents.append(parent)
+    tokens.expect("{")
+    tokens.expect("OFFSET")
+    tree.offsets.append(np.array([tokens.number("OFFSET value") for _ in range(3)]))
+    tokens.expect("CHANNELS")
+    tree.channels.append(tokens.channels())
+    while True:
+        word = tokens.word("JOINT, End Site or }")
+        if word == "}":
+            return
+        if word == "JOINT":
+            _parse_joint(tokens, tree, joint)
+        elif word == "End":
+            if joint in tree.end_sites:
+                tokens.fail(f"joint '{name}' has a second End Site")
+            tokens.expect("Site")
+            tokens.expect("{")
+            tokens.expect("OFFSET")
+            tree.end_sites[joint] = np.array([tokens.number("OFFSET value") for _ in range(3)])
+            tokens.expect("}")
+        else:
+            tokens.fail(f"expected JOINT, End Site or '}}' in joint '{name}', got '{word}'")
+
+
+_CHANNEL_NAMES = {f"{axis}{kind}".lower(): (axis, kind) for axis in "XYZ" for kind in ("position", "rotation")}
+
+
+class _Tokens:
+    """Whitespace-separated words with their line numbers, read front to back; the motion data is read by line."""
+
+    def __init__(self, text: str, source: str):
+        self.source = source
+        self.lines = text.splitlines()
+        self.words = [(word, i + 1) for i, line in enumerate(self.lines) for word in line.split()]
+        self.at = 0
+
+    @property
+    def line(self) -> int:
+        """The line of the word read last: the one a problem is found at."""
+        return self.words[self.at - 1][1] if self.at else 1
+
+    def fail(self, problem: str) -> NoReturn:
+        raise ValueError(f"{self.source}:{self.line}: {problem}")
+
+    def word(self, what: str) -> str:
+        if self.at >= len(self.words):
+            self.fail(f"file ends where {what} was expected")
+        self.at += 1
+        return self.words[self.at - 1][0]
+
+    def expect(self, keyword: str) -> None:
+        word = self.word(f"'{keyword}'")
+        if word.lower() != keyword.lower():
+            self.fail(f"expected '{keyword}', got '{word}'")
+
+    def name(self) -> str:
+        """A joint name: the words after the keyword on its line, up to an opening brace."""
+        line = self.line
+        parts = []
+        while self.at < len(self.words) and self.words[self.at][1] == line and self.words[self.at][0] != "{":
+            parts.append(self.word("a joint name"))
+        if not parts:
+            self.fail("joint without a name")
+        return " ".join(parts)
+
+    def number(self, what: str) -> float:
+        word = self.word(what)
+        try:
+            return float(word)
+        except ValueError:
+            self.fail(f"expected a number ({what}), got '{word}'")
+
+    def count(self, what: str, minimum: int) -> int:
+        value = self.number(what)
+        if value != int(value) or value < minimum:
+            self.fail(f"{what} must be a whole number >= {minimum}, got {value:g}")
+        return int(value)
+
+    def channels(self) -> list[tuple[str, str]]:
+        n = self.count("channel count", 0)
+        channels = []
+        for _ in range(n):
+            word = self.word("a channel name")
+            if word.lower() not in _CHANNEL_NAMES:
+                self.fail(f"unknown channel '{word}' (expected Xposition ... Zrotation)")
+            channels.append(_CHANNEL_NAMES[word.lower()])
+        for kind in ("position", "rotation"):
+            axes = [axis for axis, k in channels if k == kind]
+            if axes and sorted(axes) != ["X", "Y", "Z"]:
+                self.fail(f"{kind} channels must be all three axes once each, got {''.join(axes)}")
+        return channels
+
+    def frames(self, n_frames: int, n_channels: int) -> np.ndarray:
+        """The motion data: the lines after 'Frame Time', one frame each with `n_channels` numbers."""
+        first = self.line  # the line holding the frame time; data starts on the next
+        rows = [(i + 1, line.split()) for i, line in enumerate(self.lines[first:], start=first) if line.strip()]
+        if len(rows) != n_frames:
+            raise ValueError(f"{self.source}:{first}: 'Frames: {n_frames}' but {len(rows)} data lines follow")
+        values = np.empty((n_frames, n_channels))
+        for k, (line, words) in enumerate(rows):
+            if len(words) != n_channels:
+                raise ValueError(f"{self.source}:{line}: expected {n_channels} channel values, got {len(words)}")
+            try:
+                values[k] = [float(w) for w in words]
+            except ValueError:
+                raise ValueError(f"{self.source}:{line}: a channel value is not a number") from None
+        bad = ~np.isfinite(values).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{self.source}:{rows[int(np.argmax(bad))][0]}: a channel value is not finite")
+        return values

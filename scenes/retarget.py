@@ -1,0 +1,278 @@
+"""Retargeting BVH motion capture onto the mannequin, part by part, with rotations only.
+
+Each mannequin part follows the world rotation of one source joint (JOINT_NAMES: the first name the file has),
+times a fixed alignment: the part's world rotation while the source stands in its rest pose (see _alignments),
+so each bone points where the source's bone points whatever the limb lengths. Local joint angles then follow
+parent to child, each from the parent's achieved rotation (a rotation that a joint's limits cut off is made up
+further down the chain), are split as R = Rz Rx Ry (see _decompose) and softly clamped into the joint limits
+(scenes.motion.soft_limit). Elbows and knees bend about x only, so the upper arm or thigh is first twisted to put
+the bend in that plane (see _twist_to_hinge).
+
+The source's axes (Y-up or Z-up, any facing) are read off its rest skeleton: up from the hips to the head, left
+from the right hip to the left one. The clip is turned so that the pelvis faces the mannequin's forward (+z) at
+the window's first frame and moved so that it starts over the rest root; the root's horizontal travel is scaled by the
+ratio of leg lengths (hip to ankle), which also absorbs the file's unit. Its height is not taken from the file:
+as for the procedural motions, the lowest foot is kept on the ground. Angles and travel are lightly smoothed (a
+Gaussian of half the output frame time, against aliasing; at the file's first and last frames it holds their
+values) and resampled with monotone cubic (PCHIP) splines, which stay within the limits and give exact rates.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial.transform import Rotation
+
+from scenes.bvh import BvhClip, world_transforms
+from scenes.kinematics import rest_transforms
+from scenes.motion import GROUND_SMOOTHING, Motion, _ground_lift, soft_limit
+from scenes.skeleton import Skeleton
+
+# Source joint names per mannequin part (side suffix dropped), first match wins; compared case-insensitively
+# without '_', ' ' and a namespace prefix ("mixamorig:"). {Side} is Left/Right, {s} l/r (CMU's ASF names). CMU's
+# releases differ: LeftUpLeg/LeftLeg/LeftFoot and LeftShoulder (collar)/LeftArm/LeftForeArm/LeftHand in one,
+# LeftHip/LeftKnee/LeftAnkle and LeftCollar/LeftShoulder (upper arm)/LeftElbow/LeftWrist in another, hence
+# LeftShoulder last among the upper-arm names. A skeleton with a single torso joint bends only at the chest: the
+# spine then follows the root.
+JOINT_NAMES = {
+    "pelvis": ("Hips", "Hip", "Pelvis", "Root"),
+    "spine": ("LowerBack", "Spine", "Abdomen", "Hips", "Hip", "Pelvis", "Root"),
+    "chest": ("Chest2", "Spine2", "Thorax", "Spine1", "Chest", "UpperBack"),
+    "head": ("Head",),
+    "upper_arm": ("{Side}Arm", "{Side}UpArm", "{Side}UpperArm", "{s}humerus", "{Side}Shoulder"),
+    "lower_arm": ("{Side}ForeArm", "{Side}LowArm", "{Side}LowerArm", "{s}radius", "{Side}Elbow"),
+    "hand": ("{Side}Hand", "{Side}Wrist", "{s}wrist", "{s}hand"),
+    "thigh": ("{Side}UpLeg", "{Side}UpperLeg", "{Side}Thigh", "{s}femur", "{Side}Hip"),
+    "shin": ("{Side}Leg", "{Side}LowLeg", "{Side}LowerLeg", "{Side}Shin", "{s}tibia", "{Side}Knee"),
+    "foot": ("{Side}Foot", "{s}foot", "{Side}Ankle"),
+}
+# The part whose joint ends each part's bone; parts not listed end at their capsule's far end (capsule_b).
+_BONE_END = {"spine": "chest", "chest": "head", "upper_arm": "lower_arm", "lower_arm": "hand", "thigh": "shin",
+             "shin": "foot"}
+_SIDES = {"_l": ("Left", "l"), "_r": ("Right", "r")}
+HINGE_FADE = np.radians(20.0)  # bend of an elbow or knee below which its parent's twist is left as the source's
+GIMBAL_FADE = np.radians(20.0)  # distance from gimbal lock (flexion ±90°) within which the lean z fades to 0
+
+
+def joint_map(clip: BvhClip, skel: Skeleton) -> dict[str, int]:
+    """The source joint (index into clip.names) of every mannequin part; a ValueError names the parts (and the
+    joint names tried) that the file lacks."""
+    normalised = {_normalise(n): j for j, n in reversed(list(enumerate(clip.names)))}
+    mapping, missing = {}, []
+    for part in skel.names:
+        candidates = _candidates(part)
+        found = [normalised[_normalise(c)] for c in candidates if _normalise(c) in normalised]
+        if found:
+            mapping[part] = found[0]
+        else:
+            missing.append(f"{part} ({'/'.join(candidates) or 'no known names'})")
+    if missing:
+        raise ValueError(f"cannot map BVH '{clip.name}' onto the mannequin: no joint for {', '.join(missing)}")
+    return mapping
+
+
+def retarget(clip: BvhClip, skel: Skeleton, fps: float, start: float | None = None,
+             end: float | None = None) -> Motion:
+    """The clip's motion between `start` and `end` seconds (default: all of it) as a mannequin Motion at `fps`,
+    starting over the rest root and facing +z, with the lowest foot on the ground (see the module docstring).
+    The Motion is raw: it starts and ends in the clip's poses, not at rest (settle_frames = blend_frames = 0).
+    Its kind names the clip: "bvh:NAME", or "bvh:NAME@START-END" for a window."""
+    windowed = start is not None or end is not None
+    start = 0.0 if start is None else float(start)
+    end = clip.duration if end is None else float(end)
+    kind = f"bvh:{clip.name}" + (f"@{start:g}-{end:g}" if windowed else "")
+    if not fps > 0 or not 0.0 <= start <= end - clip.frame_time or end > clip.duration + 1e-9:
+        raise ValueError(f"BVH '{clip.name}': need fps > 0 and 0 <= start < end <= {clip.duration:.3f} s with at "
+                         f"least one frame between them; got fps {fps}, start {start}, end {end}")
+    sigma = 0.5 / fps  # seconds
+    pad = int(np.ceil(4 * sigma / clip.frame_time))
+    first = max(int(np.floor(start / clip.frame_time)) - pad, 0)
+    last = min(int(np.ceil(end / clip.frame_time)) + pad, clip.n_frames - 1)
+    angles, travel = _source_frames(clip, skel, slice(first, last + 1), int(round(start / clip.frame_time)) - first)
+    times = (first + np.arange(last - first + 1)) * clip.frame_time
+    smooth = {name: PchipInterpolator(times, gaussian_filter1d(x, sigma / clip.frame_time, axis=0, mode="nearest"),
+                                      axis=0) for name, x in (("angles", angles), ("travel", travel))}
+    t = start + np.arange(int(np.floor((end - start) * fps + 1e-6)) + 1) / fps  # 1e-6: rounded frame times
+    joint_angles, joint_angle_rates = smooth["angles"](t), smooth["angles"].derivative()(t)
+    root_position = skel.joint_offsets[0] + smooth["travel"](t) - smooth["travel"](start)
+    root_velocity = smooth["travel"].derivative()(t)
+    lift, lift_rate = (gaussian_filter1d(x, GROUND_SMOOTHING * fps, mode="nearest")
+                       for x in _ground_lift(skel, root_position, root_velocity, joint_angles, joint_angle_rates))
+    root_position[:, 1] += lift
+    root_velocity[:, 1] += lift_rate
+    return Motion(kind=kind, fps=float(fps), seed=0, settle_frames=0, blend_frames=0,
+                  root_position=root_position, root_velocity=root_velocity, joint_angles=joint_angles,
+                  joint_angle_rates=joint_angle_rates)
+
+
+def _source_frames(clip: BvhClip, skel: Skeleton, frames: slice, t0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mannequin joint angles (T, P, 3) and horizontal root travel (T, 3) for the selected source frames, turned
+    and moved so that at frame t0 (counted within the selection) the pelvis faces +z and the travel is zero."""
+    parts = joint_map(clip, skel)
+    rotation, position = world_transforms(clip, frames)
+    axes = _source_axes(clip, parts, skel)
+    aligned = _alignments(clip, parts, skel, axes)
+    target = {p: axes * Rotation.from_quat(rotation[:, j]) * axes.inv() * aligned[p] for p, j in parts.items()}
+    root = skel.names[0]
+    forward = target[root][t0].apply([0.0, 0.0, 1.0])
+    face_forward = Rotation.from_rotvec([0.0, -np.arctan2(forward[0], forward[2]), 0.0])
+    angles = _joint_angles(skel, {p: face_forward * r for p, r in target.items()})
+    root_position = position[:, parts[root]]
+    travel = face_forward.apply(axes.apply(root_position - root_position[t0])) * _leg_length_ratio(clip, parts, skel)
+    travel[:, 1] = 0.0
+    return angles, travel
+
+
+def _normalise(name: str) -> str:
+    return name.rsplit(":", 1)[-1].replace("_", "").replace(" ", "").lower()
+
+
+def _split_side(part: str) -> tuple[str, str]:
+    """('thigh', '_l') for 'thigh_l', ('head', '') for 'head'."""
+    return (part[:-2], part[-2:]) if part[-2:] in _SIDES else (part, "")
+
+
+def _candidates(part: str) -> tuple[str, ...]:
+    """Source joint names for a mannequin part name such as 'thigh_l'."""
+    base, side = _split_side(part)
+    words = _SIDES.get(side, ("", ""))
+    return tuple(n.format(Side=words[0], s=words[1]) for n in JOINT_NAMES.get(base, ()))
+
+
+def _bone_end(part: str) -> str | None:
+    """The mannequin part whose joint ends `part`'s bone, or None for a part that ends at its capsule."""
+    base, side = _split_side(part)
+    return _BONE_END[base] + side if base in _BONE_END else None
+
+
+def _source_axes(clip: BvhClip, parts: dict[str, int], skel: Skeleton) -> Rotation:
+    """The rotation from the source's axes to the mannequin's: it takes the source's rest-pose up (hips to head)
+    onto the mannequin's, and its left (right hip to left hip) as close as it goes."""
+    frames = []
+    for points, index in ((clip.rest_positions(), parts), (rest_transforms(skel)[1], _own_index(skel))):
+        hips = points[index["thigh_l"]], points[index["thigh_r"]]
+        left, up = hips[0] - hips[1], points[index["head"]] - 0.5 * (hips[0] + hips[1])
+        left, up = (v / max(np.linalg.norm(v), 1e-300) for v in (left, up))
+        if not np.linalg.norm(np.cross(left, up)) > 0.5:
+            raise ValueError(f"BVH '{clip.name}': cannot tell left from up in the rest pose (hips and head in line)")
+        frames.append(np.stack([up, left]))
+    rotation, _ = Rotation.align_vectors(frames[1], frames[0], weights=[np.inf, 1.0])
+    return rotation
+
+
+def _own_index(skel: Skeleton) -> dict[str, int]:
+    """The mannequin's parts by name, shaped like a joint map."""
+    return {part: p for p, part in enumerate(skel.names)}
+
+
+def _alignments(clip: BvhClip, parts: dict[str, int], skel: Skeleton, axes: Rotation) -> dict[str, Rotation]:
+    """Per part, the world rotation it has while the source stands in its rest pose: the mannequin's rest pose with
+    each joint turned, parent to child, by the smallest rotation that lays the part's bone along the source's rest
+    bone (in the mannequin's axes). Turning joint by joint keeps a source joint's local rotation meaning what it
+    means to the mannequin's joint: where the source's rest legs splay outward, the aligned thighs splay and the
+    feet roll with them, so a source ankle at rest leaves the foot square to the shin."""
+    source = clip.rest_positions()
+    aligned = []
+    for p, (part, parent) in enumerate(zip(skel.names, skel.parents)):
+        frame = Rotation.from_quat(skel.frame_rotations[p])
+        if parent < 0:
+            aligned.append(frame)
+            continue
+        frame = aligned[parent] * frame
+        end = _bone_end(part)
+        tip = _farthest_end_site(clip, parts[part]) if end is None else source[parts[end]]
+        bone = axes.apply(tip - source[parts[part]])
+        if not np.linalg.norm(bone) > 0:
+            raise ValueError(f"BVH '{clip.name}': joint '{clip.names[parts[part]]}' has a zero-length bone for "
+                             f"mannequin part {part}")
+        turn, _ = Rotation.align_vectors([frame.inv().apply(bone)], [_local_bone(skel, p)])
+        aligned.append(frame * turn)
+    return dict(zip(skel.names, aligned))
+
+
+def _farthest_end_site(clip: BvhClip, joint: int) -> np.ndarray:
+    """Rest world position of the End Site below `joint` (itself included) farthest from it."""
+    rest = clip.rest_positions()
+    below = {joint}
+    for j, parent in enumerate(clip.parents):
+        if parent in below:
+            below.add(j)
+    sites = [rest[j] + offset for j, offset in clip.end_sites.items() if j in below]
+    if not sites:
+        raise ValueError(f"BVH '{clip.name}': no End Site below joint '{clip.names[joint]}' to give its direction")
+    return max(sites, key=lambda site: np.linalg.norm(site - rest[joint]))
+
+
+def _joint_angles(skel: Skeleton, target: dict[str, Rotation]) -> np.ndarray:
+    """Joint angles (F, P, 3) that give each part its target world rotation as far as the joint limits allow,
+    after twisting the parents of hinges; each joint starts from its parent's achieved rotation."""
+    target = dict(target)
+    for c, parent in enumerate(skel.parents):
+        mid_flexion = 0.5 * (skel.joint_lower[c, 0] + skel.joint_upper[c, 0])
+        if skel.joint_lower[c, 2] == skel.joint_upper[c, 2] and np.sin(mid_flexion) != 0.0:
+            part, child = skel.names[parent], skel.names[c]
+            target[part] = _twist_to_hinge(target[part], target[child].apply(_local_bone(skel, c)), mid_flexion)
+    angles = np.zeros((len(target[skel.names[0]]), skel.n_parts, 3))
+    achieved = []
+    for p, (part, parent) in enumerate(zip(skel.names, skel.parents)):
+        base = Rotation.from_quat(skel.frame_rotations[p])
+        if parent >= 0:
+            base = achieved[parent] * base
+        raw = np.unwrap(_decompose(base.inv() * target[part], skel.joint_lower[p], skel.joint_upper[p]), axis=0)
+        angles[:, p] = soft_limit(raw, np.zeros_like(raw), skel.joint_lower[p], skel.joint_upper[p])[0]
+        achieved.append(base * Rotation.from_euler("ZXY", angles[:, p, [2, 0, 1]]))
+    return angles
+
+
+def _twist_to_hinge(parent: Rotation, child_bone: np.ndarray, mid_flexion: float) -> Rotation:
+    """The parent's world rotation twisted about its bone (its y axis) so that the child's bone (world direction
+    per frame) lies in the plane in which the child's hinge bends: about x, toward the side its mid flexion
+    `mid_flexion` (radians) swings it. A source elbow may bend about another axis of its own, with the upper arm
+    twisted to match (CMU's do); the mannequin's cannot. Near a straight limb the bending plane is undefined, so
+    the twist fades out as the bend falls below HINGE_FADE."""
+    x, _, z = parent.inv().apply(child_bone).T
+    side = -np.sign(np.sin(mid_flexion))  # the direction (+z or -z) the child swings to when it bends
+    u = np.clip(np.hypot(x, z) / np.sin(HINGE_FADE), 0.0, 1.0)
+    twist = np.arctan2(side * x, side * z) * u * u * (3.0 - 2.0 * u)
+    return parent * Rotation.from_rotvec(twist[:, None] * np.array([0.0, 1.0, 0.0]))
+
+
+def _local_bone(skel: Skeleton, p: int) -> np.ndarray:
+    """Unit direction of part p's bone in its own frame: to the joint that ends it, or to its capsule's far end."""
+    end = _bone_end(skel.names[p])
+    bone = skel.capsule_b[p] if end is None else skel.joint_offsets[skel.index(end)]
+    return bone / np.linalg.norm(bone)
+
+
+def _decompose(rotation: Rotation, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Angles (F, 3) as (x, y, z) with R = Rz(z) Rx(x) Ry(y) for a joint with limits [lower, upper], continuous
+    in time where the exact Euler angles are not.
+
+    The swing Rz Rx is read off where R takes the bone axis (-y): z is the bone's sideways lean, taken from
+    whichever of its two values (z, z + pi) lies nearer the z limits, and x its flexion over the full circle, so
+    knees, elbows, arms and thighs can swing past 90°. The twist y is what remains about the bone. Near gimbal
+    lock (the bone along z, x = ±90°) z and y turn about the same axis and the exact split swings wildly: there
+    z fades to 0 (within GIMBAL_FADE of the lock) and the twist takes the rest. A joint whose z range is empty
+    (elbow, knee) is a hinge with a twist and keeps z = 0."""
+    bone = rotation.apply([0.0, -1.0, 0.0])
+    if lower[2] == upper[2]:
+        z = np.zeros(len(bone))
+    else:
+        z = np.arctan2(bone[:, 0], -bone[:, 1])
+        flipped = np.angle(np.exp(1j * (z + np.pi)))
+        outside = [np.maximum(lower[2] - a, 0.0) + np.maximum(a - upper[2], 0.0) for a in (z, flipped)]
+        u = np.clip(np.hypot(bone[:, 0], bone[:, 1]) / np.sin(GIMBAL_FADE), 0.0, 1.0)
+        z = np.where(outside[1] < outside[0], flipped, z) * u * u * (3.0 - 2.0 * u)
+    leaned = Rotation.from_rotvec(-z[:, None] * np.array([0.0, 0.0, 1.0])).apply(bone)
+    x = np.arctan2(-leaned[:, 2], -leaned[:, 1])
+    twist = (Rotation.from_euler("ZX", np.stack([z, x], axis=1)).inv() * rotation).as_quat()
+    y = np.angle(np.exp(2j * np.arctan2(twist[:, 1], twist[:, 3])))
+    return np.stack([x, y, z], axis=1)
+
+
+def _leg_length_ratio(clip: BvhClip, parts: dict[str, int], skel: Skeleton) -> float:
+    """Mannequin leg length over source leg length (hip to knee to ankle, both legs averaged)."""
+    def leg_length(points: np.ndarray, index: dict[str, int]) -> float:
+        legs = [points[[index[f"thigh{s}"], index[f"shin{s}"], index[f"foot{s}"]]] for s in _SIDES]
+        return float(np.mean([np.linalg.norm(np.diff(leg, axis=0), axis=1).sum() for leg in legs]))
+    return leg_length(rest_transforms(skel)[1], _own_index(skel)) / leg_length(clip.rest_positions(), parts)

@@ -1,0 +1,40 @@
+"""The settings of an XPBD cloth run: integration, material, and the physics switches."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Everything that defines the integration; units are scene units (~m), seconds and kilograms."""
+    dt: float = 1.0 / 60.0
+    substeps: int = 8
+    iterations: int = 75
+    compression_allowance: float = 0.75  # stretch constraints allow compression down to this fraction of rest length
+    stretch_compliance: float = 0.0      # XPBD compliance of stretch constraints (inverse stiffness, m/N)
+    bending_compliance: float = 1.0e-3   # XPBD compliance of cross-edge bending links
+    damping: float = 0.1                 # velocity decay rate (1/s): v <- v exp(-damping h) every substep
+    gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)
+    density: float = 0.2                 # area density of the cloth (kg per square unit)
+    relaxation: float = 1.5              # Jacobi over-relaxation, see kernels.distance_correction
+    max_speed: float = 100.0             # a vertex faster than this (units/s) means the run has blown up
+    bending: bool = True                 # physics switch: cross-edge bending links
+    body_collision: bool = False         # physics switch: keep the cloth outside the body's capsules
+    self_collision: bool = False         # physics switch: vertex-triangle self-contact
+    collision_thickness: float = 0.005   # least distance of the cloth from every capsule surface
+    friction: float = 0.3                # Coulomb coefficient against the (moving) body
+    self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
+
+    def __post_init__(self):
+        checks = {
+            "dt": self.dt > 0, "substeps": self.substeps >= 1, "iterations": self.iterations >= 1,
+            "compression_allowance": 0 < self.compression_allowance <= 1,
+            "stretch_compliance": self.stretch_compliance >= 0, "bending_compliance": self.bending_compliance >= 0,
+            "damping": self.damping >= 0, "density": self.density > 0,
+            "relaxation": 0 < self.relaxation < 2, "max_speed": self.max_speed > 0,
+            "collision_thickness": self.collision_thickness > 0, "friction": self.friction >= 0,
+            "self_thickness": self.self_thickness > 0,
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"solver setting '{bad[0]}' out of range: {getattr(self, bad[0])}")
