@@ -4,13 +4,16 @@ checkpoints that a killed run resumes from, ending where an uninterrupted run wi
 Everything random after the network's initialisation is the epoch shuffle, drawn from its own generator whose
 state travels in the checkpoint; with `torch.use_deterministic_algorithms` a resumed run repeats the same
 arithmetic as an uninterrupted one.
+
+A checkpoint is a dict of tensors and plain Python values only (dicts, lists, str, int, float, bool, None), so
+whoever stores it can read it back with `torch.load(weights_only=True)`, which builds nothing else: a file from
+elsewhere can be refused but never runs code. Where it is stored is the caller's business (`fit` takes the state
+to resume from and a function that saves each new one).
 """
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
-from pathlib import Path
 from typing import Any, Callable
 
 import torch
@@ -19,7 +22,7 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.networks import NormalizedRegressor
 
-CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-1"
+CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
 TERMS = ("total", "l1", "l2", "normal")
 
 
@@ -46,6 +49,10 @@ class History:
     @property
     def epochs_done(self) -> int:
         return len(self.epoch_seconds)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint written for this run (format and identity match) whose contents cannot be restored."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,22 +83,24 @@ def split_errors(predict: Callable[[torch.Tensor], torch.Tensor], frames: Frames
 
 
 def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_ids: torch.Tensor,
-        test_ids: torch.Tensor, settings: TrainSettings, checkpoint: Path | None = None,
-        identity: dict[str, Any] | None = None,
+        test_ids: torch.Tensor, settings: TrainSettings, resume_from: dict[str, Any] | None = None,
+        save_checkpoint: Callable[[dict[str, Any]], None] | None = None, identity: dict[str, Any] | None = None,
         on_batch: Callable[[int, float], None] = lambda epoch, loss: None,
         on_notice: Callable[[str], None] = print) -> History:
     """Train `model` in place for `settings.epochs` epochs; returns the loss history.
 
-    With `checkpoint`, the state is saved there after every epoch and, if the file exists when training starts
-    and was written for the same `identity` (settings, data and operators fingerprints), training resumes from
-    it. `on_batch(epoch, loss)` is called after every optimiser step.
+    `save_checkpoint(state)`, if given, is called after every epoch with the whole training state (see the
+    module docstring); given such a state as `resume_from`, training resumes from it if it was written for the
+    same `identity` (settings, data and operators fingerprints) and starts afresh otherwise, saying why through
+    `on_notice`. Raises CheckpointError for a matching state that cannot be restored. `on_batch(epoch, loss)`
+    is called after every optimiser step.
     """
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr, betas=(0.9, 0.999), eps=1e-8)
     shuffle = torch.Generator().manual_seed(settings.seed)
     identity = {"settings": _settings_key(settings), **(identity or {})}
     history = History()
-    if checkpoint is not None and checkpoint.is_file():
-        history = _resume(checkpoint, identity, settings.epochs, model, optimizer, shuffle, on_notice)
+    if resume_from is not None:
+        history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, on_notice)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
@@ -116,32 +125,43 @@ def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_i
         for name in TERMS:
             history.test[name].append(test[name])
         history.epoch_seconds.append(time.perf_counter() - start)
-        if checkpoint is not None:
-            _save_atomically({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
-                              "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
-                              "history": history}, checkpoint)
+        if save_checkpoint is not None:
+            save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
+                             "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
+                             "history": dataclasses.asdict(history)})
     model.eval()
     return history
 
 
-def _resume(checkpoint: Path, identity: dict[str, Any], epochs: int, model: torch.nn.Module,
+def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model: torch.nn.Module,
             optimizer: torch.optim.Optimizer, shuffle: torch.Generator, on_notice: Callable[[str], None]) -> History:
     """Restore model, optimiser and shuffle states from a matching checkpoint; a fresh History otherwise."""
+    if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT
+            and state.get("identity") == identity):
+        on_notice("checkpoint written for other settings, data or operators: starting afresh")
+        return History()
     try:
-        state = torch.load(checkpoint, map_location=next(model.parameters()).device, weights_only=False)
-    except Exception as err:  # torch raises many types for a foreign or damaged file
-        on_notice(f"{checkpoint} is not a readable checkpoint ({type(err).__name__}): starting afresh")
-        return History()
-    if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT and state["identity"] == identity
-            and state["history"].epochs_done <= epochs):
-        on_notice(f"{checkpoint} was written for other settings, data, operators or a longer run: starting afresh")
-        return History()
-    model.load_state_dict(state["model"])
-    optimizer.load_state_dict(state["optimizer"])
-    shuffle.set_state(state["shuffle"])
-    history = state["history"]
+        history = _history_of(state["history"])
+        if history.epochs_done > epochs:
+            on_notice(f"checkpoint of a longer run ({history.epochs_done} epochs): starting afresh")
+            return History()
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        shuffle.set_state(state["shuffle"])
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as err:
+        # The message of a failed load_state_dict spans lines; the type is enough to say it is damaged.
+        raise CheckpointError(f"checkpoint contents cannot be restored ({type(err).__name__})") from None
     history.resumed_from_epoch = history.epochs_done
-    on_notice(f"resuming from {checkpoint} after epoch {history.epochs_done}")
+    on_notice(f"resuming after epoch {history.epochs_done}")
+    return history
+
+
+def _history_of(plain: dict[str, Any]) -> History:
+    """The History saved as `dataclasses.asdict`, checked for one loss value per epoch of every term."""
+    history = History(**plain)
+    lengths = {len(history.train[t]) for t in TERMS} | {len(history.test[t]) for t in TERMS}
+    if lengths != {history.epochs_done}:
+        raise ValueError("loss history with different epoch counts per term")
     return history
 
 
@@ -150,9 +170,3 @@ def _settings_key(settings: TrainSettings) -> dict[str, Any]:
     key = dataclasses.asdict(settings)
     key.pop("epochs")
     return key
-
-
-def _save_atomically(state: dict[str, Any], path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)

@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import itertools
+import os
 import sys
-from typing import Any, Callable, Sequence
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
 
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
@@ -40,9 +43,7 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
     """
     parser.add_argument("--settings", metavar="SETTINGS.json",
                         help="resolved scene settings (python -m pipeline.config): the defaults of the flags")
-    given = argparse.ArgumentParser(add_help=False)
-    given.add_argument("--settings")
-    settings_path = given.parse_known_args(argv)[0].settings
+    settings_path = settings_of(argv)
     if settings_path is not None:
         settings = read_settings(settings_path)
         try:
@@ -55,6 +56,33 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
     args = parser.parse_args(argv)
     del args.settings
     return args
+
+
+def settings_of(argv: Sequence[str] | None) -> str | None:
+    """The `--settings` path of a command line (None without one); `parse_with_settings` keeps it out of the
+    namespace it returns."""
+    given = argparse.ArgumentParser(add_help=False)
+    given.add_argument("--settings")
+    return given.parse_known_args(argv)[0].settings
+
+
+def refuse_aliases(outputs: Mapping[str, str | os.PathLike], inputs: Mapping[str, str | os.PathLike | None]) -> None:
+    """Refuse, before anything is written, an output that is the same file as another output or an input (say
+    a checkpoint path equal to the dataset: it would be overwritten, then deleted). Paths are compared resolved
+    (symlinks followed) and, for existing files, by inode (hard links). Keys name the roles in the message."""
+    roles = {**{role: path for role, path in inputs.items() if path is not None}, **outputs}
+    for (role_a, a), (role_b, b) in itertools.combinations(roles.items(), 2):
+        if (role_a in outputs or role_b in outputs) and _same_file(a, b):
+            raise PipelineError(f"{a}: {role_a} and {role_b} are the same file; give each its own path")
+
+
+def _same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    if Path(a).resolve() == Path(b).resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:      # one of them does not exist (yet): only the resolved paths could coincide
+        return False
 
 
 def _as_flag_text(value: Any) -> str | None:

@@ -31,6 +31,7 @@ from model.training import split_errors
 from pipeline import cli
 from pipeline.artifacts.dataset import load_dataset, read_low_res
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
+from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.errors import PipelineError
@@ -240,9 +241,8 @@ def _write_report(path: Path, args, errors, times, device, state, data, pictures
     if pictures:
         lines.append(f"- `{rel(export_dir)}/comparison_frame_*.glb`: input, truth and error-coloured prediction "
                      "side by side (any glTF viewer).")
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    with atomic_write(path) as f:
+        f.write(("\n".join(lines) + "\n").encode())
 
 
 if __name__ == "__main__":

@@ -1,4 +1,8 @@
-"""Loading user meshes (OBJ/PLY through trimesh, or the pipeline's own HDF5 artifacts) with validation."""
+"""Loading user meshes (OBJ/PLY/OFF/STL, or the pipeline's own HDF5 artifacts) with validation.
+
+A mesh's vertices keep the order and count of the file: Loop subdivision's S, pins and every artifact index
+vertices by their position, so a loader that dropped or renumbered a vertex would silently misalign them.
+"""
 from __future__ import annotations
 
 import os
@@ -6,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts.h5 import open_artifact
+from pipeline.artifacts.h5 import open_artifact, read_indices
 from pipeline.errors import PipelineError
 from geometry.mesh import validate_mesh
 
@@ -17,14 +21,17 @@ _H5_MESH_GROUPS = ("", "rest", "levels/0")
 def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 and faces (F, 3) int64 of a mesh file, validated.
 
-    Accepts .obj/.ply/.off/.stl (read with trimesh without merging or reordering vertices) and .h5 artifacts
-    holding `vertices` and `faces` at the root, under `rest/`, or under `levels/0/`.
+    Accepts .obj (read here, vertices in file order), .ply/.off/.stl (read with trimesh without merging or
+    reordering vertices) and .h5 artifacts holding `vertices` and `faces` at the root, under `rest/`, or under
+    `levels/0/`. A vertex that no face uses is refused by the validation, not dropped.
     """
     path = Path(path)
     if not path.is_file():
         raise PipelineError(f"{path}: input file does not exist")
     if path.suffix.lower() in (".h5", ".hdf5"):
         vertices, faces = _load_h5_mesh(path)
+    elif path.suffix.lower() == ".obj":
+        vertices, faces = _load_obj(path)
     else:
         vertices, faces = _load_trimesh(path)
     check_mesh(path, vertices, faces)
@@ -45,9 +52,38 @@ def _load_h5_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
             prefix = f"{group}/" if group else ""
             if f"{prefix}vertices" in f and f"{prefix}faces" in f:
                 # NaN is a validation matter here, reported per vertex by check_mesh.
-                return np.asarray(f[f"{prefix}vertices"][()], dtype=np.float64), \
-                    np.asarray(f[f"{prefix}faces"][()], dtype=np.int64)
+                vertices = np.asarray(f[f"{prefix}vertices"][()], dtype=np.float64)
+                return vertices, read_indices(f, f"{prefix}faces", len(vertices), shape=(None, 3))
     raise PipelineError(f"{path}: no mesh found (expected 'vertices' and 'faces' at the root, 'rest/' or 'levels/0/')")
+
+
+def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and faces of an OBJ file, vertex i being the file's i-th `v` line.
+
+    Read here, not with trimesh: trimesh drops vertices that no face uses and splits vertices along texture
+    seams, renumbering the rest. Polygons are fanned into triangles; indices may be negative (relative to the
+    vertices read so far); texture coordinates, normals, groups, materials, lines and points are ignored.
+    """
+    vertices, faces = [], []
+    text = path.read_text(encoding="utf-8", errors="replace").replace("\\\n", " ")   # joined continuation lines
+    for number, line in enumerate(text.splitlines(), 1):
+        fields = line.split("#", 1)[0].split()
+        try:
+            if fields[:1] == ["v"]:
+                if len(fields) < 4:
+                    raise ValueError("a vertex needs three coordinates")
+                vertices.append([float(x) for x in fields[1:4]])
+            elif fields[:1] == ["f"]:
+                ids = [int(token.split("/", 1)[0]) for token in fields[1:]]
+                if len(ids) < 3 or 0 in ids:
+                    raise ValueError("a face needs three or more vertex indices, counted from 1")
+                ids = [i - 1 if i > 0 else len(vertices) + i for i in ids]
+                faces.extend((ids[0], ids[k], ids[k + 1]) for k in range(1, len(ids) - 1))
+        except ValueError as err:
+            raise PipelineError(f"{path}: line {number} '{line.strip()[:60]}': {err}") from None
+    if not faces:
+        raise PipelineError(f"{path}: file holds no triangle mesh")
+    return np.asarray(vertices, dtype=np.float64).reshape(-1, 3), np.asarray(faces, dtype=np.int64)
 
 
 def _load_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -7,10 +7,11 @@
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
-are complete. model.pt holds the state dict and everything needed to rebuild the network and to recognise the
-operators it was trained on (docs/artifacts.md). With --settings (a scene's resolved settings.json), `network.*`,
-`training.*` (loss weights from `training.loss`) and `device` are the defaults of the flags of the same names,
---arch included.
+are complete. A file at the checkpoint path that is not a checkpoint is refused, not overwritten, and so is a
+checkpoint path equal to any other input or output. model.pt holds the state dict and everything needed to
+rebuild the network and to recognise the operators it was trained on (docs/artifacts.md). With --settings (a
+scene's resolved settings.json), `network.*`, `training.*` (loss weights from `training.loss`) and `device` are
+the defaults of the flags of the same names, --arch included.
 """
 from __future__ import annotations
 
@@ -27,10 +28,10 @@ from tqdm import tqdm
 from model.architecture import ArchitectureError
 from model.losses import LossWeights
 from model.networks import NetworkSpec, NormalizedRegressor, build_network
-from model.training import TrainSettings, fit
+from model.training import CheckpointError, TrainSettings, fit
 from pipeline import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset
-from pipeline.artifacts.model import save_model
+from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.errors import PipelineError
@@ -71,6 +72,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError("--epochs and --batch-size must be >= 1 and --lr > 0")
     if min(args.loss_l1, args.loss_l2, args.loss_normal) < 0:
         raise PipelineError("loss weights must be >= 0")
+    checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
+    cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
+                       {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads)
     data = load_dataset(args.dataset)
     spec = NetworkSpec(args.arch, args.conv, args.pool, args.width, data.inputs.shape[2], data.targets.shape[2])
@@ -89,9 +93,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     model = _normalized(net, data)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
-    checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
-    for folder in (checkpoint.parent, Path(args.model).parent):
-        folder.mkdir(parents=True, exist_ok=True)
+    resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()
     with tqdm(total=args.epochs * steps_per_epoch, desc="train", unit="batch", disable=args.quiet) as bar:
@@ -101,10 +103,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             bar.update()
             bar.set_postfix_str(f"epoch {epoch + 1}/{args.epochs} loss {loss:.3e}")
 
-        history = fit(model.to(device), mesh.to(device), frames_on(data, device),
-                      torch.as_tensor(data.train, device=device), torch.as_tensor(data.test, device=device),
-                      settings, checkpoint, {"dataset": data.fingerprint, "operators": mesh.fingerprint(),
-                                             "spec": dataclasses.asdict(spec)}, on_batch, bar.write)
+        identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec)}
+        try:
+            history = fit(model.to(device), mesh.to(device), frames_on(data, device),
+                          torch.as_tensor(data.train, device=device), torch.as_tensor(data.test, device=device),
+                          settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
+                          on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
+        except CheckpointError as err:
+            raise PipelineError(f"{checkpoint}: {err}") from None
     seconds = time.perf_counter() - start
     config = {**vars(args), "parameter_count": net.parameter_count()}
     training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
@@ -112,7 +118,11 @@ def main(argv: Sequence[str] | None = None) -> None:
                 "final_train_loss": history.train["total"][-1], "final_test_loss": history.test["total"][-1],
                 "dataset": args.dataset, "dataset_fingerprint": data.fingerprint}
     save_model(Path(args.model), model.cpu(), spec, mesh, {"training": training})
-    write_train_log(args.log, history, config, str(device), net.parameter_count(), seconds)
+    try:
+        write_train_log(args.log, history, config, str(device), net.parameter_count(), seconds)
+    except BaseException:
+        Path(args.model).unlink(missing_ok=True)      # the two outputs come as a pair, or not at all
+        raise
     checkpoint.unlink(missing_ok=True)
 
 

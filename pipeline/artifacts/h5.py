@@ -1,9 +1,14 @@
-"""Reading and writing the HDF5 artifacts that stages exchange.
+"""Reading and writing the HDF5 artifacts that stages exchange, and the one way any stage writes a file.
 
-Every artifact is written to a temporary file next to its final path and renamed only once complete, so an
-interrupted or failed stage never leaves a half-written file that Snakemake would take for a finished one.
+Every output (HDF5 or not) is written to a fresh, uniquely named temporary file next to its final path and
+renamed only once complete, so an interrupted or failed stage never leaves a half-written file that Snakemake
+would take for a finished one, and a link planted at a predictable name cannot redirect the write.
 Every artifact carries the same provenance attrs: `stage`, `config` (JSON of the settings that made it),
 `versions` (JSON of package versions) and `length_unit`.
+
+Reads trust nothing in the file: `read` refuses NaN/inf, `read_indices` index arrays out of range or of the
+wrong shape, `read_csr` malformed sparse matrices, each as one `PipelineError` naming the file and dataset
+(an out-of-range index would otherwise reach scipy's or Warp's unchecked loops: a segfault, not an error).
 """
 from __future__ import annotations
 
@@ -13,7 +18,7 @@ import json
 import os
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, BinaryIO, Iterator, Mapping
 
 import h5py
 import numpy as np
@@ -35,28 +40,59 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_FILE_MODE = 0o666 & ~_current_umask()     # what open() would give a new file; mkstemp makes it 0600
+
+
+@contextlib.contextmanager
+def _replaced_on_success(path: str | os.PathLike, suffix: str) -> Iterator[str]:
+    """The name of a new, empty temporary file beside `path` that replaces `path` once the block finishes, and
+    is removed if it fails.
+
+    mkstemp picks an unused name and creates it exclusively (O_EXCL), so neither a link planted beside the
+    output nor a second run writing the same output at the same time can be written through; `os.replace`
+    renames within one directory, so readers see the old file or the whole new one, and a link at `path`
+    itself is replaced, not followed.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        os.fchmod(fd, _FILE_MODE)
+        os.close(fd)
+        yield tmp_name
+        os.replace(tmp_name, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(tmp_name)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
+    """A binary file to write that appears at `path` only if the block finishes without error (every output
+    that is not HDF5: model.pt, the training checkpoint, report.md)."""
+    with _replaced_on_success(path, ".tmp") as tmp_name, open(tmp_name, "wb") as f:
+        yield f
+
+
 @contextlib.contextmanager
 def atomic_h5(path: str | os.PathLike, stage: str, config: Mapping[str, Any] | None = None) -> Iterator[h5py.File]:
     """Open a new HDF5 file for writing that appears at `path` only if the block finishes without error.
 
     Provenance attrs are set up front; the caller adds datasets and stage-specific attrs.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.h5", dir=path.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp_name, "w") as f:
-            f.attrs["stage"] = stage
-            f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=_json_default)
-            f.attrs["versions"] = json.dumps(package_versions(), sort_keys=True)
-            f.attrs["length_unit"] = "scene unit (~1 m), y up"
-            yield f
-        os.replace(tmp_name, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp_name)
-        raise
+    with _replaced_on_success(path, ".tmp.h5") as tmp_name, h5py.File(tmp_name, "w") as f:
+        f.attrs["stage"] = stage
+        f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=_json_default)
+        f.attrs["versions"] = json.dumps(package_versions(), sort_keys=True)
+        f.attrs["length_unit"] = "scene unit (~1 m), y up"
+        yield f
 
 
 def _json_default(obj: Any) -> Any:
@@ -108,11 +144,37 @@ def write_csr(group: h5py.Group, name: str, matrix: sp.spmatrix) -> None:
     g.create_dataset("shape", data=np.asarray(csr.shape, dtype=np.int64))
 
 
+def read_indices(f: h5py.File, name: str, upper: int, shape: tuple[int | None, ...] | None = None,
+                 lower: int = 0) -> np.ndarray:
+    """An integer index array as int64, refused unless every entry lies in [lower, upper) and its shape matches
+    `shape` (None: any length along that axis)."""
+    if name not in f:
+        raise PipelineError(f"{f.filename}: missing dataset '{name}'")
+    dataset = f[name]
+    if not isinstance(dataset, h5py.Dataset) or not np.issubdtype(dataset.dtype, np.integer):
+        raise PipelineError(f"{f.filename}: '{name}' must be an integer dataset of indices")
+    if shape is not None and (len(dataset.shape) != len(shape)
+                              or any(want is not None and got != want for got, want in zip(dataset.shape, shape))):
+        wanted = "(" + ", ".join("any" if n is None else str(n) for n in shape) + ")"
+        raise PipelineError(f"{f.filename}: dataset '{name}' has shape {dataset.shape}, expected {wanted}")
+    data = np.asarray(dataset[()], dtype=np.int64)
+    if data.size and (data.min() < lower or data.max() >= upper):
+        raise PipelineError(f"{f.filename}: dataset '{name}' holds indices outside [{lower}, {upper}) "
+                            f"(found {data.min()}..{data.max()})")
+    return data
+
+
 def read_csr(f: h5py.File, name: str) -> sp.csr_matrix:
-    """Load a matrix stored by `write_csr`."""
-    parts = [read(f, f"{name}/{p}") for p in ("data", "indices", "indptr", "shape")]
-    data, indices, indptr, shape = parts
-    try:
-        return sp.csr_matrix((data, indices, indptr), shape=tuple(int(s) for s in shape))
-    except ValueError as err:
-        raise PipelineError(f"{f.filename}: sparse matrix '{name}' is malformed ({err})") from None
+    """Load a matrix stored by `write_csr`, refusing any that scipy would index out of bounds with: a shape of
+    two non-negative sizes, `indptr` of rows + 1 entries rising from 0 to nnz, `indices` in [0, columns)."""
+    shape = read_indices(f, f"{name}/shape", np.iinfo(np.int32).max, shape=(2,))
+    rows, columns = (int(n) for n in shape)
+    data = read(f, f"{name}/data", np.float64)
+    if data.ndim != 1:
+        raise PipelineError(f"{f.filename}: dataset '{name}/data' has shape {data.shape}, expected (any,)")
+    indptr = read_indices(f, f"{name}/indptr", len(data) + 1, shape=(rows + 1,))
+    indices = read_indices(f, f"{name}/indices", columns, shape=(len(data),))
+    if indptr[0] != 0 or indptr[-1] != len(data) or np.any(np.diff(indptr) < 0):
+        raise PipelineError(f"{f.filename}: sparse matrix '{name}' is malformed (indptr must rise from 0 to the "
+                            f"{len(data)} stored entries)")
+    return sp.csr_matrix((data, indices, indptr), shape=(rows, columns))

@@ -1,6 +1,9 @@
 """model.pt, written by the `train` stage: the state dict and everything needed to rebuild the network and to
-recognise the operators it was trained on (docs/artifacts.md, section "model.pt"). The per-epoch checkpoint of
-a running training is model/training.py's business."""
+recognise the operators it was trained on (docs/artifacts.md, section "model.pt"); and the file of the per-epoch
+checkpoint of a running training, whose contents are model/training.py's business.
+
+Both are read with `torch.load(weights_only=True)`, which builds tensors and plain values only: a file from
+elsewhere is refused with one error, never unpickled into code."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,6 +15,8 @@ import torch
 
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.training import CHECKPOINT_FORMAT
+from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.errors import PipelineError
 
@@ -23,9 +28,7 @@ def save_model(path: Path, model: NormalizedRegressor, spec: NetworkSpec, mesh: 
     state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "state_dict": model.state_dict(),
              "arch_expanded": str(model.net.arch), "parameter_count": model.net.parameter_count(),
              "operators": {"fingerprint": mesh.fingerprint(), "vertex_counts": mesh.vertex_counts}, **extra}
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    _torch_save(path, state)
 
 
 def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
@@ -52,3 +55,28 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
     model = NormalizedRegressor(net, torch.zeros(spec.in_channels), 1.0, 1.0)
     model.load_state_dict(state["state_dict"])
     return model.to(device).eval(), mesh.to(device), state
+
+
+def write_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    _torch_save(path, state)
+
+
+def read_checkpoint(path: Path) -> dict[str, Any] | None:
+    """The training state saved at `path` by `write_checkpoint`, or None if there is none (yet, or any more:
+    an identical run beside this one may have finished and removed it). Anything else at that path is refused
+    rather than overwritten and later deleted: it is not this trainer's file."""
+    refusal = f"{path}: not a training checkpoint ({CHECKPOINT_FORMAT}); remove it or choose another --checkpoint"
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        return None
+    except Exception as err:  # torch raises many types for a foreign, damaged or code-carrying file
+        raise PipelineError(f"{refusal} ({type(err).__name__})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise PipelineError(refusal)
+    return state
+
+
+def _torch_save(path: Path, state: dict[str, Any]) -> None:
+    with atomic_write(path) as f:
+        torch.save(state, f)

@@ -6,10 +6,11 @@ import json
 import os
 from typing import TYPE_CHECKING, Any, Mapping
 
+import h5py
 import numpy as np
 
 from meshops import Level, parse_conv_kind
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read_indices
 from pipeline.errors import PipelineError
 
 if TYPE_CHECKING:
@@ -66,13 +67,25 @@ def load_hierarchy(path: str | os.PathLike, conv: str, n_levels: int,
         if f"levels/0/conv/{conv}" not in f:
             kinds = sorted(f["levels/0/conv"]) if "levels/0/conv" in f else []
             raise PipelineError(f"{path}: no '{conv}' convolution tables (the file has {', '.join(kinds) or 'none'})")
-        tables = [read(f, f"levels/{i}/conv/{conv}", np.int64) for i in range(n_levels)]
-        pools = [read(f, f"levels/{i}/pool", np.int64) for i in range(n_levels - 1)]
-        unpools = [read(f, f"levels/{i}/unpool", np.int64) for i in range(n_levels - 1)]
-        level0_faces = read(f, "levels/0/faces", np.int64)
+        counts = [_vertex_count(f, i) for i in range(n_levels)]
+        tables = [read_indices(f, f"levels/{i}/conv/{conv}", counts[i] + 1, shape=(counts[i], None))
+                  for i in range(n_levels)]
+        pools = [read_indices(f, f"levels/{i}/pool", counts[i], shape=(counts[i + 1], 2))
+                 for i in range(n_levels - 1)]
+        unpools = [read_indices(f, f"levels/{i}/unpool", counts[i + 1], shape=(counts[i],))
+                   for i in range(n_levels - 1)]
+        level0_faces = read_indices(f, "levels/0/faces", counts[0], shape=(None, 3))
     if faces is not None and not np.array_equal(level0_faces, faces):
         raise PipelineError(f"{path}: level 0 is not the dataset's mesh (different faces)")
     try:
         return mesh_hierarchy(tables, pools, unpools)
     except ValueError as err:
         raise PipelineError(f"{path}: {err}") from None
+
+
+def _vertex_count(f: h5py.File, level: int) -> int:
+    """Vertices of a level, from the shape of its `vertices` dataset: the bound its index tables must keep."""
+    name = f"levels/{level}/vertices"
+    if not isinstance(f.get(name), h5py.Dataset) or len(f[name].shape) != 2:
+        raise PipelineError(f"{f.filename}: missing dataset '{name}' of shape (V_{level}, 3)")
+    return int(f[name].shape[0])

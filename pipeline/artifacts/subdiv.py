@@ -9,7 +9,8 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr, write_csr
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
+from pipeline.errors import PipelineError
 
 STAGE = "subdivide"
 
@@ -53,7 +54,14 @@ def write_subdiv(path: str | os.PathLike, config: Mapping[str, Any], levels: int
 
 def read_subdivision(path: str | os.PathLike) -> Subdivision:
     with open_artifact(path) as f:
-        return Subdivision(read_csr(f, "S"), read(f, "vertices", np.float64), read(f, "faces", np.int64))
+        vertices = read(f, "vertices", np.float64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise PipelineError(f"{path}: dataset 'vertices' has shape {vertices.shape}, expected (any, 3)")
+        faces = read_indices(f, "faces", len(vertices), shape=(None, 3))
+        S = read_csr(f, "S")
+    if S.shape[0] != len(vertices):
+        raise PipelineError(f"{path}: S has {S.shape[0]} rows but the subdivided mesh has {len(vertices)} vertices")
+    return Subdivision(S, vertices, faces)
 
 
 def read_harmonics(path: str | os.PathLike) -> Harmonics:
