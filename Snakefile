@@ -1,8 +1,9 @@
 # Wiring only: every stage is a `python -m pipeline.<stage>` CLI that reads and writes HDF5 artifacts under
-# results/{scene}/. A bare `snakemake --cores 2` builds the config's `default_scene`; `results/<scene>/` builds
-# everything a scene has; any artifact path is a target too (e.g. results/patch/sim_high.h5), and
-# `--forcerun <rule>` reruns one stage. The rules live in workflow/rules/: common.smk (settings per scene, paths,
-# input functions), scene.smk, simulate.smk, learning.smk.
+# results/{scene}/, a sequence's under results/{scene}/sequences/{seq}/. A bare `snakemake --cores 2` builds the
+# config's `default_scene`; `results/<scene>/` builds everything a scene has; any artifact path is a target too
+# (e.g. results/patch/sequences/train_000/sim_high.h5), and `--forcerun <rule>` reruns one stage. The rules live
+# in workflow/rules/: common.smk (settings and sequences per scene, paths, input functions), scene.smk,
+# simulate.smk, learning.smk.
 import os
 
 from snakemake.utils import min_version, validate

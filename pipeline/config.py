@@ -2,9 +2,12 @@
 
 A scene's settings are `defaults` deep-merged with `scenes.<name>`, after the active profile's overlay has been
 merged over the whole config. The result must hold every key the schema knows, so that each stage reads all
-of its settings from one place (the resolved `settings.json` the Snakefile writes per scene).
+of its settings from one place (the resolved `settings.json` the Snakefile writes per scene). settings.json
+leaves out the number of sequences: it says how many sequences exist, not how any is made, so raising it changes
+no input of the artifacts already made (scenes/sequences.py names the sequences).
 
-CLI: `python -m pipeline.config CONFIG.yaml SCENE OUT.json [--profile P] [--device D]` writes resolved settings.
+CLI: `python -m pipeline.config CONFIG.yaml SCENE OUT.json [--profile P] [--device D]` writes resolved settings
+(as settings.json holds them) and prints the scene's sequence names.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from typing import Any, Sequence
 import yaml
 
 from pipeline.errors import PipelineError
+from scenes.sequences import clip_key, held_out_clips, sequence_names, training_clips
 
 SCHEMA_PATH = Path(__file__).resolve().parent.parent / "workflow" / "config.schema.yaml"
 
@@ -59,6 +63,8 @@ def _describe(error) -> str:
                          if not any(p.search(key) for p in patterns))
         if unknown:
             return f"unknown key '{unknown[0]}' in {where}"
+    if error.validator == "oneOf" and "description" in error.schema:     # say what would do, not which failed
+        return f"{where}: {error.instance!r} is not {error.schema['description']}"
     if error.validator == "required":
         missing = [k for k in error.validator_value if k not in error.instance]
         return f"missing key '{missing[0]}' in {where}"
@@ -132,12 +138,32 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     if settings["network"]["conv"] not in settings["operators"]["conv"]:
         fail(f"network.conv '{settings['network']['conv']}' is not among operators.conv "
              f"{settings['operators']['conv']}")
+    if not garment and settings["sequences"] != 1:
+        fail(f"sequences {settings['sequences']}: a grid scene has one sequence (its rod's motion)")
     if settings["dataset"]["split"] == "held_out":
         if not garment:
             fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment')")
-        clips, test = settings["drivers"]["mannequin"]["clips"], settings["drivers"]["mannequin"]["test_clips"]
-        if not test or not set(test) <= set(clips) or set(test) == set(clips):
-            fail(f"drivers.mannequin.test_clips {test} must name some, but not all, of the clips {clips}")
+        if not held_out_clips(settings):
+            fail("dataset.split 'held_out' needs drivers.mannequin.test_clips")
+        if not training_clips(settings):
+            fail(f"drivers.mannequin.clips {_names(settings['drivers']['mannequin']['clips'])} are all held out "
+                 f"(test_clips): training sequences need at least one other")
+    if garment:
+        mannequin = settings["drivers"]["mannequin"]
+        for entry in mannequin["clips"] + mannequin["test_clips"]:
+            if isinstance(entry, dict) and entry.get("start", 0.0) >= entry.get("end", float("inf")):
+                fail(f"BVH clip {entry['bvh']}: start {entry['start']} must come before end {entry['end']}")
+
+
+def _names(entries: list) -> str:
+    """Clip entries as a short list for messages (kinds and BVH windows)."""
+    return "[" + ", ".join(clip_key(entry) for entry in entries) + "]"
+
+
+def shared_settings(settings: dict) -> dict:
+    """What settings.json holds: the resolved settings without the number of sequences (see the module
+    docstring)."""
+    return {key: value for key, value in settings.items() if key != "sequences"}
 
 
 def write_settings(settings: dict, path: str | os.PathLike) -> None:
@@ -173,7 +199,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--device", help="override the device (cpu, cuda:0)")
     args = parser.parse_args(argv)
     config = load_config(args.config)
-    write_settings(resolve_scene(config, args.scene, args.profile, args.device, args.config), args.out)
+    settings = resolve_scene(config, args.scene, args.profile, args.device, args.config)
+    write_settings(shared_settings(settings), args.out)
+    print(" ".join(sequence_names(settings)))
 
 
 if __name__ == "__main__":

@@ -1,130 +1,185 @@
-"""Stage `dataset`: the cloth-upsampling learning problem of paper Table 2, with a seeded train/test split.
+"""Stage `dataset`: the cloth-upsampling learning problem of paper Table 2 over a scene's sequences, with a seeded
+train/test split of the training sequences and the held-out sequences as a third split.
 
-    python -m pipeline.dataset SIM_LOW.h5 SIM_HIGH.h5 SUBDIV.h5 OUT.h5 [--settings SETTINGS.json]
-                               [--frame world|torso] [--scene SCENE.h5] [--test-fraction 0.1]
-                               [--test-clips walk,...] [--seed 0] [--quiet]
+    python -m pipeline.dataset SUBDIV.h5 OUT.h5 SEQUENCE [SEQUENCE ...] [--settings SETTINGS.json]
+                               [--frame world|torso] [--test-fraction 0.1] [--seed 0] [--quiet]
+
+A SEQUENCE is a folder holding one sequence's sim_low.h5 and sim_high.h5 and, where there is one, its scene.h5
+(results/<scene>/sequences/<name>/, so `results/pants/sequences/*` gathers a scene). Its frames follow those of
+the sequences before it, in the order given; the frames before its first clip (the settle period: scene.h5
+`motion/clip` 0, at rest and alike in every sequence) are kept in the first training sequence only. A folder
+without scene.h5 is a training sequence named after the folder, all of whose frames are kept.
 
 Input and predictor: the Loop-subdivided low-res positions S x_low; target: the displacement x_high - S x_low;
-all in the scene's reference frame (`world`, or `torso` using SCENE.h5's `torso_transforms`). Because every row
-of S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
-frames; with --test-clips every frame of those mannequin clips (SCENE.h5 `motion/clip`) is held out as well, in
-a third split that measures generalisation to an unseen motion. docs/artifacts.md lists every dataset.
+all in the reference frame (`world`, or `torso` using each scene.h5's `torso_transforms`). Because every row of
+S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
+training sequences' frames; every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split
+that measures generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
+state, capsules, pose, torso transforms) under scene.h5's names. docs/artifacts.md lists every dataset.
 With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.test_fraction` and `dataset.seed` are
-the defaults of --frame, --test-fraction and --seed, and when `dataset.split` is `held_out`,
-`drivers.mannequin.test_clips` is that of --test-clips.
+the defaults of --frame, --test-fraction and --seed.
 """
 from __future__ import annotations
 
 import argparse
-from typing import Any, Sequence
+import dataclasses
+from pathlib import Path
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
 from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
-from pipeline.artifacts.dataset import Split, UpsamplingProblem, write_dataset
-from pipeline.artifacts.scene import read_clips, read_torso_transforms
-from pipeline.artifacts.simulation import read_trajectory
-from pipeline.artifacts.subdiv import read_subdivision
+from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
+from pipeline.artifacts.scene import read_mannequin_frames, read_sequence, read_torso_transforms
+from pipeline.artifacts.simulation import read_run_outline, read_trajectory
+from pipeline.artifacts.subdiv import Subdivision, read_subdivision
 from pipeline.errors import PipelineError
+from scenes.sequences import HELD_OUT, TRAIN
+
+SCENE, SIM_LOW, SIM_HIGH = "scene.h5", "sim_low.h5", "sim_high.h5"
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceSource:
+    """A sequence folder as the dataset uses it: which frames it keeps (from `first` on) and its role."""
+    folder: Path
+    name: str
+    role: str                  # train or held_out
+    n_frames: int
+    first: int                 # first frame kept: 0, or the end of the settle period
+    clips: tuple[str, ...]     # the clips it plays, in order (none without a mannequin)
+    scene: Path | None         # its scene.h5, if it has one
+
+    @property
+    def kept(self) -> int:
+        return self.n_frames - self.first
 
 
 def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Seeded random split: sorted train and test frame ids, at least one frame in each."""
     if n_frames < 2:
-        raise PipelineError(f"a train/test split needs at least 2 frames, got {n_frames}")
+        raise PipelineError(f"a train/test split needs at least 2 frames of training sequences, got {n_frames}")
     n_test = min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
     order = np.random.default_rng(seed).permutation(n_frames)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def held_out_frames(scene_path: str | None, n_frames: int, test_clips: list[str]) -> np.ndarray:
-    """Sorted ids of the frames that belong to the mannequin clips `test_clips`."""
-    if scene_path is None:
-        raise PipelineError("--test-clips needs --scene SCENE.h5 holding 'motion/clip' and 'motion/clip_names'")
-    clip, names = read_clips(scene_path)
-    if len(clip) != n_frames:
-        raise PipelineError(f"{scene_path}: 'motion/clip' has {len(clip)} frames, the simulation {n_frames}")
-    unknown = sorted(set(test_clips) - set(names))
-    if unknown:
-        raise PipelineError(f"{scene_path}: no clip '{unknown[0]}' in this scene's motion (clips: {', '.join(names)})")
-    held = np.isin(clip, [names.index(n) for n in test_clips])
-    if n_frames - held.sum() < 2 or not held.any():
-        raise PipelineError(f"--test-clips {','.join(test_clips)} leaves {n_frames - held.sum()} frames to train "
-                            f"and test on and {held.sum()} held out")
-    return np.flatnonzero(held)
+def find_sequences(folders: Sequence[str]) -> list[SequenceSource]:
+    """The sequences of the given folders, in order, with the frames each keeps (see the module docstring)."""
+    sources, settle_kept = [], False
+    for folder in map(Path, folders):
+        scene = folder / SCENE if (folder / SCENE).is_file() else None
+        n_frames, _ = read_run_outline(folder / SIM_LOW)
+        if scene is None:
+            sources.append(SequenceSource(folder, folder.name, TRAIN, n_frames, 0, (), None))
+            continue
+        info = read_sequence(scene)
+        if info.n_frames != n_frames:
+            raise PipelineError(f"{scene}: {info.n_frames} frames, but {folder / SIM_LOW} has {n_frames}")
+        keep_settle = info.role == TRAIN and not settle_kept
+        settle_kept = settle_kept or keep_settle
+        sources.append(SequenceSource(folder, info.name, info.role, n_frames, 0 if keep_settle else info.settle_frames,
+                                      info.clip_names[1:], scene))
+    names = [s.name for s in sources]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise PipelineError(f"sequence '{repeated[0]}' is given twice ({', '.join(str(s.folder) for s in sources)})")
+    if not any(s.role == TRAIN for s in sources):
+        raise PipelineError(f"no training sequence among {', '.join(map(str, folders))} (all are held out)")
+    return sources
 
 
-def split_dataset(n_frames: int, test_fraction: float, seed: int, held_out: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Train, test and held-out frame ids: the held-out frames aside, a seeded random share of the rest is test."""
-    seen = np.setdiff1d(np.arange(n_frames), held_out)
+def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+                   test_fraction: float, seed: int) -> DatasetLayout:
+    """Where every frame comes from, and the split: of the training sequences' frames a seeded random share is
+    test, the rest train; every frame of the held-out sequences is held out."""
+    sequence = np.concatenate([np.full(s.kept, k) for k, s in enumerate(sources)])
+    sequence_frame = np.concatenate([np.arange(s.first, s.n_frames) for s in sources])
+    held = np.isin(sequence, [k for k, s in enumerate(sources) if s.role == HELD_OUT])
+    seen = np.flatnonzero(~held)
     train, test = split_frames(len(seen), test_fraction, seed)
-    return seen[train], seen[test], np.asarray(held_out, dtype=np.int64)
+    held_clips = tuple(dict.fromkeys(c for s in sources if s.role == HELD_OUT for c in s.clips))
+    return DatasetLayout(
+        faces=subdivision.faces, rest_vertices=subdivision.vertices, low_faces=low_faces,
+        n_low_vertices=subdivision.S.shape[1], sequence=sequence, sequence_frame=sequence_frame,
+        names=tuple(s.name for s in sources), roles=tuple(s.role for s in sources),
+        clips=tuple(",".join(s.clips) for s in sources),
+        split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips),
+        frame=frame, seed=seed, test_fraction=test_fraction)
 
 
-def _torso_transforms(scene_path: str | None, n_frames: int) -> np.ndarray:
-    if scene_path is None:
-        raise PipelineError("--frame torso needs --scene SCENE.h5 holding the 'torso_transforms' dataset")
-    return read_torso_transforms(scene_path, n_frames)
-
-
-def build_dataset(low_path: str, high_path: str, subdiv_path: str, frame: str,
-                  scene_path: str | None) -> UpsamplingProblem:
-    """Arrays of the learning problem; raises PipelineError naming the file that does not fit the others."""
+def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray,
+                    frame: str) -> SequenceFrames:
+    """A sequence's kept frames of the learning problem; raises PipelineError naming the file that does not fit
+    the others (the subdivision, and the low-res faces of the first sequence)."""
+    low_path, high_path = source.folder / SIM_LOW, source.folder / SIM_HIGH
     low_run, high_run = read_trajectory(low_path), read_trajectory(high_path)
-    low, high = low_run.positions, high_run.positions
-    mesh = read_subdivision(subdiv_path)
-    subdivision = mesh.S
-    if subdivision.shape != (high.shape[1], low.shape[1]):
-        raise PipelineError(f"{subdiv_path}: S is {subdivision.shape} but {high_path} has {high.shape[1]} and "
-                            f"{low_path} {low.shape[1]} vertices")
-    if high_run.faces.shape != mesh.faces.shape or not np.array_equal(high_run.faces, mesh.faces):
-        raise PipelineError(f"{high_path}: its faces differ from {subdiv_path}'s: not the same high-res mesh")
-    if len(low) != len(high):
-        raise PipelineError(f"{high_path}: {len(high)} frames but {low_path} has {len(low)}")
-    transforms = _torso_transforms(scene_path, len(low)) if frame == "torso" else None
-    if transforms is not None:
+    low, high = low_run.positions[source.first:], high_run.positions[source.first:]
+    S = subdivision.S
+    if S.shape != (high.shape[1], low.shape[1]):
+        raise PipelineError(f"{high_path}: {high.shape[1]} vertices and {low_path} {low.shape[1]}, but the "
+                            f"subdivision S is {S.shape}")
+    for path, faces, expected in ((low_path, low_run.faces, low_faces), (high_path, high_run.faces, subdivision.faces)):
+        if faces.shape != expected.shape or not np.array_equal(faces, expected):
+            raise PipelineError(f"{path}: its faces differ from the other sequences' or the subdivision's: not "
+                                f"the same mesh")
+    if len(high_run.positions) != source.n_frames:
+        raise PipelineError(f"{high_path}: {len(high_run.positions)} frames but {low_path} has {source.n_frames}")
+    if frame == "torso":
+        if source.scene is None:
+            raise PipelineError(f"{source.folder}: --frame torso needs the sequence's {SCENE} (torso_transforms)")
+        transforms = read_torso_transforms(source.scene, source.n_frames)[source.first:]
         low = apply_rigid_inverse(transforms[:, None], low)
         high = apply_rigid_inverse(transforms[:, None], high)
-    subdivided = np.stack([subdivision @ x for x in low])
-    return UpsamplingProblem(subdivided.astype(np.float32), (high - subdivided).astype(np.float32), mesh.faces,
-                             mesh.vertices, low.astype(np.float32), low_run.faces)
+    subdivided = np.stack([S @ x for x in low])
+    mannequin = read_mannequin_frames(source.scene, source.first) if source.scene is not None else None
+    return SequenceFrames(subdivided.astype(np.float32), (high - subdivided).astype(np.float32),
+                          low.astype(np.float32), mannequin)
+
+
+def _all_frames(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray,
+                frame: str) -> Iterator[SequenceFrames]:
+    """Each sequence's frames in turn, read when the writer asks for them; all with a mannequin or none."""
+    with_body = None
+    for source in sources:
+        part = sequence_frames(source, subdivision, low_faces, frame)
+        if with_body is not None and (part.mannequin is not None) != with_body:
+            raise PipelineError(f"{source.scene or source.folder}: some sequences have a mannequin and some not")
+        with_body = part.mannequin is not None
+        yield part
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
     dataset = settings["dataset"]
-    held_out = dataset["split"] == "held_out"
-    return {"frame": dataset["frame"], "test_fraction": dataset["test_fraction"], "seed": dataset["seed"],
-            "test_clips": settings["drivers"]["mannequin"]["test_clips"] if held_out else None}
+    return {"frame": dataset["frame"], "test_fraction": dataset["test_fraction"], "seed": dataset["seed"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.dataset", description=__doc__.splitlines()[0])
-    parser.add_argument("sim_low"), parser.add_argument("sim_high"), parser.add_argument("subdiv")
-    parser.add_argument("out", help="dataset.h5 to write")
+    parser.add_argument("subdiv"), parser.add_argument("out", help="dataset.h5 to write")
+    parser.add_argument("sequences", nargs="+", metavar="SEQUENCE",
+                        help="folders holding a sequence's sim_low.h5, sim_high.h5 and (if it has one) scene.h5")
     parser.add_argument("--frame", choices=["world", "torso"], default="world",
-                        help="reference frame of all positions (torso needs --scene with torso_transforms)")
-    parser.add_argument("--scene", help="scene.h5 (read for --frame torso)")
-    parser.add_argument("--test-fraction", type=float, default=0.1, help="share of frames held out (paper: 0.1)")
-    parser.add_argument("--test-clips", help="comma-separated motion clips held out as the test set (needs --scene)")
+                        help="reference frame of all positions (torso needs each sequence's scene.h5)")
+    parser.add_argument("--test-fraction", type=float, default=0.1,
+                        help="share of the training sequences' frames held out as test (paper: 0.1)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
-    problem = build_dataset(args.sim_low, args.sim_high, args.subdiv, args.frame, args.scene)
-    n_frames = len(problem.inputs)
-    test_clips = [c.strip() for c in (args.test_clips or "").split(",") if c.strip()]
-    held = held_out_frames(args.scene, n_frames, test_clips) if test_clips else np.zeros(0, np.int64)
-    train, test, held = split_dataset(n_frames, args.test_fraction, args.seed, held)
-    config = {name: getattr(args, name) for name in ("sim_low", "sim_high", "subdiv", "frame", "scene",
-                                                    "test_fraction", "test_clips", "seed")}
-    write_dataset(args.out, config, problem, Split(train, test, held, tuple(test_clips)), args.frame, args.seed,
-                  args.test_fraction)
+    subdivision = read_subdivision(args.subdiv)
+    sources = find_sequences(args.sequences)
+    low_faces = read_run_outline(sources[0].folder / SIM_LOW)[1]
+    layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed)
+    config = {name: getattr(args, name) for name in ("subdiv", "sequences", "frame", "test_fraction", "seed")}
+    write_dataset(args.out, config, layout, _all_frames(sources, subdivision, low_faces, args.frame))
     if not args.quiet:
-        print(f"dataset: {n_frames} frames ({len(train)} train, {len(test)} test, {len(held)} held out) of "
-              f"{problem.inputs.shape[1]} vertices, {args.frame} frame -> {args.out}")
+        split = layout.split
+        print(f"dataset: {len(layout.sequence)} frames of {len(sources)} sequence(s) ({len(split.train)} train, "
+              f"{len(split.test)} test, {len(split.held_out)} held out) of {len(layout.rest_vertices)} vertices, "
+              f"{args.frame} frame -> {args.out}")
 
 
 if __name__ == "__main__":

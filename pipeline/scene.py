@@ -1,9 +1,11 @@
-"""Scene stage: the low-res rest mesh, its pinned vertices with their per-frame targets, and for garment scenes
-the animated mannequin (skeleton, motion, collision capsules, pose vectors, torso frames, skinning weights).
+"""Scene stage: what every sequence of a scene shares (the low-res rest mesh, its pinned vertices, a garment
+scene's skeleton and skinning), or with --sequence one sequence: all that, plus the pins' targets per frame and
+what moves them (a grid scene's rod; a garment scene's animated mannequin: motion, collision capsules, pose
+vectors, torso frames).
 
-CLI: `python -m pipeline.scene SETTINGS.json OUT.h5` (settings resolved by `python -m pipeline.config`).
-The scene is assembled by `scenes.registry` and written by `pipeline.artifacts.scene`; docs/artifacts.md lists
-every dataset.
+CLI: `python -m pipeline.scene SETTINGS.json OUT.h5 [--sequence NAME]` (settings resolved by
+`python -m pipeline.config`; NAME e.g. train_000 or held_out_000, see scenes/sequences.py). The scene is
+assembled by `scenes.registry` and written by `pipeline.artifacts.scene`; docs/artifacts.md lists every dataset.
 """
 from __future__ import annotations
 
@@ -11,23 +13,28 @@ import argparse
 from typing import Sequence
 
 from pipeline import cli
-from pipeline.artifacts.scene import write_scene
+from pipeline.artifacts.scene import write_scene, write_scene_rest
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
-from scenes.registry import build_scene
+from scenes.registry import build_rest, build_scene
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.scene", description=__doc__.splitlines()[0])
     parser.add_argument("settings", help="resolved scene settings (JSON)")
     parser.add_argument("out", help="scene.h5 to write")
+    parser.add_argument("--sequence", help="write this sequence (train_000, ..., held_out_000, ...) instead of "
+                                           "what the sequences share")
     args = parser.parse_args(argv)
     settings = read_settings(args.settings)
+    where = f"scene '{settings['scene']}'" + (f" sequence '{args.sequence}'" if args.sequence else "")
     try:
-        scene = build_scene(settings)
+        if args.sequence is None:
+            write_scene_rest(args.out, build_rest(settings), settings)
+        else:
+            write_scene(args.out, build_scene(settings, args.sequence), settings)
     except ValueError as err:
-        raise PipelineError(f"scene '{settings['scene']}': {err}") from None
-    write_scene(args.out, scene, settings)
+        raise PipelineError(f"{where}: {err}") from None
 
 
 if __name__ == "__main__":

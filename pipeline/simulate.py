@@ -3,6 +3,7 @@
 CLI:
   python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [--device D] [--quiet]
   python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [--device D] [--quiet]
+SCENE.h5 is one sequence's scene (results/<scene>/sequences/<name>/scene.h5), which also sets the frame count.
 The high-res run follows the same pins (carried over through the subdivision), collides with the same body, and
 holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al.
 2011).
@@ -85,18 +86,18 @@ def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool) -> S
     rest, faces = read_rest_mesh(scene_path)
     check_mesh(scene_path, rest, faces)
     s = solver_settings(settings)
-    drive = read_scene_drive(scene_path, settings["frames"], s.body_collision)
+    drive = read_scene_drive(scene_path, s.body_collision)
     pins = drive.pins
     solver = ClothSolver(rest, faces, s, device, pins.ids, **solver_body(drive))
-    positions, solve_ms = run_frames(solver, settings["frames"], lambda fr: frame_inputs(drive, fr, pins.targets[fr]),
-                                     f"{settings['scene']} low-res", quiet)
+    positions, solve_ms = run_frames(solver, drive.n_frames, lambda fr: frame_inputs(drive, fr, pins.targets[fr]),
+                                     f"{scene_path} low-res", quiet)
     return SimulationRun(positions, faces, rest, pins.ids, solve_ms, solver.n_constraints)
 
 
 def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str,
                   quiet: bool) -> SimulationRun:
     s = solver_settings(settings)
-    drive = read_scene_drive(scene_path, settings["frames"], s.body_collision)
+    drive = read_scene_drive(scene_path, s.body_collision)
     subdivision, harmonics = read_subdivision(subdiv_path), read_harmonics(subdiv_path)
     S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
     basis, mass = harmonics.basis, harmonics.mass
@@ -104,8 +105,8 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
     if S.shape != (len(rest), x_low.shape[1]):
         raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
                             f"{low_path} has {x_low.shape[1]}")
-    if len(x_low) != settings["frames"]:
-        raise PipelineError(f"{low_path}: has {len(x_low)} frames, settings ask for {settings['frames']}")
+    if len(x_low) != drive.n_frames:
+        raise PipelineError(f"{low_path}: has {len(x_low)} frames, the scene {scene_path} {drive.n_frames}")
     pins, part = subdivided_pins(S, drive.pins.ids, drive.pins.part)
     targets = apply_rigid(drive.pins.transforms[:, part], rest[pins])
     try:
@@ -121,7 +122,7 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
     def inputs(fr: int) -> FrameInputs:
         return frame_inputs(drive, fr, targets[fr], harmonic_targets[fr])
 
-    positions, solve_ms = run_frames(solver, settings["frames"], inputs, f"{settings['scene']} high-res", quiet)
+    positions, solve_ms = run_frames(solver, drive.n_frames, inputs, f"{scene_path} high-res", quiet)
     high_content = np.einsum("kv,fvc->fkc", mass_basis_t, positions.astype(np.float64))
     residual = (np.linalg.norm((high_content - harmonic_targets).reshape(len(positions), -1), axis=1)
                 / np.linalg.norm(high_content.reshape(len(positions), -1), axis=1))

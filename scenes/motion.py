@@ -70,7 +70,7 @@ class BodyState(NamedTuple):
         return self.linear_velocity, self.angular_velocity
 
 
-class _Curves(NamedTuple):
+class ClipCurves(NamedTuple):
     """A raw motion sampled at motion times tau (T,): horizontal root offset from the rest root and joint angles,
     with their time derivatives, plus a constant travel velocity that the fade-in ramps up. The root height is
     not part of it: make_motion derives it by keeping the feet on the ground."""
@@ -84,8 +84,6 @@ class _Curves(NamedTuple):
 def make_motion(kind: str, n_frames: int, fps: float = 60.0, seed: int = 0, settle_frames: int = 100,
                 blend_frames: int = 60, skel: Skeleton | None = None) -> Motion:
     """A seeded motion of `kind` (one of MOTION_KINDS) for the skeleton (default: `default_skeleton()`)."""
-    if kind not in MOTION_KINDS:
-        raise ValueError(f"unknown motion kind '{kind}'; choose one of {', '.join(MOTION_KINDS)}")
     if n_frames < 1 or fps <= 0 or settle_frames < 0 or blend_frames < 1:
         raise ValueError(f"need n_frames >= 1, fps > 0, settle_frames >= 0, blend_frames >= 1; got {n_frames}, "
                          f"{fps}, {settle_frames}, {blend_frames}")
@@ -93,17 +91,14 @@ def make_motion(kind: str, n_frames: int, fps: float = 60.0, seed: int = 0, sett
     # Evaluate past the end so that smoothing the ground lift sees the true signal on both sides of every frame.
     pad = int(np.ceil(4 * GROUND_SMOOTHING * fps))
     tau = np.maximum(np.arange(n_frames + pad) / fps - settle_frames / fps, 0.0)
-    curves = _GENERATORS[kind](skel, np.random.default_rng(seed), tau)
-    w, dw, w_integral = _fade_in(tau, blend_frames / fps)
+    curves = clip_curves(kind, skel, seed, tau)
+    w, dw, w_integral = fade_in(tau, blend_frames / fps)
     angles = w[:, None, None] * curves.angles
     rates = dw[:, None, None] * curves.angles + w[:, None, None] * curves.rates
     root = skel.joint_offsets[0] + w[:, None] * curves.offset + w_integral[:, None] * curves.travel
     root_velocity = dw[:, None] * curves.offset + w[:, None] * (curves.offset_rate + curves.travel)
-    # Smoothing a function and its derivative with the same kernel keeps one the derivative of the other; the
-    # fade-in weight keeps the smoothed lift from reaching back into the still settle frames.
-    sigma = GROUND_SMOOTHING * fps
-    lift, lift_rate = (gaussian_filter1d(x, sigma, mode="nearest")
-                       for x in _ground_lift(skel, root, root_velocity, angles, rates))
+    # The fade-in weight keeps the smoothed lift from reaching back into the still settle frames.
+    lift, lift_rate = ground_lift(skel, root, root_velocity, angles, rates, fps)
     root[:, 1] += w * lift
     root_velocity[:, 1] += dw * lift + w * lift_rate
     keep = slice(0, n_frames)
@@ -151,7 +146,7 @@ def soft_limit(angles: np.ndarray, rates: np.ndarray, lower: np.ndarray,
     return np.where(fixed, 0.0, value), np.where(fixed, 0.0, slope * rates)
 
 
-def _fade_in(tau: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fade_in(tau: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Quintic smoothstep weight w, its time derivative and its time integral, for motion time tau."""
     u = np.clip(tau / duration, 0.0, 1.0)
     w = u ** 3 * (6 * u * u - 15 * u + 10)
@@ -160,8 +155,34 @@ def _fade_in(tau: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray, 
     return w, dw, integral
 
 
-def _ground_lift(skel: Skeleton, root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray,
-                 rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def clip_curves(kind: str, skel: Skeleton, seed: int, tau: np.ndarray, speed: float = 1.0,
+                amplitude: float = 1.0, phase: float = 0.0) -> ClipCurves:
+    """The raw motion of `kind` at clip times tau (T,) >= 0, played `speed` times as fast from `phase` seconds into
+    its curves, with joint angles and the root's offset and travel scaled by `amplitude`. Angles scaled up are
+    softly clamped back into the joint limits; scaled down they stay inside, since every limit box holds the rest
+    pose. A walk's travel scales with its stride only approximately (its feet may slip a little)."""
+    if kind not in MOTION_KINDS:
+        raise ValueError(f"unknown motion kind '{kind}'; choose one of {', '.join(MOTION_KINDS)}")
+    raw = _GENERATORS[kind](skel, np.random.default_rng(seed), speed * np.asarray(tau) + phase)
+    angles, rates = amplitude * raw.angles, amplitude * speed * raw.rates
+    if amplitude > 1.0:
+        angles, rates = soft_limit(angles, rates, skel.joint_lower, skel.joint_upper)
+    return ClipCurves(amplitude * raw.offset, amplitude * speed * raw.offset_rate, angles, rates,
+                      amplitude * speed * raw.travel)
+
+
+def ground_lift(skel: Skeleton, root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray,
+                rates: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical root shift (F,) and its rate that keep the lowest foot on the ground (see _foot_lift), smoothed
+    over GROUND_SMOOTHING seconds: the body's give when the weight passes from foot to foot. Smoothing a function
+    and its derivative with the same kernel keeps one the derivative of the other. Frames are `1 / fps` apart."""
+    sigma = GROUND_SMOOTHING * fps
+    lift, lift_rate = _foot_lift(skel, root, root_velocity, angles, rates)
+    return gaussian_filter1d(lift, sigma, mode="nearest"), gaussian_filter1d(lift_rate, sigma, mode="nearest")
+
+
+def _foot_lift(skel: Skeleton, root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray,
+               rates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertical root shift (F,) and its rate that keep the lowest foot point where it is in the rest pose.
 
     The lowest point is a smooth minimum (soft-min over the bottoms of the four foot-capsule spheres), so the
@@ -247,12 +268,12 @@ def _leg_length(skel: Skeleton) -> float:
                  + np.linalg.norm(skel.joint_offsets[skel.index("foot_l")]))
 
 
-def _rest(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
+def _rest(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     zeros = np.zeros((len(tau), skel.n_parts, 3))
-    return _Curves(np.zeros((len(tau), 3)), np.zeros((len(tau), 3)), zeros, zeros.copy(), np.zeros(3))
+    return ClipCurves(np.zeros((len(tau), 3)), np.zeros((len(tau), 3)), zeros, zeros.copy(), np.zeros(3))
 
 
-def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
+def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """A walking gait along +z: hips swing from 26° forward to 17° back, knees flex in swing, arms swing
     against the legs, pelvis and shoulders counter-rotate, the pelvis shifts over the stance leg. Seeds vary
     cadence, amplitude and the leading foot."""
@@ -284,10 +305,10 @@ def _walk(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
     offset_rate = np.stack([sway * omega * np.sin(phase), np.zeros_like(tau), np.zeros_like(tau)], axis=1)
     # Each step the stance leg sweeps from +hip to -hip: two steps of 2 L sin(hip) per cycle.
     speed = 4 * _leg_length(skel) * np.sin(hip) / period
-    return _Curves(offset, offset_rate, *waves.limited(), np.array([0.0, 0.0, speed]))
+    return ClipCurves(offset, offset_rate, *waves.limited(), np.array([0.0, 0.0, speed]))
 
 
-def _dance(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
+def _dance(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """Dance-like: knees bounce on the beat (thigh -k/2, knee k, ankle -k/2 keep the feet flat), hips sway
     every two beats, the body turns slowly, arms raise, swing and bend with seeded phases, the head nods."""
     scale = skel.height / 1.7
@@ -316,7 +337,7 @@ def _dance(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves
     zero = np.zeros_like(tau)
     offset = np.stack([sway * np.sin(arg), zero, zero], axis=1)
     offset_rate = np.stack([0.5 * omega * sway * np.cos(arg), zero, zero], axis=1)
-    return _Curves(offset, offset_rate, *waves.limited(), np.zeros(3))
+    return ClipCurves(offset, offset_rate, *waves.limited(), np.zeros(3))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -339,12 +360,12 @@ def _mirror_pose(degrees: dict[str, tuple[float, float, float]]) -> dict[str, tu
             for name, (x, y, z) in degrees.items()}
 
 
-def _keyframed(skel: Skeleton, times: np.ndarray, poses: np.ndarray, tau: np.ndarray) -> _Curves:
+def _keyframed(skel: Skeleton, times: np.ndarray, poses: np.ndarray, tau: np.ndarray) -> ClipCurves:
     """PCHIP through keyframe poses (K, P, 3) at `times`, standing in place (the root only rises and falls with
     the ground contact)."""
     spline = PchipInterpolator(times, poses, axis=0)
     zero = np.zeros((len(tau), 3))
-    return _Curves(zero, zero.copy(), spline(tau), spline.derivative()(tau), np.zeros(3))
+    return ClipCurves(zero, zero.copy(), spline(tau), spline.derivative()(tau), np.zeros(3))
 
 
 _GUARD = {"thigh_l": (-30, 0, 8), "shin_l": (40, 0, 0), "foot_l": (-10, 0, 0),
@@ -371,7 +392,7 @@ _TECHNIQUES.update({name[:-1] + "l": [(_mirror_pose(pose), dt) for pose, dt in s
                     for name, steps in list(_TECHNIQUES.items())})
 
 
-def _karate(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
+def _karate(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """Karate-like: from a guard stance, a seeded sequence of punches, rising blocks and front kicks with either
     side, each chambered, struck, held briefly and withdrawn to guard; seeds vary order and tempo."""
     names = sorted(_TECHNIQUES)
@@ -390,7 +411,7 @@ _RANDOM_REACH = {"pelvis": 0.3, "spine": 0.5, "chest": 0.5, "head": 0.6, "upper_
                  "hand": 0.5, "thigh": 0.35, "shin": 0.35, "foot": 0.4}
 
 
-def _random(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> _Curves:
+def _random(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """Random poses within a comfortable part of the joint limits, one every 0.5-1.1 s, joined by PCHIP.
     A candidate pose is rejected if any two capsules that are apart at rest come closer than 1% of the height,
     in the pose itself or on the way to it from the previous keyframe (checked at the quarter points)."""
@@ -420,7 +441,7 @@ def _draw_clear_pose(skel: Skeleton, rng: np.random.Generator, lower: np.ndarray
     return previous
 
 
-_GENERATORS: dict[str, Callable[[Skeleton, np.random.Generator, np.ndarray], _Curves]] = {
+_GENERATORS: dict[str, Callable[[Skeleton, np.random.Generator, np.ndarray], ClipCurves]] = {
     "rest": _rest, "walk": _walk, "dance": _dance, "karate": _karate, "random": _random}
 
 
@@ -433,45 +454,68 @@ class ClipSequence:
     names: tuple[str, ...]
 
 
-def play_clips(kinds: list[str], n_frames: int, settle_frames: int, blend_frames: int, seed: int,
+def play_clips(clips: list[str | Motion], n_frames: int, settle_frames: int, blend_frames: int, seed: int,
                fps: float = 60.0, skel: Skeleton | None = None) -> ClipSequence:
-    """`settle_frames` at rest, then each clip in turn on an equal share of the remaining frames.
+    """`settle_frames` at rest, then each clip in turn. A clip is a procedural kind (make_motion, on an equal
+    share of the frames the others leave) or a precomputed raw Motion at `fps` (scenes.retarget.retarget), which
+    keeps its own length and is named by its kind.
 
-    Each clip fades in from the rest pose (make_motion) and, except the last, fades back out to it over its
-    final `blend_frames`, so that every seam joins rest to rest and the sequence stays C¹. Fading out scales
-    joint angles and the root's vertical excursion by w and the root's horizontal velocity by w (its position
-    is the running integral), so a walk slows to a halt instead of sliding back; the next clip starts where the
-    previous one stopped. Clip k uses seed + k.
+    Each clip fades in from the rest pose (make_motion; a precomputed Motion here, the way clips fade out) and,
+    except the last, fades back out to it over its final `blend_frames`, so that every seam joins rest to rest and
+    the sequence stays C¹. Fading scales joint angles and the root's vertical excursion by w and the root's
+    horizontal velocity by w (its position is the running integral), so a walk slows to a halt instead of
+    sliding back; the next clip starts where the previous one stopped. Clip k uses seed + k.
     """
     skel = skel or default_skeleton()
-    share = (n_frames - settle_frames) // max(len(kinds), 1)
-    if not kinds or share < 2 * blend_frames + 1:
+    kinds = [c for c in clips if isinstance(c, str)]
+    fixed = [c.n_frames for c in clips if isinstance(c, Motion)]
+    share = (n_frames - settle_frames - sum(fixed)) // max(len(kinds), 1)
+    if not clips or (kinds and share < 2 * blend_frames + 1) or min(fixed, default=share) < 2 * blend_frames + 1:
         raise ValueError(f"{n_frames} frames with {settle_frames} settle frames leave {share} per clip for "
-                         f"{len(kinds)} clip(s); each needs more than 2 * blend_frames = {2 * blend_frames}")
-    lengths = [share] * (len(kinds) - 1) + [n_frames - settle_frames - share * (len(kinds) - 1)]
+                         f"{len(clips)} clip(s); each needs more than 2 * blend_frames = {2 * blend_frames}")
+    if not kinds and settle_frames + sum(fixed) != n_frames:
+        raise ValueError(f"{n_frames} frames, but {settle_frames} settle frames and the clips take "
+                         f"{settle_frames + sum(fixed)}")
+    lengths = [c.n_frames if isinstance(c, Motion) else share for c in clips]
+    if kinds:   # the last procedural clip takes the remainder
+        last_kind = max(k for k, c in enumerate(clips) if isinstance(c, str))
+        lengths[last_kind] = n_frames - settle_frames - sum(lengths) + share
+    names = [c if isinstance(c, str) else c.kind for c in clips]
     rest_root = skel.joint_offsets[0]
     parts = [make_motion("rest", settle_frames, fps, seed, 0, blend_frames, skel)] if settle_frames else []
     clip = [np.zeros(settle_frames, dtype=np.int64)]
     offset = np.zeros(3)
-    for k, (kind, length) in enumerate(zip(kinds, lengths)):
-        m = make_motion(kind, length, fps, seed + k, 0, blend_frames, skel)
+    for k, (entry, length) in enumerate(zip(clips, lengths)):
+        m = entry if isinstance(entry, Motion) else make_motion(entry, length, fps, seed + k, 0, blend_frames, skel)
         root, root_velocity = m.root_position - rest_root, m.root_velocity.copy()
         angles, rates = m.joint_angles.copy(), m.joint_angle_rates.copy()
-        if k < len(kinds) - 1:
-            w, dw, _ = _fade_in((length - 1 - np.arange(length)) / fps, blend_frames / fps)
-            dw = -dw   # time runs toward the end of the clip
-            rates = w[:, None, None] * rates + dw[:, None, None] * angles
-            angles = w[:, None, None] * angles
-            root_velocity[:, 1] = w * root_velocity[:, 1] + dw * root[:, 1]
-            root[:, 1] *= w
-            root_velocity[:, [0, 2]] *= w[:, None]
-            steps = 0.5 * (root_velocity[1:, [0, 2]] + root_velocity[:-1, [0, 2]]) / fps
-            root[:, [0, 2]] = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
-        parts.append(Motion(kind, float(fps), seed + k, 0, blend_frames, root + rest_root + offset, root_velocity,
-                            angles, rates))
+        if isinstance(entry, Motion):
+            w, dw, _ = fade_in(np.arange(length) / fps, blend_frames / fps)
+            root, root_velocity, angles, rates = _fade(root, root_velocity, angles, rates, w, dw, fps)
+        if k < len(clips) - 1:
+            w, dw, _ = fade_in((length - 1 - np.arange(length)) / fps, blend_frames / fps)
+            # time runs toward the end of the clip: the weight's derivative changes sign
+            root, root_velocity, angles, rates = _fade(root, root_velocity, angles, rates, w, -dw, fps)
+        parts.append(Motion(names[k], float(fps), seed + k, 0, blend_frames, root + rest_root + offset,
+                            root_velocity, angles, rates))
         clip.append(np.full(length, k + 1, dtype=np.int64))
         offset = offset + root[-1] * np.array([1.0, 0.0, 1.0])
-    motion = Motion("+".join(kinds), float(fps), int(seed), int(settle_frames), int(blend_frames),
+    motion = Motion("+".join(names), float(fps), int(seed), int(settle_frames), int(blend_frames),
                     *(np.concatenate([getattr(p, name) for p in parts])
                       for name in ("root_position", "root_velocity", "joint_angles", "joint_angle_rates")))
-    return ClipSequence(motion, np.concatenate(clip), ("settle", *kinds))
+    return ClipSequence(motion, np.concatenate(clip), ("settle", *names))
+
+
+def _fade(root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray, rates: np.ndarray, w: np.ndarray,
+          dw: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A clip (root relative to the rest root) faded toward rest by weight w (F,) with time derivative dw: angles
+    and the root's height scaled by w, its horizontal velocity too, its horizontal position re-integrated from
+    that velocity (trapezoid rule) from the clip's first frame."""
+    rates = w[:, None, None] * rates + dw[:, None, None] * angles
+    angles = w[:, None, None] * angles
+    root_velocity[:, 1] = w * root_velocity[:, 1] + dw * root[:, 1]
+    root[:, 1] *= w
+    root_velocity[:, [0, 2]] *= w[:, None]
+    steps = 0.5 * (root_velocity[1:, [0, 2]] + root_velocity[:-1, [0, 2]]) / fps
+    root[:, [0, 2]] = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return root, root_velocity, angles, rates

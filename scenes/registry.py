@@ -1,23 +1,40 @@
-"""Scene assembly: resolved settings (pipeline.config) -> one typed `Scene`, made by the builder registered for
-the settings' `mesh.generator`. A new scene kind (the hand) is one builder module and one entry here."""
+"""Scene assembly: resolved settings (pipeline.config) -> the typed parts of a scene (scenes.scene), made by the
+builders registered for the settings' `mesh.generator`: what every sequence shares (`build_rest`) and one
+sequence (`build_scene`). A new scene kind (the hand) is one builder module and one entry here."""
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 from geometry.mesh import validate_mesh
-from scenes.garment_scene import garment_scene
-from scenes.grid_scene import grid_scene
-from scenes.scene import Scene
-
-SCENE_BUILDERS: dict[str, Callable[[dict], Scene]] = {"grid": grid_scene, "garment": garment_scene}
+from scenes.garment_scene import garment_rest, garment_scene
+from scenes.grid_scene import grid_rest, grid_scene
+from scenes.scene import Scene, SceneRest
 
 
-def build_scene(settings: dict) -> Scene:
-    """The scene the settings describe, its rest mesh checked to be simulation-ready. Raises ValueError for
+class SceneKind(NamedTuple):
+    rest: Callable[[dict], SceneRest]                    # settings -> what every sequence shares
+    sequence: Callable[[dict, SceneRest, str], Scene]    # settings, rest, sequence name -> that sequence
+
+
+SCENE_KINDS: dict[str, SceneKind] = {"grid": SceneKind(grid_rest, grid_scene),
+                                     "garment": SceneKind(garment_rest, garment_scene)}
+
+
+def build_rest(settings: dict) -> SceneRest:
+    """What every sequence of the scene shares, its rest mesh checked to be simulation-ready. Raises ValueError for
     settings no builder can realise (the scene stage names the scene in its error)."""
+    rest = _kind(settings).rest(settings)
+    validate_mesh(rest.vertices, rest.faces)
+    return rest
+
+
+def build_scene(settings: dict, sequence: str) -> Scene:
+    """Sequence `sequence` (scenes.sequences) of the scene; ValueError as build_rest."""
+    return _kind(settings).sequence(settings, build_rest(settings), sequence)
+
+
+def _kind(settings: dict) -> SceneKind:
     generator = settings["mesh"]["generator"]
-    if generator not in SCENE_BUILDERS:
-        raise ValueError(f"unknown mesh generator '{generator}'; choose one of {', '.join(SCENE_BUILDERS)}")
-    scene = SCENE_BUILDERS[generator](settings)
-    validate_mesh(scene.rest_vertices, scene.rest_faces)
-    return scene
+    if generator not in SCENE_KINDS:
+        raise ValueError(f"unknown mesh generator '{generator}'; choose one of {', '.join(SCENE_KINDS)}")
+    return SCENE_KINDS[generator]

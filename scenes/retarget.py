@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from scenes.bvh import BvhClip, world_transforms
 from scenes.kinematics import rest_transforms
-from scenes.motion import GROUND_SMOOTHING, Motion, _ground_lift, soft_limit
+from scenes.motion import Motion, ground_lift, soft_limit
 from scenes.skeleton import Skeleton
 
 # Source joint names per mannequin part (side suffix dropped), first match wins; compared case-insensitively
@@ -96,8 +96,7 @@ def retarget(clip: BvhClip, skel: Skeleton, fps: float, start: float | None = No
     joint_angles, joint_angle_rates = smooth["angles"](t), smooth["angles"].derivative()(t)
     root_position = skel.joint_offsets[0] + smooth["travel"](t) - smooth["travel"](start)
     root_velocity = smooth["travel"].derivative()(t)
-    lift, lift_rate = (gaussian_filter1d(x, GROUND_SMOOTHING * fps, mode="nearest")
-                       for x in _ground_lift(skel, root_position, root_velocity, joint_angles, joint_angle_rates))
+    lift, lift_rate = ground_lift(skel, root_position, root_velocity, joint_angles, joint_angle_rates, fps)
     root_position[:, 1] += lift
     root_velocity[:, 1] += lift_rate
     return Motion(kind=kind, fps=float(fps), seed=0, settle_frames=0, blend_frames=0,

@@ -1,9 +1,12 @@
-"""One scene as a typed object: the cloth's rest mesh, its pinned vertices and what moves them, for every frame.
+"""One scene as typed objects: what every sequence of a scene shares (the cloth's rest mesh, which vertices are
+pinned to which rigid group, the mannequin's skeleton and the garment's skinning), and one sequence: the pins'
+targets and what moves them, for every frame.
 
 Every scene has a rest mesh and pins; each scene kind adds its own driver: a grid scene the rigid rod its pins
-hang from, a garment scene the animated mannequin. `scenes.registry.build_scene` makes one from resolved
-settings; the scene stage writes it to scene.h5 (docs/artifacts.md). Arrays keep their natural precision here
-(float64 positions, int64 indices); the artifact writer chooses the stored dtypes.
+hang from, a garment scene the animated mannequin. `scenes.registry` makes them from resolved settings
+(`build_rest`, and `build_scene` for one sequence, scenes.sequences); the scene stage writes them to scene.h5
+(docs/artifacts.md). Arrays keep their natural precision here (float64 positions, int64 indices); the artifact
+writer chooses the stored dtypes.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scenes.motion import BodyState, ClipSequence
+from scenes.program import ProgramClip
 from scenes.skeleton import Skeleton
 
 
@@ -46,25 +50,36 @@ class PosedCapsules:
 
 @dataclass(frozen=True, eq=False)
 class Mannequin:
-    """The animated mannequin a garment scene's cloth is worn by, and what the learning stages derive from it."""
-    skeleton: Skeleton
+    """The animated mannequin a garment scene's cloth is worn by in one sequence, and what the learning stages
+    derive from it."""
     clips: ClipSequence            # the motion played, and which clip each frame belongs to
+    program: tuple[ProgramClip, ...]   # how a training sequence's clips were drawn (scenes.program); () otherwise
     state: BodyState               # world transforms and velocities of every part per frame
     capsules: PosedCapsules
     pose: np.ndarray               # (N, 13 P) Pose to Cloth input per frame (scenes.motion.pose_vectors)
     torso_transforms: np.ndarray   # (N, 4, 4) world-from-torso rigid transform per frame
-    skinning_influences: np.ndarray  # (V, K) int64 parts each rest vertex is skinned to
-    skinning_weights: np.ndarray     # (V, K) float64, rows sum to 1
+
+
+@dataclass(frozen=True, eq=False)
+class SceneRest:
+    """What every sequence of a scene shares; `generator` names the kind (the registry's key)."""
+    name: str
+    generator: str
+    vertices: np.ndarray           # (V, 3) float64 rest mesh
+    faces: np.ndarray              # (F, 3) int64
+    pin_ids: np.ndarray            # (P,) int64 pinned vertex ids; empty when physics.pins is off
+    pin_part: np.ndarray           # (P,) int64 rigid group each pin follows (a body part, or 0: the rod)
+    skeleton: Skeleton | None = None               # garment scenes: the mannequin
+    skinning_influences: np.ndarray | None = None  # garment scenes: (V, K) int64 parts each rest vertex follows
+    skinning_weights: np.ndarray | None = None     # (V, K) float64, rows sum to 1
 
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """A scene of `n_frames` frames at time step `dt`; `generator` names the kind (the registry's key)."""
-    name: str
-    generator: str
+    """One sequence (scenes.sequences) of a scene: `n_frames` frames at time step `dt`."""
+    rest: SceneRest
+    sequence: str                  # its name, e.g. train_000
     dt: float
-    rest_vertices: np.ndarray      # (V, 3) float64
-    rest_faces: np.ndarray         # (F, 3) int64
     pins: Pins
     rod: RodDriver | None = None          # grid scenes
     mannequin: Mannequin | None = None    # garment scenes

@@ -1,32 +1,31 @@
-"""dataset.h5, written by the `dataset` stage: the cloth-upsampling learning problem (paper Table 2) and its
-train/test/held-out split (docs/artifacts.md, section "dataset.h5"); read back by `train` and `evaluate`."""
+"""dataset.h5, written by the `dataset` stage: the cloth-upsampling learning problem (paper Table 2) over the
+frames of a scene's sequences, which sequence each frame comes from, the mannequin of each frame (garment scenes),
+and the train/test/held-out split (docs/artifacts.md, section "dataset.h5"); read back by `train` and `evaluate`.
+
+The writer takes the sequences one at a time, so the stage holds one sequence in memory, not the whole dataset.
+"""
 from __future__ import annotations
 
 import dataclasses
 import hashlib
 import os
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_indices
+from pipeline.artifacts.scene import MannequinFrames
 from pipeline.errors import PipelineError
 
 STAGE = "dataset"
-SPLIT_MEANING = ("train: frames trained on; test: a seeded random share of the other frames of the same motions; "
-                 "held_out: every frame of the clips named in attr held_out_clips (unseen motion; may be empty)")
-
-
-@dataclasses.dataclass(frozen=True)
-class UpsamplingProblem:
-    """Input (= predictor) and target of every frame, in the dataset's reference frame, with the meshes."""
-
-    inputs: np.ndarray           # (F, V_high, 3) float32, Loop-subdivided low-res positions S x_low
-    targets: np.ndarray          # (F, V_high, 3) float32, displacements x_high - S x_low
-    faces: np.ndarray            # (T_high, 3) high-res faces
-    rest_vertices: np.ndarray    # (V_high, 3) float64 subdivided rest mesh
-    low_positions: np.ndarray    # (F, V_low, 3) float32
-    low_faces: np.ndarray        # (T_low, 3)
+INPUT, TARGET, PREDICTOR = "input", "target", "predictor"
+FACES, REST_VERTICES, LOW_POSITIONS, LOW_FACES = "faces", "rest_vertices", "low/positions", "low/faces"
+SEQUENCE, SEQUENCE_FRAME = "sequence", "sequence_frame"
+SEQUENCE_NAMES, SEQUENCE_ROLES, SEQUENCE_CLIPS = "sequences/names", "sequences/role", "sequences/clips"
+SPLIT, SPLIT_TRAIN, SPLIT_TEST, SPLIT_HELD_OUT = "split", "split/train", "split/test", "split/held_out"
+SPLIT_MEANING = ("train: frames trained on; test: a seeded random share of the training sequences' frames; "
+                 "held_out: every frame of the held-out sequences (unseen motion, the clips named in attr "
+                 "held_out_clips; may be empty)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,29 +34,90 @@ class Split:
 
     train: np.ndarray
     test: np.ndarray
-    held_out: np.ndarray         # every frame of the clips `held_out_clips` (may be empty)
+    held_out: np.ndarray         # every frame of the held-out sequences (may be empty)
     held_out_clips: tuple[str, ...]
 
 
-def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], problem: UpsamplingProblem, split: Split,
-                  frame: str, seed: int, test_fraction: float) -> None:
+@dataclasses.dataclass(frozen=True)
+class DatasetLayout:
+    """What the dataset holds, known before any sequence's frames are read: meshes, where each frame comes from,
+    the split, and how the positions were made."""
+
+    faces: np.ndarray            # (T_high, 3) high-res faces
+    rest_vertices: np.ndarray    # (V_high, 3) float64 subdivided rest mesh
+    low_faces: np.ndarray        # (T_low, 3)
+    n_low_vertices: int
+    sequence: np.ndarray         # (F,) index into `names` of each frame's sequence
+    sequence_frame: np.ndarray   # (F,) the frame's index within its sequence (its scene.h5 and sim files)
+    names: tuple[str, ...]       # sequence names, in dataset order
+    roles: tuple[str, ...]       # train or held_out, per sequence
+    clips: tuple[str, ...]       # comma-separated clips each sequence plays ("" without a mannequin)
+    split: Split
+    frame: str                   # reference frame of the positions: world or torso
+    seed: int                    # of the split
+    test_fraction: float
+
+
+@dataclasses.dataclass(frozen=True)
+class SequenceFrames:
+    """One sequence's frames of the dataset, in its reference frame, and its mannequin as scene.h5 stores it."""
+
+    inputs: np.ndarray           # (n, V_high, 3) Loop-subdivided low-res positions S x_low
+    targets: np.ndarray          # (n, V_high, 3) displacements x_high - S x_low
+    low_positions: np.ndarray    # (n, V_low, 3)
+    mannequin: MannequinFrames | None   # garment scenes (pipeline.artifacts.scene.read_mannequin_frames)
+
+
+def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: DatasetLayout,
+                  sequences: Iterable[SequenceFrames]) -> None:
+    """Write the dataset, filling the frames of `sequences` (in layout order, read one at a time) in turn."""
+    n_frames, n_vertices = len(layout.sequence), len(layout.rest_vertices)
     with atomic_h5(path, STAGE, config) as f:
-        f.create_dataset("input", data=problem.inputs.astype(np.float32))
-        f.create_dataset("target", data=problem.targets.astype(np.float32))
-        f.create_dataset("faces", data=problem.faces.astype(np.int32))
-        f.create_dataset("rest_vertices", data=problem.rest_vertices.astype(np.float64))
-        f.create_dataset("low/positions", data=problem.low_positions.astype(np.float32))
-        f.create_dataset("low/faces", data=problem.low_faces.astype(np.int32))
-        f["predictor"] = f["input"]          # a hard link: Table 2's predictor is the input itself
-        f.create_dataset("split/train", data=split.train.astype(np.int64))
-        f.create_dataset("split/test", data=split.test.astype(np.int64))
-        f.create_dataset("split/held_out", data=split.held_out.astype(np.int64))
-        f["split"].attrs["meaning"] = SPLIT_MEANING
-        f["split"].attrs["held_out_clips"] = ",".join(split.held_out_clips)
-        f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=frame, n_frames=len(problem.inputs),
-                       n_vertices=problem.inputs.shape[1], split_seed=seed, test_fraction=test_fraction)
-        f["input"].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
-        f["target"].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
+        inputs = f.create_dataset(INPUT, (n_frames, n_vertices, 3), np.float32)
+        targets = f.create_dataset(TARGET, (n_frames, n_vertices, 3), np.float32)
+        low = f.create_dataset(LOW_POSITIONS, (n_frames, layout.n_low_vertices, 3), np.float32)
+        f[PREDICTOR] = f[INPUT]          # a hard link: Table 2's predictor is the input itself
+        start = 0
+        for part in sequences:
+            rows = slice(start, start + len(part.inputs))
+            inputs[rows], targets[rows], low[rows] = part.inputs, part.targets, part.low_positions
+            if part.mannequin is not None:
+                _write_mannequin(f, part.mannequin, rows, n_frames)
+            start = rows.stop
+        if start != n_frames:
+            raise PipelineError(f"{path}: the sequences gave {start} frames, the layout says {n_frames}")
+        f.create_dataset(FACES, data=layout.faces.astype(np.int32))
+        f.create_dataset(REST_VERTICES, data=layout.rest_vertices.astype(np.float64))
+        f.create_dataset(LOW_FACES, data=layout.low_faces.astype(np.int32))
+        f.create_dataset(SEQUENCE, data=layout.sequence.astype(np.int32))
+        f.create_dataset(SEQUENCE_FRAME, data=layout.sequence_frame.astype(np.int64))
+        for name, values in ((SEQUENCE_NAMES, layout.names), (SEQUENCE_ROLES, layout.roles),
+                             (SEQUENCE_CLIPS, layout.clips)):
+            f.create_dataset(name, data=np.array(values, dtype="S"))
+        split = layout.split
+        for name, ids in ((SPLIT_TRAIN, split.train), (SPLIT_TEST, split.test), (SPLIT_HELD_OUT, split.held_out)):
+            f.create_dataset(name, data=np.asarray(ids, dtype=np.int64))
+        f[SPLIT].attrs.update(meaning=SPLIT_MEANING, held_out_clips=",".join(split.held_out_clips))
+        f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=layout.frame, n_frames=n_frames,
+                       n_vertices=n_vertices, n_sequences=len(layout.names), split_seed=layout.seed,
+                       test_fraction=layout.test_fraction)
+        f[INPUT].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
+        f[TARGET].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
+        f[SEQUENCE].attrs["meaning"] = ("index into sequences/names of each frame's sequence; frame f - 1 is the "
+                                        "frame before f in time when both have the same sequence id")
+
+
+def _write_mannequin(f, mannequin: MannequinFrames, rows: slice, n_frames: int) -> None:
+    """One sequence's mannequin, under scene.h5's names: per-frame rows, and the constants once."""
+    for name, data in mannequin.per_frame.items():
+        if name not in f:
+            f.create_dataset(name, (n_frames, *data.shape[1:]), data.dtype)
+        f[name][rows] = data
+    for name, data in mannequin.constant.items():
+        if name not in f:
+            f.create_dataset(name, data=data)
+    for name, values in mannequin.attrs.items():
+        f[name].attrs.update(values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +131,7 @@ class LearningData:
     test: np.ndarray
     fingerprint: str
     held_out: np.ndarray   # frames of motions never trained on (may be empty)
+    sequence: np.ndarray   # (F,) int64 sequence id of each frame: frame f - 1 precedes f if their ids agree
     frame: str = "world"   # reference frame of the positions
     held_out_clips: str = ""   # comma-separated motion clips of `held_out`
 
@@ -82,25 +143,32 @@ class LearningData:
 
 def load_dataset(path: str | os.PathLike) -> LearningData:
     with open_artifact(path) as f:
-        inputs, targets = read(f, "input", np.float32), read(f, "target", np.float32)
-        faces = read(f, "faces", np.int64)
-        train, test = read(f, "split/train", np.int64), read(f, "split/test", np.int64)
-        held_out = read(f, "split/held_out", np.int64) if "split/held_out" in f else np.zeros(0, np.int64)
+        inputs, targets = read(f, INPUT, np.float32), read(f, TARGET, np.float32)
+        if inputs.shape != targets.shape or inputs.ndim != 3:
+            raise PipelineError(f"{path}: '{INPUT}' {inputs.shape} and '{TARGET}' {targets.shape} must both be "
+                                f"(F, V, 3)")
+        n_frames = len(inputs)
+        faces = read_indices(f, FACES, inputs.shape[1], shape=(None, 3))
+        train, test = (read_indices(f, name, n_frames, shape=(None,)) for name in (SPLIT_TRAIN, SPLIT_TEST))
+        held_out = read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))
+        # A dataset without sequence ids (made by hand) is one sequence.
+        sequence = (read_indices(f, SEQUENCE, len(f[SEQUENCE_NAMES]), shape=(n_frames,)) if SEQUENCE in f
+                    else np.zeros(n_frames, np.int64))
         frame = str(f.attrs.get("frame", "world"))
-        held_out_clips = str(f["split"].attrs.get("held_out_clips", ""))
-    if inputs.shape != targets.shape or inputs.ndim != 3:
-        raise PipelineError(f"{path}: 'input' {inputs.shape} and 'target' {targets.shape} must both be (F, V, 3)")
+        held_out_clips = str(f[SPLIT].attrs.get("held_out_clips", ""))
     every = np.concatenate([train, test, held_out])
-    if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every) or every.max() >= len(inputs):
-        raise PipelineError(f"{path}: 'split/train', 'split/test' (and 'split/held_out') must be disjoint frame ids, "
-                            f"train and test non-empty")
+    if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every):
+        raise PipelineError(f"{path}: '{SPLIT_TRAIN}', '{SPLIT_TEST}' (and '{SPLIT_HELD_OUT}') must be disjoint "
+                            f"frame ids, train and test non-empty")
     digest = hashlib.sha256(inputs.tobytes())
     digest.update(targets.tobytes())
     digest.update(train.tobytes())
-    return LearningData(inputs, targets, faces, train, test, digest.hexdigest(), held_out, frame, held_out_clips)
+    return LearningData(inputs, targets, faces, train, test, digest.hexdigest(), held_out, sequence, frame,
+                        held_out_clips)
 
 
 def read_low_res(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """The low-res positions (F, V_low, 3) float64 and faces int64 the dataset was made from."""
     with open_artifact(path) as f:
-        return read(f, "low/positions", np.float64), read(f, "low/faces", np.int64)
+        positions = read(f, LOW_POSITIONS, np.float64)
+        return positions, read_indices(f, LOW_FACES, positions.shape[1], shape=(None, 3))

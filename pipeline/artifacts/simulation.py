@@ -9,6 +9,7 @@ from typing import Any, Literal, Mapping
 import numpy as np
 
 from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.errors import PipelineError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +44,7 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
         f.create_dataset("pins/ids", data=run.pin_ids.astype(np.int64))
         f.create_dataset("solve_ms", data=run.solve_ms.astype(np.float64))
         f["solve_ms"].attrs["meaning"] = "wall time of each frame's solve in ms (frame 0: initial state, 0)"
-        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=settings["frames"])
+        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=len(run.positions))
         if run.harmonic_residual is not None:
             f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
             f["harmonic_residual"].attrs["meaning"] = "|B^T M (x_high - S x_low)| / |B^T M x_high| per frame"
@@ -53,3 +54,11 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
 def read_trajectory(path: str | os.PathLike) -> Trajectory:
     with open_artifact(path) as f:
         return Trajectory(read(f, "positions", np.float64), read(f, "faces", np.int64))
+
+
+def read_run_outline(path: str | os.PathLike) -> tuple[int, np.ndarray]:
+    """The number of frames of a run and its faces (T, 3) int64, without reading its positions."""
+    with open_artifact(path) as f:
+        if "positions" not in f or f["positions"].ndim != 3:
+            raise PipelineError(f"{path}: missing dataset 'positions' (F, V, 3)")
+        return f["positions"].shape[0], read(f, "faces", np.int64)

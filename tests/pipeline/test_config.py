@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from pipeline.cli import parse_with_settings
-from pipeline.config import deep_merge, load_config, resolve_scene, validate_config, write_settings
+from pipeline.config import deep_merge, load_config, resolve_scene, shared_settings, validate_config, write_settings
 from pipeline.errors import PipelineError
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
@@ -95,14 +95,57 @@ def test_garment_scene_needs_no_grid_keys_and_refuses_them():
     ("flag", {"physics": {"body_collision": True}}, "need a mannequin"),
     ("flag", {"dataset": {"split": "held_out"}}, "needs mannequin clips"),
     ("pants", {"network": {"conv": "EC13"}}, "network.conv 'EC13' is not among operators.conv"),
-    ("pants", {"drivers": {"mannequin": {"test_clips": ["karate", "dance", "walk"]}}}, "some, but not all"),
-    ("pants", {"drivers": {"mannequin": {"test_clips": ["random"]}}}, "some, but not all"),
+    ("pants", {"drivers": {"mannequin": {"test_clips": ["karate", "dance", "walk", "random"]}}}, "are all held out"),
+    ("pants", {"drivers": {"mannequin": {"test_clips": []}}}, "needs drivers.mannequin.test_clips"),
+    ("pants", {"drivers": {"mannequin": {"test_clips": [{"bvh": "a.bvh", "start": 2, "end": 1.5}]}}},
+     "BVH clip a.bvh: start 2 must come before end 1.5"),
+    ("flag", {"sequences": 2}, "a grid scene has one sequence"),
 ])
 def test_inconsistent_settings_are_named(scene, change, message):
     config = copy.deepcopy(CONFIG)
     config["scenes"][scene] = deep_merge(config["scenes"][scene], change)
     with pytest.raises(PipelineError, match=message):
         resolve_scene(config, scene, "paper")
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"start": 1.0}, "missing key 'bvh'"),
+    ({"bvh": "a.bvh", "stop": 1.0}, "unknown key 'stop'"),
+    ({"bvh": "a.bvh", "start": -1.0}, "test_clips.0"),
+    ("moonwalk", r"test_clips.0: 'moonwalk' is not a procedural motion kind \(rest, walk"),
+])
+def test_a_bad_clip_entry_is_named(entry, message):
+    config = copy.deepcopy(CONFIG)
+    config["scenes"]["pants"]["drivers"]["mannequin"]["test_clips"] = [entry]
+    with pytest.raises(PipelineError, match=message):
+        validate_config(config, "cfg.yaml")
+
+
+def test_clips_may_be_bvh_windows_and_held_out_clips_need_not_be_trained_clips():
+    config = copy.deepcopy(CONFIG)
+    config["scenes"]["pants"]["drivers"]["mannequin"].update(
+        clips=["dance", {"bvh": "mocap/a.bvh"}], test_clips=[{"bvh": "mocap/walk.bvh", "start": 4.5, "end": 7}])
+    settings = resolve_scene(config, "pants", "cpu")
+    assert settings["drivers"]["mannequin"]["test_clips"] == [{"bvh": "mocap/walk.bvh", "start": 4.5, "end": 7}]
+
+
+def test_settings_json_holds_no_sequence_count():
+    """Raising the number of sequences must leave settings.json, the input of every artifact, as it was."""
+    config = copy.deepcopy(CONFIG)
+    few = resolve_scene(config, "pants", "cpu")
+    config["profiles"]["cpu"]["scenes"]["pants"]["sequences"] = 17
+    many = resolve_scene(config, "pants", "cpu")
+    assert (few["sequences"], many["sequences"]) != (17, 17) and many["sequences"] == 17
+    assert shared_settings(few) == shared_settings(many) and "sequences" not in shared_settings(many)
+
+
+def test_cli_writes_the_shared_settings_and_names_the_sequences(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "pipeline.config", "workflow_config.yaml", "pants",
+                          str(tmp_path / "s.json")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    cpu = resolve_scene(CONFIG, "pants", "cpu")
+    assert run.stdout.split() == [f"train_{i:03d}" for i in range(cpu["sequences"])] + ["held_out_000"]
+    assert "sequences" not in (tmp_path / "s.json").read_text()
 
 
 def _stage_parser() -> argparse.ArgumentParser:

@@ -55,6 +55,17 @@ def write_simulation(folder: Path, n: int = 5, transform=lambda x, f: x) -> None
         out["faces"] = high_faces.astype(np.int32)
 
 
+def write_sequence_scene(folder: Path, **datasets) -> None:
+    """A sequence's scene.h5 as the dataset stage reads it: which sequence (attrs) and its frame count (pin
+    targets of no pins), plus `datasets`."""
+    with atomic_h5(folder / "scene.h5", "scene") as f:
+        f.attrs.update(sequence="train_000", role="train")
+        f["rest/vertices"] = np.zeros((3, 3))
+        f["pins/targets"] = np.zeros((N_FRAMES, 0, 3))
+        for name, data in datasets.items():
+            f[name] = data
+
+
 def stage(main, *args) -> None:
     cli.run(main, [str(a) for a in args])
 
@@ -64,8 +75,7 @@ def work(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("learning")
     write_simulation(folder)
     stage(operators.main, folder / "subdiv.h5", folder / "operators.h5", "--conv", "RC7", "--levels", "4", "--quiet")
-    stage(dataset.main, folder / "sim_low.h5", folder / "sim_high.h5", folder / "subdiv.h5", folder / "dataset.h5",
-          "--quiet")
+    stage(dataset.main, folder / "subdiv.h5", folder / "dataset.h5", folder, "--quiet")
     return folder
 
 
@@ -102,21 +112,18 @@ def test_torso_frame_removes_a_rigid_motion(work, tmp_path):
     write_simulation(tmp_path, transform=lambda x, f: x @ rotations[f].T + shifts[f])
     transforms = np.tile(np.eye(4), (N_FRAMES, 1, 1))
     transforms[:, :3, :3], transforms[:, :3, 3] = rotations, shifts
-    with atomic_h5(tmp_path / "scene.h5", "scene") as f:
-        f["torso_transforms"] = transforms
-    stage(dataset.main, tmp_path / "sim_low.h5", tmp_path / "sim_high.h5", tmp_path / "subdiv.h5",
-          tmp_path / "dataset.h5", "--frame", "torso", "--scene", tmp_path / "scene.h5", "--quiet")
+    write_sequence_scene(tmp_path, torso_transforms=transforms)
+    stage(dataset.main, tmp_path / "subdiv.h5", tmp_path / "dataset.h5", tmp_path, "--frame", "torso", "--quiet")
     with h5py.File(tmp_path / "dataset.h5") as moved, h5py.File(work / "dataset.h5") as still:
         np.testing.assert_allclose(moved["input"][()], still["input"][()], atol=1e-5)
         np.testing.assert_allclose(moved["target"][()], still["target"][()], atol=1e-5)
 
 
 def test_torso_frame_without_transforms_is_a_clear_error(work, tmp_path, capsys):
-    with atomic_h5(tmp_path / "scene.h5", "scene") as f:
-        f["rest/vertices"] = np.zeros((3, 3))
+    write_simulation(tmp_path)
+    write_sequence_scene(tmp_path)
     with pytest.raises(SystemExit) as exit_info:
-        stage(dataset.main, work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", tmp_path / "d.h5",
-              "--frame", "torso", "--scene", tmp_path / "scene.h5")
+        stage(dataset.main, work / "subdiv.h5", tmp_path / "d.h5", tmp_path, "--frame", "torso")
     assert exit_info.value.code == 2
     assert "torso_transforms" in capsys.readouterr().err and not (tmp_path / "d.h5").exists()
 
@@ -260,8 +267,7 @@ def test_settings_make_the_artifacts_their_flags_make(work, settings, tmp_path):
     dataset_h5, operators_h5, model_pt = tmp_path / "dataset.h5", tmp_path / "operators.h5", tmp_path / "model.pt"
     runs = {
         "operators": (operators.main, [work / "subdiv.h5", operators_h5], operators_h5, None),
-        "dataset": (dataset.main, [work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", dataset_h5],
-                    dataset_h5, None),
+        "dataset": (dataset.main, [work / "subdiv.h5", dataset_h5, work], dataset_h5, None),
         "train": (train.main, [dataset_h5, operators_h5, model_pt, tmp_path / "train.h5"], tmp_path / "train.h5",
                   model_pt),
         "evaluate": (evaluate.main, [dataset_h5, operators_h5, model_pt, tmp_path / "eval.h5",
@@ -284,7 +290,7 @@ def test_settings_make_the_artifacts_their_flags_make(work, settings, tmp_path):
 
 
 def test_a_flag_given_by_hand_overrides_the_settings(work, settings, tmp_path):
-    stage(dataset.main, work / "sim_low.h5", work / "sim_high.h5", work / "subdiv.h5", tmp_path / "dataset.h5",
+    stage(dataset.main, work / "subdiv.h5", tmp_path / "dataset.h5", work,
           "--settings", work / "settings.json", "--seed", "7", "--quiet")
     with h5py.File(tmp_path / "dataset.h5") as f:
         assert f.attrs["split_seed"] == config_of(f)["seed"] == 7

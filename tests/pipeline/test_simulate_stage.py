@@ -22,7 +22,7 @@ def scene_run(request, tmp_path_factory):
     """The scene's low- and high-res runs on the CPU profile, through the stage CLIs."""
     d = tmp_path_factory.mktemp(request.param)
     write_settings(resolve_scene(CONFIG, request.param, "cpu"), d / "settings.json")
-    steps = [("pipeline.scene", d / "settings.json", d / "scene.h5"),
+    steps = [("pipeline.scene", d / "settings.json", d / "scene.h5", "--sequence", "train_000"),
              ("pipeline.subdivide", d / "scene.h5", d / "subdiv.h5", "--quiet"),
              ("pipeline.simulate", "low", d / "settings.json", d / "scene.h5", d / "sim_low.h5", "--quiet"),
              ("pipeline.simulate", "high", d / "settings.json", d / "scene.h5", d / "subdiv.h5", d / "sim_low.h5",
@@ -110,7 +110,7 @@ def _non_manifold(g):
 def test_bad_scene_gives_one_clear_error_and_no_output(tmp_path, edit, message):
     settings = tmp_path / "settings.json"
     write_settings(resolve_scene(CONFIG, "patch", "cpu"), settings)
-    assert stage("pipeline.scene", str(settings), str(tmp_path / "scene.h5")).returncode == 0
+    assert stage("pipeline.scene", str(settings), str(tmp_path / "scene.h5"), "--sequence", "train_000").returncode == 0
     _corrupt_scene(tmp_path / "scene.h5", tmp_path / "bad.h5", edit)
     out = tmp_path / "sim_low.h5"
     run = stage("pipeline.simulate", "low", str(settings), str(tmp_path / "bad.h5"), str(out), "--quiet")

@@ -19,8 +19,9 @@ import yaml
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 CONFIG = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
-STAGES = {"settings", "scene", "subdivide", "simulate_low", "simulate_high", "operators", "dataset", "train",
-          "evaluate"}
+STAGES = {"settings", "scene", "sequence", "subdivide", "simulate_low", "simulate_high", "operators", "dataset",
+          "train", "evaluate"}
+PER_SEQUENCE = {"sequence", "simulate_low", "simulate_high"}          # one job per sequence of the scene
 ON_DEVICE = {"simulate_low", "simulate_high", "train", "evaluate"}   # the jobs that run on the scene's device
 
 
@@ -35,11 +36,12 @@ def tail(run):
 
 
 def planned_jobs(run) -> dict[str, dict[str, str]]:
-    """The jobs of a dry run (`-n -p`): rule name -> its printed fields (log, benchmark, resources, shell...)."""
+    """The jobs of a dry run (`-n -p`): rule name -> its printed fields (log, benchmark, resources, shell...);
+    for a rule with several jobs (one per sequence), those of its last."""
     jobs, current = {}, None
     for line in run.stdout.splitlines():
         if line.startswith("rule "):
-            current = jobs.setdefault(line[len("rule "):].rstrip(":"), {})
+            current = jobs[line[len("rule "):].rstrip(":")] = {}
         elif current is not None and line.startswith("Shell command: "):
             current["shell"] = line[len("Shell command: "):]
         elif current is not None and re.match(r"    \w+: ", line):
@@ -53,7 +55,8 @@ def workdir(tmp_path_factory):
     return tmp_path_factory.mktemp("workflow")
 
 
-PRODUCTS = ("settings.json", "scene.h5", "subdiv.h5", "sim_low.h5", "sim_high.h5", "operators.h5", "dataset.h5",
+PRODUCTS = ("settings.json", "scene.h5", "subdiv.h5", "sequences/train_000/scene.h5",
+            "sequences/train_000/sim_low.h5", "sequences/train_000/sim_high.h5", "operators.h5", "dataset.h5",
             "model.pt", "train.h5", "eval.h5", "report.md")
 
 
@@ -62,7 +65,8 @@ def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir):
     assert run.returncode == 0, tail(run)
     out = workdir / "results" / "patch"
     assert all((out / name).is_file() for name in PRODUCTS), sorted(p.name for p in out.iterdir())
-    with h5py.File(out / "sim_high.h5") as f:
+    assert sorted(p.name for p in (out / "sequences").iterdir()) == ["train_000"]     # a grid has one sequence
+    with h5py.File(out / "sequences" / "train_000" / "sim_high.h5") as f:
         assert f["positions"].shape[0] == 8  # the cpu profile's patch frames
         assert np.all(f["harmonic_residual"][()] < 1e-5)
         assert f.attrs["stage"] == "simulate_high"
@@ -82,11 +86,11 @@ def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir):
     changed = {name for name in PRODUCTS if (out / name).stat().st_mtime_ns != mtimes[name]}
     assert changed == {"eval.h5", "report.md"}
 
-    low = snakemake(workdir, "results/patch/sim_low.h5", "--forcerun", "simulate_low")
+    low = snakemake(workdir, "results/patch/sequences/train_000/sim_low.h5", "--forcerun", "simulate_low")
     assert low.returncode == 0, tail(low)
-    assert "rule simulate_low:" in low.stderr and "rule scene:" not in low.stderr
-    assert (out / "scene.h5").stat().st_mtime_ns == mtimes["scene.h5"]
-    assert (out / "sim_low.h5").stat().st_mtime_ns > mtimes["sim_low.h5"]
+    assert "rule simulate_low:" in low.stderr and "rule scene:" not in low.stderr and "rule sequence:" not in low.stderr
+    assert (out / "sequences/train_000/scene.h5").stat().st_mtime_ns == mtimes["sequences/train_000/scene.h5"]
+    assert (out / "sequences/train_000/sim_low.h5").stat().st_mtime_ns > mtimes["sequences/train_000/sim_low.h5"]
 
 
 def test_bad_config_key_stops_the_workflow_with_its_name(workdir, tmp_path):
@@ -99,30 +103,75 @@ def test_bad_config_key_stops_the_workflow_with_its_name(workdir, tmp_path):
     assert "unknown key 'substepz' in scenes.patch.solver" in run.stdout + run.stderr
 
 
-def test_tiny_garment_scene_runs_end_to_end_with_a_held_out_motion(workdir, tmp_path):
-    """pants on the moving mannequin, shrunk to seconds: body and self collision, torso frame, held-out clip,
-    renders with the body. The default `make run` is the same chain at full CPU-profile size."""
+TINY_FRAMES = 24
+
+
+def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, **mannequin) -> Path:
+    """A config file shrinking pants to seconds: `sequences` training sequences of TINY_FRAMES frames."""
     config = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
     config["profiles"]["cpu"]["scenes"]["pants"] = {
-        "frames": 48, "mesh": {"max_edge": 0.25},
-        "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5}},
+        "frames": TINY_FRAMES, "sequences": sequences, "mesh": {"max_edge": 0.25},
+        "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5, **mannequin}},
         "solver": {"substeps": 2, "iterations": 10}, "high_res": {"subdivision_levels": 1},
         "training": {"epochs": 1}, "evaluation": {"render_frames": 2, "export_frames": 2, "timing_frames": 2}}
-    tiny = tmp_path / "tiny.yaml"
-    tiny.write_text(yaml.safe_dump(config))
-    run = snakemake(workdir, "results/pants/", "--configfile", str(tiny))
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def planned_counts(run) -> dict[str, int]:
+    """Jobs per rule of a dry run, from its job-stats table."""
+    table = run.stdout.split("Job stats:")[1].split("\n\n")[0]
+    return {words[0]: int(words[1]) for words in map(str.split, table.splitlines()[3:]) if len(words) == 2}
+
+
+def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_made_ones(workdir, tmp_path):
+    """pants on the moving mannequin, shrunk to seconds: two training sequences and the held-out walk, each
+    simulated with body and self collision, gathered in the torso frame; renders with the body. The default
+    `make run` is the same chain at full CPU-profile size. A third sequence then costs its own jobs and the
+    learning stages, nothing else."""
+    run = snakemake(workdir, "results/pants/", "--configfile", str(tiny_pants(tmp_path)))
     assert run.returncode == 0, tail(run)
     out = workdir / "results" / "pants"
+    assert sorted(p.name for p in (out / "sequences").iterdir()) == ["held_out_000", "train_000", "train_001"]
     with h5py.File(out / "dataset.h5") as f:
         assert f.attrs["frame"] == "torso" and f["split"].attrs["held_out_clips"] == "walk"
-        assert len(f["split/held_out"]) == 15 and len(f["split/train"]) + len(f["split/test"]) == 33
-    with h5py.File(out / "sim_low.h5") as f, h5py.File(out / "scene.h5") as s:
+        sequence = f["sequence"][()]
+        assert [n.decode() for n in f["sequences/names"][()]] == ["train_000", "train_001", "held_out_000"]
+        assert np.array_equal(f["split/held_out"][()], np.flatnonzero(sequence == 2))
+        assert len(f["split/train"]) + len(f["split/test"]) == np.count_nonzero(sequence < 2)
+        assert np.count_nonzero(sequence == 0) == TINY_FRAMES and "capsules/a" in f
+    with h5py.File(out / "sequences/train_001/sim_low.h5") as f, \
+            h5py.File(out / "sequences/train_001/scene.h5") as s:
         x = f["positions"][()]
         assert np.isfinite(x).all()
         np.testing.assert_allclose(x[:, s["pins/ids"][()]], s["pins/targets"][()], atol=1e-5)
     report = (out / "report.md").read_text()
     assert "held-out L1" in report and "never seen in training" in report
     assert len(list((out / "renders").glob("*.png"))) == 2
+
+    more = snakemake(workdir, "-n", "results/pants/", "--configfile", str(tiny_pants(tmp_path, "more.yaml", 3)))
+    assert more.returncode == 0, tail(more)
+    assert planned_counts(more) == {"sequence": 1, "simulate_low": 1, "simulate_high": 1, "dataset": 1, "train": 1,
+                                    "evaluate": 1, "results/pants/": 1, "total": 7}
+    assert "seq=train_002" in more.stdout
+
+
+def test_a_bvh_clip_is_an_input_of_its_sequence_and_a_missing_one_is_named(tmp_path):
+    bvh = tmp_path / "walk.bvh"
+    bvh.write_text("not parsed by a dry run")
+    config = tiny_pants(tmp_path, test_clips=[{"bvh": str(bvh), "start": 0.5}])
+    run = snakemake(tmp_path, "-n", "-p", "results/pants/", "--configfile", str(config))
+    assert run.returncode == 0, tail(run)
+    inputs = {line.split("output: ")[1]: previous for previous, line in zip(run.stdout.splitlines(),
+                                                                           run.stdout.splitlines()[1:])
+              if line.startswith("    output: ") and line.endswith("/scene.h5")}
+    assert str(bvh) in inputs["results/pants/sequences/held_out_000/scene.h5"]
+    assert str(bvh) not in inputs["results/pants/sequences/train_000/scene.h5"]
+    bvh.unlink()
+    missing = snakemake(tmp_path, "-n", "results/pants/", "--configfile", str(config))
+    assert missing.returncode != 0
+    assert f"{bvh}: BVH file of scene 'pants' does not exist" in missing.stdout + missing.stderr
 
 
 def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_and_resources(tmp_path):
@@ -131,11 +180,12 @@ def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_
     jobs = planned_jobs(run)
     assert set(jobs) == STAGES | {"all"}
     scene = CONFIG["default_scene"]
-    assert all(job["wildcards"] == f"scene={scene}" for name, job in jobs.items() if name != "all")
+    assert all(job["wildcards"].startswith(f"scene={scene}") for name, job in jobs.items() if name != "all")
+    assert jobs["simulate_high"]["wildcards"] == f"scene={scene}, seq=held_out_000"    # the last sequence
     for name in STAGES:
-        job = jobs[name]
-        assert job["log"] == f"results/{scene}/logs/{name}.log"
-        assert job["benchmark"] == f"results/{scene}/benchmarks/{name}.tsv"
+        job, seq = jobs[name], jobs[name]["wildcards"].split("seq=")[-1] + "/" if name in PER_SEQUENCE else ""
+        assert job["log"] == f"results/{scene}/logs/{seq}{name}.log"
+        assert job["benchmark"] == f"results/{scene}/benchmarks/{seq}{name}.tsv"
         assert "mem_mb=" in job["resources"] and "gpu=1" not in job["resources"]   # the cpu profile: no GPU
         assert name == "settings" or job["shell"].endswith(f" 2>&1 | tee {job['log']}")
     assert jobs["train"]["threads"] == jobs["evaluate"]["threads"] == "2"             # --cores 2
@@ -144,7 +194,8 @@ def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_
     assert other.returncode == 0, tail(other)
     jobs = planned_jobs(other)
     assert set(jobs) == STAGES | {"all"}
-    assert all(job["wildcards"] == "scene=patch" for name, job in jobs.items() if name != "all")
+    assert all(job["wildcards"] in ("scene=patch", "scene=patch, seq=train_000")
+               for name, job in jobs.items() if name != "all")
     assert {name for name, job in jobs.items() if "gpu=1" in job.get("resources", "")} == ON_DEVICE
 
 
@@ -161,11 +212,12 @@ def test_no_config_value_reaches_a_shell_command(tmp_path):
     shells = {name: job["shell"] for name, job in planned_jobs(run).items() if job.get("shell", "None") != "None"}
     assert set(shells) == STAGES - {"settings"}
     words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--export", "--threads",
-             "2", "--quiet"}
+             "2", "--quiet", "--sequence", "train_000"}     # the one sequence name of a grid scene
     for name, command in shells.items():
         python, *rest = shlex.split(command)
         assert Path(python).resolve() == Path(sys.executable).resolve()    # Snakemake's own interpreter
-        stage = f"pipeline.{name.removesuffix('_low').removesuffix('_high')}"
+        module = "scene" if name == "sequence" else name.removesuffix("_low").removesuffix("_high")
+        stage = f"pipeline.{module}"
         unexpected = [word for word in rest if word not in words and word != stage
                       and not word.startswith("results/patch/")]
         assert not unexpected, f"{name}: {unexpected} in {command}"

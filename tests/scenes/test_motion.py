@@ -220,3 +220,42 @@ def test_play_clips_refuses_clips_too_short_to_blend():
     from scenes.motion import play_clips
     with pytest.raises(ValueError, match="each needs more than"):
         play_clips(["dance", "walk"], 100, 40, 20, seed=0)
+
+
+@pytest.mark.parametrize("kind", MOVING)
+def test_clip_speed_amplitude_and_phase_rescale_the_raw_curves(kind):
+    """clip_curves(speed s, amplitude a, phase p) at tau is a * (the plain curves at s tau + p), rates times a s,
+    with amplitudes above 1 brought back within the limits."""
+    from scenes.motion import clip_curves
+    tau = np.arange(240) / 60.0
+    plain = clip_curves(kind, SKEL, 4, 1.5 * tau + 0.7)
+    varied = clip_curves(kind, SKEL, 4, tau, speed=1.5, amplitude=0.8, phase=0.7)
+    np.testing.assert_allclose(varied.angles, 0.8 * plain.angles, atol=1e-12)
+    np.testing.assert_allclose(varied.rates, 0.8 * 1.5 * plain.rates, atol=1e-12)
+    np.testing.assert_allclose(varied.travel, 0.8 * 1.5 * plain.travel, atol=1e-12)
+    np.testing.assert_allclose(varied.offset_rate, 0.8 * 1.5 * plain.offset_rate, atol=1e-12)
+    big = clip_curves(kind, SKEL, 4, tau, amplitude=3.0)
+    assert (big.angles >= SKEL.joint_lower).all() and (big.angles <= SKEL.joint_upper).all()
+
+
+def test_play_clips_fades_a_precomputed_motion_in_from_rest_and_out():
+    """A raw Motion entry (as retargeted motion capture gives) keeps its length and name, starts and ends at
+    rest next to procedural clips, and stays C1."""
+    from scenes.motion import play_clips
+    fps, blend = 60.0, 15
+    raw = make_motion("karate", 90, fps, seed=1, settle_frames=0, blend_frames=1, skel=SKEL)
+    raw = type(raw)(**{**raw.__dict__, "kind": "bvh:test", "root_position": raw.root_position + [0.0, 0.0, 0.3]})
+    seq = play_clips(["dance", raw, "walk"], 300, 20, blend, seed=0, fps=fps)
+    m = seq.motion
+    assert seq.names == ("settle", "dance", "bvh:test", "walk") and np.bincount(seq.clip)[2] == 90
+    first, last = np.flatnonzero(seq.clip == 2)[[0, -1]]
+    for frame in (first, last):     # rest at both ends of the precomputed clip
+        assert np.abs(m.joint_angles[frame]).max() < 1e-9 and np.abs(m.joint_angle_rates[frame]).max() < 1e-9
+    middle = (first + last) // 2    # unscaled between its fades
+    np.testing.assert_allclose(m.joint_angles[middle], raw.joint_angles[middle - first], atol=1e-12)
+    fd = np.diff(m.joint_angles, axis=0) * fps
+    assert np.abs(fd - 0.5 * (m.joint_angle_rates[1:] + m.joint_angle_rates[:-1])).max() \
+        < 0.03 * np.abs(m.joint_angle_rates).max()
+    assert np.linalg.norm(np.diff(m.root_position, axis=0), axis=1).max() < 2.0 / fps     # no jump in place
+    with pytest.raises(ValueError, match="the clips take 110"):
+        play_clips([raw], 200, 20, blend, seed=0, fps=fps)

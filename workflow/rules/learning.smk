@@ -14,18 +14,20 @@ rule operators:
         "2>&1 | tee {log:q}"
 
 
+# The dataset gathers every sequence of the scene (their folders, in order).
 rule dataset:
     input:
-        settings=f"{OUT}/settings.json", sim_low=f"{OUT}/sim_low.h5", sim_high=f"{OUT}/sim_high.h5",
-        subdiv=f"{OUT}/subdiv.h5", scene=f"{OUT}/scene.h5",
+        settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", scenes=sequence_files("scene.h5"),
+        sim_low=sequence_files("sim_low.h5"), sim_high=sequence_files("sim_high.h5"),
     output: f"{OUT}/dataset.h5"
+    params: sequences=sequence_folders
     log: log_of("dataset")
     benchmark: benchmark_of("dataset")
     threads: 1
     resources: mem_mb=8000
     shell:
-        "{PY:q} -m pipeline.dataset {input.sim_low:q} {input.sim_high:q} {input.subdiv:q} {output:q} "
-        "--scene {input.scene:q} --settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} "
+        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
 
 
 rule train:
@@ -40,10 +42,12 @@ rule train:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
+# dataset.h5 carries each frame's mannequin under scene.h5's names, so it is also the --scene the renders draw
+# the body from (a garment scene's frames come from many sequences' scene files).
 rule evaluate:
     input:
         settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5",
-        model=f"{OUT}/model.pt", scene=f"{OUT}/scene.h5",
+        model=f"{OUT}/model.pt",
     output:
         eval=f"{OUT}/eval.h5", report=f"{OUT}/report.md",
         renders=directory(f"{OUT}/renders"), export=directory(f"{OUT}/export"),
@@ -53,5 +57,5 @@ rule evaluate:
     resources: mem_mb=8000, gpu=gpus_on_device
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
-        "{output.report:q} --scene {input.scene:q} --renders {output.renders:q} --export {output.export:q} "
+        "{output.report:q} --scene {input.dataset:q} --renders {output.renders:q} --export {output.export:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"

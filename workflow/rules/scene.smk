@@ -1,13 +1,14 @@
-# A scene's resolved settings, its low-res scene (mesh, pins, mannequin) and the subdivided high-res mesh.
-# Stages get only file paths: every value they use comes from settings.json, which is rewritten only when the
-# scene's resolved settings change (the params trigger of `settings`), so a config change reruns exactly the
-# scenes it touches.
+# A scene's resolved settings, what its sequences share (scene.h5: rest mesh, pins, skeleton, skinning), each
+# sequence's scene (the motion and everything it moves) and the subdivided high-res mesh. Stages get only file
+# paths and a sequence name: every value they use comes from settings.json, which is rewritten only when the
+# scene's shared settings change (the params trigger of `settings`), so a config change reruns exactly the scenes
+# it touches, and raising the number of sequences reruns none of the sequences already made.
 from pipeline.config import write_settings
 
 
 rule settings:
     output: f"{OUT}/settings.json"
-    params: settings=lambda w: SETTINGS[w.scene]
+    params: settings=lambda w: shared_settings(SETTINGS[w.scene])
     log: log_of("settings")
     benchmark: benchmark_of("settings")
     localrule: True
@@ -27,6 +28,16 @@ rule scene:
     threads: 1
     resources: mem_mb=2000
     shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} 2>&1 | tee {log:q}"
+
+
+rule sequence:
+    input: settings=f"{OUT}/settings.json", bvh=bvh_files
+    output: f"{SEQ}/scene.h5"
+    log: log_of("sequence", per_sequence=True)
+    benchmark: benchmark_of("sequence", per_sequence=True)
+    threads: 1
+    resources: mem_mb=2000
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} 2>&1 | tee {log:q}"
 
 
 rule subdivide:

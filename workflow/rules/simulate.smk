@@ -1,11 +1,12 @@
-# The XPBD runs on the scene's device: low-res, then high-res held to it by the harmonic constraint.
+# The XPBD runs of each sequence on the scene's device: low-res, then high-res held to it by the harmonic
+# constraint. Sequences are independent jobs: Snakemake runs as many side by side as cores (or GPUs) allow.
 
 
 rule simulate_low:
-    input: settings=f"{OUT}/settings.json", scene=f"{OUT}/scene.h5"
-    output: f"{OUT}/sim_low.h5"
-    log: log_of("simulate_low")
-    benchmark: benchmark_of("simulate_low")
+    input: settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5"
+    output: f"{SEQ}/sim_low.h5"
+    log: log_of("simulate_low", per_sequence=True)
+    benchmark: benchmark_of("simulate_low", per_sequence=True)
     threads: 1
     resources: mem_mb=4000, gpu=gpus_on_device
     shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} 2>&1 | tee {log:q}"
@@ -13,11 +14,11 @@ rule simulate_low:
 
 rule simulate_high:
     input:
-        settings=f"{OUT}/settings.json", scene=f"{OUT}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
-        sim_low=f"{OUT}/sim_low.h5",
-    output: f"{OUT}/sim_high.h5"
-    log: log_of("simulate_high")
-    benchmark: benchmark_of("simulate_high")
+        settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
+        sim_low=f"{SEQ}/sim_low.h5",
+    output: f"{SEQ}/sim_high.h5"
+    log: log_of("simulate_high", per_sequence=True)
+    benchmark: benchmark_of("simulate_high", per_sequence=True)
     threads: 1
     resources: mem_mb=8000, gpu=gpus_on_device
     shell:

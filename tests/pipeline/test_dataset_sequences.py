@@ -1,0 +1,147 @@
+"""The dataset stage gathering a garment scene's sequences: frames in order with their sequence ids, the settle
+period kept once, the split (a random share of the training sequences' frames; every frame of the held-out ones),
+the torso frame per sequence, each frame's mannequin under scene.h5's names, and clear errors."""
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from geometry.loop_subdivision import loop_subdivide
+from geometry.rigid import apply_rigid_inverse
+from pipeline import cli, dataset
+from pipeline.artifacts.dataset import load_dataset
+from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.artifacts.scene import read_body, read_torso_transforms, write_scene
+from pipeline.config import resolve_scene
+from scenes.registry import build_scene
+
+CONFIG = yaml.safe_load(open("workflow_config.yaml"))
+FRAMES, SETTLE = 24, 3
+SEQUENCES = ("train_000", "train_001", "held_out_000")
+
+
+def write_sequence(folder: Path, settings: dict, name: str, S) -> np.ndarray:
+    """A sequence folder: its real scene.h5 and made-up runs (the rest mesh waving, high-res wrinkles on S x_low)
+    that differ per sequence. Returns the low-res positions."""
+    scene = build_scene(settings, name)
+    write_scene(folder / "scene.h5", scene, settings)
+    rest, faces = scene.rest.vertices, scene.rest.faces
+    t = np.arange(scene.n_frames)[:, None, None] + 100 * SEQUENCES.index(name)
+    low = rest + 0.01 * np.sin(0.3 * t + rest[None, :, :1] * 5)
+    high = np.stack([S @ x for x in low]) + 0.002 * np.cos(0.2 * t)
+    high_faces = loop_subdivide(rest, faces, 1)[1]
+    for level, positions, f in (("low", low, faces), ("high", high, high_faces)):
+        with atomic_h5(folder / f"sim_{level}.h5", f"simulate_{level}") as out:
+            out["positions"], out["faces"] = positions.astype(np.float32), f.astype(np.int32)
+    return low
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """Two training sequences and a held-out one of a tiny pants scene, their subdivision, and the dataset."""
+    root = tmp_path_factory.mktemp("sequences")
+    settings = resolve_scene(CONFIG, "pants", "cpu")
+    settings.update(frames=FRAMES)
+    settings["mesh"]["max_edge"] = 0.3
+    settings["drivers"]["mannequin"].update(settle_frames=SETTLE, blend_frames=4)
+    rest = build_scene(settings, "train_000").rest
+    S, high_faces = loop_subdivide(rest.vertices, rest.faces, 1)
+    with atomic_h5(root / "subdiv.h5", "subdivide") as out:
+        write_csr(out, "S", S)
+        out["vertices"], out["faces"] = S @ rest.vertices, high_faces.astype(np.int32)
+    low = {name: write_sequence(root / name, settings, name, S) for name in SEQUENCES}
+    cli.run(dataset.main, [str(root / "subdiv.h5"), str(root / "dataset.h5"), *(str(root / n) for n in SEQUENCES),
+                           "--frame", "torso", "--quiet"])
+    return root, S, low
+
+
+def test_frames_follow_the_sequences_and_keep_the_settle_period_once(scene):
+    root, _, _ = scene
+    with h5py.File(root / "dataset.h5") as f:
+        sequence, frame = f["sequence"][()], f["sequence_frame"][()]
+        assert [n.decode() for n in f["sequences/names"][()]] == list(SEQUENCES)
+        assert [r.decode() for r in f["sequences/role"][()]] == ["train", "train", "held_out"]
+        assert f["sequences/clips"][2].decode() == "walk" and f["split"].attrs["held_out_clips"] == "walk"
+        n_frames = f.attrs["n_frames"]
+    clip = {}
+    for name in SEQUENCES:
+        with h5py.File(root / name / "scene.h5") as s:
+            clip[name] = s["motion/clip"][()]
+    first = {name: int(np.argmax(clip[name] > 0)) for name in SEQUENCES}   # frames before the first clip
+    expected_frames = [np.arange(FRAMES), np.arange(first["train_001"], FRAMES),
+                       np.arange(first["held_out_000"], FRAMES)]
+    np.testing.assert_array_equal(frame, np.concatenate(expected_frames))
+    np.testing.assert_array_equal(sequence, np.repeat([0, 1, 2], [len(f) for f in expected_frames]))
+    assert n_frames == len(sequence) and first["train_001"] >= SETTLE
+
+
+def test_split_shares_the_training_frames_and_holds_out_the_held_out_sequence(scene):
+    root, _, _ = scene
+    data = load_dataset(root / "dataset.h5")
+    held = np.flatnonzero(data.sequence == 2)
+    np.testing.assert_array_equal(data.held_out, held)
+    seen = np.flatnonzero(data.sequence < 2)
+    np.testing.assert_array_equal(np.sort(np.concatenate([data.train, data.test])), seen)
+    assert len(data.test) == round(0.1 * len(seen))
+    assert data.held_out_clips == "walk"
+
+
+def test_inputs_are_each_sequences_runs_in_its_torso_frame(scene):
+    root, S, low = scene
+    data = load_dataset(root / "dataset.h5")
+    with h5py.File(root / "dataset.h5") as f:
+        frames = f["sequence_frame"][()]
+    for k, name in enumerate(SEQUENCES):
+        rows = np.flatnonzero(data.sequence == k)
+        torso = read_torso_transforms(root / name / "scene.h5", FRAMES)[frames[rows]]
+        local = apply_rigid_inverse(torso[:, None], low[name][frames[rows]].astype(np.float32).astype(np.float64))
+        np.testing.assert_allclose(data.inputs[rows], np.stack([S @ x for x in local]), atol=1e-5)
+
+
+def test_each_frame_carries_its_mannequin_under_the_scene_names(scene):
+    root, _, _ = scene
+    with h5py.File(root / "dataset.h5") as f:
+        sequence, frames = f["sequence"][()], f["sequence_frame"][()]
+        capsules, torso, pose = f["capsules/a"][()], f["torso_transforms"][()], f["pose"][()]
+    for k, name in enumerate(SEQUENCES):
+        rows = sequence == k
+        with h5py.File(root / name / "scene.h5") as s:
+            np.testing.assert_array_equal(capsules[rows], s["capsules/a"][()][frames[rows]])
+            np.testing.assert_array_equal(torso[rows], s["torso_transforms"][()][frames[rows]])
+            np.testing.assert_array_equal(pose[rows], s["pose"][()][frames[rows]])
+    # what evaluate reads from a scene file reads the same from the dataset, frame by frame
+    skeleton, state = read_body(root / "dataset.h5")
+    assert skeleton.height == 1.7 and len(state.rotation) == len(sequence)
+    assert read_torso_transforms(root / "dataset.h5", len(sequence)).shape == (len(sequence), 4, 4)
+
+
+def run_dataset(*args) -> None:
+    cli.run(dataset.main, [str(a) for a in args])
+
+
+def test_gathering_errors_name_the_problem(scene, tmp_path, capsys):
+    root, _, _ = scene
+    cases = [
+        ([root / "held_out_000"], "no training sequence"),
+        ([root / "train_000", root / "train_000"], "sequence 'train_000' is given twice"),
+        ([root / "train_000", tmp_path], f"{tmp_path / 'sim_low.h5'}: input file does not exist"),
+    ]
+    for folders, message in cases:
+        with pytest.raises(SystemExit):
+            run_dataset(root / "subdiv.h5", tmp_path / "d.h5", *folders)
+        assert message in capsys.readouterr().err
+    # a sequence folder without its scene cannot give the torso frame
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for name in ("sim_low.h5", "sim_high.h5"):
+        (bare / name).write_bytes((root / "train_001" / name).read_bytes())
+    with pytest.raises(SystemExit):
+        run_dataset(root / "subdiv.h5", tmp_path / "d.h5", root / "train_000", bare, "--frame", "torso")
+    assert f"{bare}: --frame torso needs the sequence's scene.h5" in capsys.readouterr().err
+    # ... and with a mannequin in one sequence but not in the other, the world frame is refused too
+    with pytest.raises(SystemExit):
+        run_dataset(root / "subdiv.h5", tmp_path / "d.h5", root / "train_000", bare)
+    assert "some sequences have a mannequin and some not" in capsys.readouterr().err
+    assert not (tmp_path / "d.h5").exists()
