@@ -3,7 +3,7 @@
 # config's `default_scene`; `results/<scene>/` builds everything a scene has; any artifact path is a target too
 # (e.g. results/patch/sequences/train_000/sim_high.h5), and `--forcerun <rule>` reruns one stage. The rules live
 # in workflow/rules/: common.smk (settings and sequences per scene, paths, input functions), scene.smk,
-# simulate.smk, learning.smk.
+# simulate.smk, learning.smk, study.smk (`results/<scene>/study/`: error against the amount of training motion).
 import os
 
 from snakemake.utils import min_version, validate
@@ -25,6 +25,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/scene.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learning.smk"
+include: "workflow/rules/study.smk"
 
 if config["default_scene"] not in SETTINGS:
     raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "
@@ -43,3 +44,7 @@ for _scene in SETTINGS:
         rule:
             name: _target
             input: scene_products(_scene)
+    for _target in (f"results/{_scene}/study/", f"results/{_scene}/study"):
+        rule:
+            name: _target
+            input: [f"results/{_scene}/study/{name}" for name in ("study.h5", "study.png", "report.md")]

@@ -22,7 +22,7 @@ import torch
 from geometry.loop_subdivision import loop_subdivide
 from meshops import build_operators
 from model.mesh_hierarchy import mesh_hierarchy
-from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.networks import NetworkSpec, build_network
 from scenes.flag_mesh import flag_cloth
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
@@ -130,7 +130,7 @@ def main() -> None:
         for size in sizes:
             conv, width = SIZES[size]
             net = build_network(NetworkSpec(ARCH, conv, "max", width))
-            model = NormalizedRegressor(net, torch.zeros(3), 1.0, 1.0).to(device).eval()
+            model = net.to(device).eval()     # the mesh CNN alone: the input features are not timed here
             mesh = meshes[conv].to(device)
             x_high = subdivide(x_low)[None]
             fns = {"net": lambda: model(x_high, mesh), "full": lambda: model(subdivide(x_low)[None], mesh)}

@@ -1,4 +1,5 @@
-"""Triangle-mesh topology and validation shared by every geometry routine.
+"""Triangle-mesh topology and validation shared by every geometry routine, and the two seam operations: cutting a
+mesh open along edges into panels, and welding duplicated seam vertices back together.
 
 All functions take plain arrays: `vertices` (V, 3) float and `faces` (F, 3) int with counter-clockwise
 orientation (normals point outward / along +y for flat cloth at rest).
@@ -8,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 import scipy.sparse.csgraph
+import scipy.spatial
 
 
 def unique_edges(faces: np.ndarray) -> np.ndarray:
@@ -106,14 +108,21 @@ def validate_mesh(vertices: np.ndarray, faces: np.ndarray) -> None:
 
 
 def _check_vertex_fans(n_vertices: int, faces: np.ndarray) -> None:
-    """Each vertex's incident faces must form one fan, connected through the edges around it.
-
-    Nodes are face corners (vertex, face); two corners of one vertex are joined when their faces share an edge
-    through that vertex. A manifold mesh has exactly one connected group of corners per vertex.
-    """
+    """Each vertex's incident faces must form one fan, connected through the edges around it."""
     edges, sides = edge_faces(faces)
-    interior = sides[:, 1] >= 0
-    e, f = edges[interior], sides[interior]
+    label = _corner_fans(faces, edges, sides, sides[:, 1] >= 0)
+    groups = np.unique(np.stack([faces.ravel(), label], axis=1), axis=0)
+    fans = np.bincount(groups[:, 0], minlength=n_vertices)
+    bad = fans > 1
+    if bad.any():
+        raise ValueError(f"non-manifold mesh: several surface sheets meet at vertex {int(np.argmax(bad))}")
+
+
+def _corner_fans(faces: np.ndarray, edges: np.ndarray, sides: np.ndarray, joined: np.ndarray) -> np.ndarray:
+    """Label (3F,) of each face corner (vertex, face), numbered 3 * face + corner: two corners of one vertex share
+    a label when their faces are linked, through that vertex, by a chain of `joined` edges (a mask over `edges`,
+    interior edges only). A manifold mesh with every interior edge joined has one label per vertex."""
+    e, f = edges[joined], sides[joined]
     links = []
     for end in (0, 1):
         v = e[:, end]
@@ -122,9 +131,58 @@ def _check_vertex_fans(n_vertices: int, faces: np.ndarray) -> None:
     links = np.concatenate(links)
     n_corners = 3 * len(faces)
     graph = scipy.sparse.coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(n_corners, n_corners))
-    _, label = scipy.sparse.csgraph.connected_components(graph, directed=False)
-    groups = np.unique(np.stack([faces.ravel(), label], axis=1), axis=0)
-    fans = np.bincount(groups[:, 0], minlength=n_vertices)
-    bad = fans > 1
-    if bad.any():
-        raise ValueError(f"non-manifold mesh: several surface sheets meet at vertex {int(np.argmax(bad))}")
+    return scipy.sparse.csgraph.connected_components(graph, directed=False)[1]
+
+
+def cut_along_edges(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cut a validated manifold mesh open along the edges `cut` (C, 2), as an artist's garment is a set of panels
+    whose seam vertices are duplicated: each vertex gets one copy per fan of its faces that stays connected
+    across uncut edges (a panel may meet itself along a cut, like a waistband closed by one seam).
+
+    Returns vertices (V', 3), faces (F, 3) in the same order with the same corners, and `new_to_old` (V',).
+    The copies of a vertex are consecutive, in the order of the vertices they copy, so `weld_vertices` with a
+    tolerance below the shortest edge gives the uncut mesh back exactly. Edges of `cut` that are not interior
+    edges of the mesh change nothing.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n = len(vertices)
+    edges, sides = edge_faces(faces)
+    cut = np.sort(np.asarray(cut, dtype=np.int64).reshape(-1, 2), axis=1)
+    joined = (sides[:, 1] >= 0) & ~np.isin(edges[:, 0] * n + edges[:, 1], cut[:, 0] * n + cut[:, 1])
+    label = _corner_fans(faces, edges, sides, joined)
+    _, first_corner, corner_copy = np.unique(label, return_index=True, return_inverse=True)
+    old = faces.ravel()[first_corner]
+    order = np.lexsort((first_corner, old))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return vertices[old[order]], rank[corner_copy.ravel()].reshape(faces.shape), old[order]
+
+
+def weld_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge vertices closer than `tolerance` (inclusive; chains merge whole, single linkage), as seams are sewn
+    shut: each group becomes its lowest-numbered vertex, at that vertex's position, and the merged vertices keep
+    the order of their first occurrence. Faces that lose a corner to the merge (slivers shorter than the
+    tolerance) are dropped; the others keep their order.
+
+    Returns vertices (V', 3), faces (F', 3) and `old_to_new` (V,). Tolerance 0 merges exact duplicates only.
+    Deterministic: the groups depend only on pairwise distances, not on the order a search finds them in.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"weld tolerance must be finite and >= 0, got {tolerance}")
+    n = len(vertices)
+    pairs = scipy.spatial.cKDTree(vertices).query_pairs(tolerance, output_type="ndarray")
+    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, group = scipy.sparse.csgraph.connected_components(graph, directed=False)
+    # Groups ranked by their lowest vertex, whatever numbering connected_components gives them.
+    first = np.full(group.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, group, np.arange(n))
+    rank = np.argsort(np.argsort(first))
+    old_to_new = rank[group]
+    welded = old_to_new[faces]
+    kept = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])
+    return vertices[np.sort(first)], welded[kept], old_to_new

@@ -85,6 +85,9 @@ def assignment_table(nb: Neighbourhood, samples: np.ndarray) -> np.ndarray:
         rows = slice(bounds[first], bounds[last])
         gap = np.linalg.norm(position[rows, None, :] - samples[owner[rows]], axis=-1)
         cost = quantise(gap / nb.scale)
+        if not np.isfinite(cost).all():  # the neighbourhood's frames and dummies are built to make this impossible
+            v = owner[rows][np.argmax(~np.isfinite(cost).all(axis=1))]
+            raise RuntimeError(f"vertex {v}: non-finite assignment cost (a NaN or infinite sample or candidate)")
         # Costs are integers below 2**53, so adding the penalty keeps them exact and ties reproducible.
         cost += np.where(corner[rows], 0.0, n_samples * cost.max() + 1)[:, None]
         for v in range(first, last):

@@ -18,6 +18,11 @@ DUMMY = -2  # marks the one-ring dummy inside `Neighbourhood.ring`; -1 is paddin
 QUANTUM = 1e-6
 # The paper's assignment candidates: the one-, two- and three-ring of the vertex (plus dummies).
 ASSIGNMENT_RINGS = 3
+# An offset whose projection onto a vertex's tangent plane is shorter than this fraction of the lengths at hand
+# points nowhere in that plane: a seam copy of the vertex itself (a panel meeting itself along a seam within three
+# rings: near the end of a dart, or a cuff closed by one seam once pooling has shrunk it), or a neighbour on the
+# normal line of a sharply folded vertex.
+NO_DIRECTION = 1e-9
 
 
 def quantise(value: np.ndarray) -> np.ndarray:
@@ -94,8 +99,7 @@ def build_neighbourhood(vertices: np.ndarray, faces: np.ndarray, depth: int = AS
                        np.take_along_axis(closed, column, axis=1), -1)
 
     first = vertices[rotated[:, 0]] - vertices
-    tangent = first - np.einsum("nd,nd->n", first, normal)[:, None] * normal
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    tangent, _ = tangent_directions(first, normal, np.linalg.norm(first, axis=1))
     return Neighbourhood(vertices, scale, normal, tangent, np.cross(normal, tangent), rotated, count, ring_dummy,
                          indptr, neighbour, distance, dummy_owner, dummy_ring, dummy_position,
                          int(sources[0]), sources, method)
@@ -139,14 +143,33 @@ def ring_dummies(vertices: np.ndarray, normal: np.ndarray, following: np.ndarray
 
 
 def midway_dummy(centre: np.ndarray, normal: np.ndarray, end_a: np.ndarray, end_b: np.ndarray) -> np.ndarray:
-    """Point midway, in angle counter-clockwise from A to B around the normal and in distance, between the ends."""
+    """Point midway, in angle counter-clockwise from A to B around the normal and in distance, between the ends.
+
+    An end with no direction in the tangent plane (a seam copy of the centre, see NO_DIRECTION) is taken to lie
+    in the other end's direction, as when A = B: the whole turn is missing and the dummy faces the other end.
+    """
     to_a, to_b = end_a - centre, end_b - centre
-    flat_a = to_a - np.einsum("nd,nd->n", to_a, normal)[:, None] * normal
-    flat_b = to_b - np.einsum("nd,nd->n", to_b, normal)[:, None] * normal
-    angle = np.mod(np.arctan2(np.einsum("nd,nd->n", np.cross(flat_a, flat_b), normal),
-                              np.einsum("nd,nd->n", flat_a, flat_b)), 2 * np.pi)
+    distance_a, distance_b = np.linalg.norm(to_a, axis=1), np.linalg.norm(to_b, axis=1)
+    reach = np.maximum(distance_a, distance_b)
+    unit_a, has_a = tangent_directions(to_a, normal, reach)
+    unit_b, has_b = tangent_directions(to_b, normal, reach)
+    unit_a = np.where(has_a[:, None], unit_a, unit_b)
+    unit_b = np.where(has_b[:, None], unit_b, unit_a)
+    angle = np.mod(np.arctan2(np.einsum("nd,nd->n", np.cross(unit_a, unit_b), normal),
+                              np.einsum("nd,nd->n", unit_a, unit_b)), 2 * np.pi)
     angle = np.where(angle <= 1e-12, 2 * np.pi, angle)  # A = B: the whole turn is missing
-    unit_a = flat_a / np.linalg.norm(flat_a, axis=1, keepdims=True)
     direction = np.cos(angle / 2)[:, None] * unit_a + np.sin(angle / 2)[:, None] * np.cross(normal, unit_a)
-    radius = (np.linalg.norm(to_a, axis=1) + np.linalg.norm(to_b, axis=1)) / 2
-    return centre + radius[:, None] * direction
+    return centre + ((distance_a + distance_b) / 2)[:, None] * direction
+
+
+def tangent_directions(offset: np.ndarray, normal: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit projections (N, 3) of `offset` onto the planes perpendicular to the unit `normal`, and a mask (N,) of
+    those that exist: longer than NO_DIRECTION * `length`. The others get a fixed unit vector of the plane (along
+    the coordinate axis least aligned with the normal), so that every frame stays finite and deterministic."""
+    flat = offset - np.einsum("nd,nd->n", offset, normal)[:, None] * normal
+    size = np.linalg.norm(flat, axis=1)
+    defined = size > NO_DIRECTION * length
+    axis = np.eye(3)[np.argmin(np.abs(normal), axis=1)]
+    fixed = axis - np.einsum("nd,nd->n", axis, normal)[:, None] * normal
+    flat = np.where(defined[:, None], flat, fixed)
+    return flat / np.linalg.norm(flat, axis=1, keepdims=True), defined

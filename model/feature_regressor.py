@@ -1,65 +1,117 @@
-"""The upsampling network on feature inputs: what NormalizedRegressor is for absolute positions.
+"""The upsampling network as the stages train, save and run it: input features of a batch of frames, fixed
+normalisations, the mesh CNN, and the displacement back in the dataset's frame.
 
-Features of different kinds have different units (metres, metres per second, unit directions), so each feature is
-centred per channel and scaled by its own RMS over the training frames (one scale per feature, so a vector's
-direction is kept). The network's output is scaled back to scene units and, with `output_frame="local"`, read as
-components along each vertex's local frame of S x_low and turned back into the dataset's frame, so the loss and
-every consumer see ordinary displacements. All constants are buffers: they are saved with the model and add no
-learnable parameters.
+`FeatureSpec` names what the network sees (model.features): the paper's absolute positions, or inputs relative to
+the body and the local surface, which is what lets it meet motions it was never trained on (issue 11, measured in
+docs/performance.md). Features of different kinds have different units (metres, metres per second, unit
+directions), so each feature is centred per channel and scaled by its own RMS over the training frames. The
+network's output is scaled back to scene units and, with `output_frame="local"`, read as components along each
+vertex's local frame of S x_low and turned back into the dataset's frame, so the loss and every consumer see
+ordinary displacements.
 """
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
 import torch
 from torch import nn
 
-from model.features import FrameInputs, InputFeatures
+from model.features import FEATURE_CHANNELS, FrameBatch, FrameStore, InputFeatures, check_features
 from model.local_frames import to_global
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
 
-OUTPUT_FRAMES = ("dataset", "local")
+FRAMES = ("dataset", "local")          # the axes vectors are expressed in: the dataset's, or each vertex's own
+STATISTICS_FRAMES = 512                # training frames the normalisation is measured on (evenly spread)
 
 
-def feature_statistics(features: torch.Tensor, groups: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-channel mean (C,) of training features (F, V, C) and, per channel, the RMS about that mean of the
-    feature (group of `groups` channels) it belongs to; 1 for a feature that never varies."""
-    offset = features.reshape(-1, features.shape[-1]).mean(dim=0)
-    centred = features - offset
+@dataclasses.dataclass(frozen=True)
+class FeatureSpec:
+    """What the network sees and in which axes it answers (stored in model.pt; config `network.*`)."""
+
+    inputs: tuple[str, ...] = ("position",)    # model.features.FEATURE_CHANNELS names, stacked in this order
+    input_frame: str = "dataset"               # vector inputs in the dataset's axes or each vertex's local frame
+    output_frame: str = "dataset"              # the predicted displacement's axes, likewise
+    frame_tangent: str = "edge"                # local frames' tangent (model.local_frames)
+
+    def __post_init__(self):
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+        for name, value in (("input_frame", self.input_frame), ("output_frame", self.output_frame)):
+            if value not in FRAMES:
+                raise ValueError(f"{name} must be one of {', '.join(FRAMES)}, got '{value}'")
+        check_features(self.inputs, self.input_frame == "local", self.frame_tangent)
+
+    @property
+    def channels(self) -> int:
+        return sum(FEATURE_CHANNELS[n] for n in self.inputs)
+
+    def features(self, faces: np.ndarray, rest_positions: np.ndarray) -> InputFeatures:
+        """The input features on a mesh (its faces and subdivided rest positions)."""
+        return InputFeatures(self.inputs, faces, rest_positions, self.input_frame == "local", self.frame_tangent)
+
+
+def store_statistics(features: InputFeatures, store: FrameStore, ids: torch.Tensor,
+                     batch_size: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-channel mean (C,) of the features of the frames `ids` of a store and, per channel, the RMS about that
+    mean of the feature (group of channels) it belongs to, 1 for a feature that never varies: one scale per
+    feature keeps a vector's direction. Measured on at most STATISTICS_FRAMES of the frames (evenly spread), a
+    batch at a time, so that no copy of every frame's features is ever held."""
+    if len(ids) > STATISTICS_FRAMES:
+        ids = ids[torch.linspace(0, len(ids) - 1, STATISTICS_FRAMES).round().long()]
+    with torch.no_grad():
+        batches = [ids[i:i + batch_size] for i in range(0, len(ids), batch_size)]
+        total = sum(features(store.batch(b)).double().sum(dim=(0, 1)) for b in batches)
+        offset = total / (len(ids) * store.positions.shape[1])
+        squares = sum((features(store.batch(b)).double() - offset).square().sum(dim=(0, 1)) for b in batches)
+    per_channel = squares / (len(ids) * store.positions.shape[1])
     scales, start = [], 0
-    for size in groups:
-        rms = centred[..., start:start + size].square().mean().sqrt()
+    for size in features.groups():
+        rms = per_channel[start:start + size].mean().sqrt()
         scales.append(torch.where(rms > 0, rms, torch.ones_like(rms)).expand(size))
         start += size
-    return offset, torch.cat(scales)
+    return offset.float(), torch.cat(scales).float()
 
 
 class FeatureRegressor(nn.Module):
     """features(inputs) → (x - offset) / scale → mesh network → × output_scale → [from local frames]: the
-    predicted displacement x_high - S x_low (B, V, 3) in the dataset's frame."""
+    predicted displacement x_high - S x_low (B, V, 3) in the dataset's frame.
 
-    def __init__(self, net: EncoderDecoder, features: InputFeatures, input_offset: torch.Tensor,
-                 input_scale: torch.Tensor, output_scale: float, output_frame: str = "dataset"):
+    The mesh constants of the features (faces, rest positions) and the normalisation are buffers: saved with the
+    model, moved by `.to(device)`, never learned."""
+
+    def __init__(self, net: EncoderDecoder, spec: FeatureSpec, faces: np.ndarray, rest_positions: np.ndarray,
+                 input_offset: torch.Tensor | None = None, input_scale: torch.Tensor | None = None,
+                 output_scale: float = 1.0):
         super().__init__()
-        if output_frame not in OUTPUT_FRAMES:
-            raise ValueError(f"output_frame must be one of {OUTPUT_FRAMES}, got '{output_frame}'")
-        if net.in_channels != features.channels:
-            raise ValueError(f"the network takes {net.in_channels} input channels, the features "
-                             f"{list(features.names)} give {features.channels}")
-        self.net, self.features, self.output_frame = net, features, output_frame
-        self.register_buffer("input_offset", torch.as_tensor(input_offset, dtype=torch.float32).reshape(-1))
-        self.register_buffer("input_scale", torch.as_tensor(input_scale, dtype=torch.float32).reshape(-1))
+        if net.in_channels != spec.channels:
+            raise ValueError(f"the network takes {net.in_channels} input channels, the inputs "
+                             f"{', '.join(spec.inputs)} give {spec.channels}")
+        self.net, self.spec, self.features = net, spec, spec.features(faces, rest_positions)
+        offset = torch.zeros(spec.channels) if input_offset is None else input_offset
+        scale = torch.ones(spec.channels) if input_scale is None else input_scale
+        self.register_buffer("input_offset", torch.as_tensor(offset, dtype=torch.float32).reshape(-1))
+        self.register_buffer("input_scale", torch.as_tensor(scale, dtype=torch.float32).reshape(-1))
         self.register_buffer("output_scale", torch.tensor(float(output_scale)))
 
-    def encode(self, inputs: FrameInputs) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def normalise(self, store: FrameStore, train_ids: torch.Tensor, train_targets: torch.Tensor) -> None:
+        """Fix the normalisations from the training frames only: the inputs' (store_statistics) and the RMS of
+        the target displacements (rotation-invariant, so the same in local frames)."""
+        offset, scale = store_statistics(self.features, store, train_ids)
+        self.input_offset.copy_(offset)
+        self.input_scale.copy_(scale)
+        self.output_scale.fill_(float(train_targets.double().square().mean().sqrt()) or 1.0)
+
+    def encode(self, inputs: FrameBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The normalised network input (B, V, C) and, for local outputs, the frames (B, V, 3, 3) to restore them
-        with. Neither depends on the weights: training may compute them once per frame and reuse them."""
+        with. Neither depends on the weights: a caller may compute them once per frame and reuse them."""
         x = (self.features(inputs) - self.input_offset) / self.input_scale
-        return x, self.features.frames(inputs) if self.output_frame == "local" else None
+        return x, self.features.frames(inputs) if self.spec.output_frame == "local" else None
 
     def decode(self, x: torch.Tensor, frames: torch.Tensor | None, mesh: MeshHierarchy) -> torch.Tensor:
         """The displacement (B, V, 3) in the dataset's frame from `encode`'s outputs."""
         displacement = self.net(x, mesh) * self.output_scale
         return displacement if frames is None else to_global(frames, displacement)
 
-    def forward(self, inputs: FrameInputs, mesh: MeshHierarchy) -> torch.Tensor:
+    def forward(self, inputs: FrameBatch, mesh: MeshHierarchy) -> torch.Tensor:
         return self.decode(*self.encode(inputs), mesh)

@@ -38,12 +38,13 @@ FEATURE_CHANNELS = {
 VECTOR_CHANNELS = {name: slice(0, 3) for name in ("position", "centered_position", "normal", "laplacian",
                                                    "velocity", "acceleration", "gravity")}
 VECTOR_CHANNELS["body"] = slice(1, 4)
+TANGENTS = ("edge", "gravity")   # how a local frame's tangent is chosen (model.local_frames)
 
 _EPS = 1e-12
 
 
 @dataclasses.dataclass(frozen=True)
-class FrameInputs:
+class FrameBatch:
     """What the features of a batch of frames are computed from, all in the dataset's frame.
 
     `previous` is S x_low at the previous frame of the same sequence (equal to `positions` at a sequence's first
@@ -63,8 +64,8 @@ class FrameInputs:
 
 
 @dataclasses.dataclass(frozen=True)
-class FrameSource:
-    """Every frame of a dataset, from which batches of `FrameInputs` are gathered without copying each frame's
+class FrameStore:
+    """Every frame of a dataset, from which batches of `FrameBatch` are gathered without copying each frame's
     history: `previous` (F,) is the id of each frame's previous frame in its sequence, its own id at a sequence's
     first frame."""
 
@@ -77,9 +78,9 @@ class FrameSource:
     gravity: torch.Tensor          # (F, 3)
     frame_time: float
 
-    def batch(self, ids: torch.Tensor) -> FrameInputs:
+    def batch(self, ids: torch.Tensor) -> FrameBatch:
         previous = self.previous[ids]
-        return FrameInputs(self.positions[ids], self.positions[previous], self.positions[self.previous[previous]],
+        return FrameBatch(self.positions[ids], self.positions[previous], self.positions[self.previous[previous]],
                            self.capsule_a[ids], self.capsule_b[ids], self.radius_a, self.radius_b,
                            self.gravity[ids], self.frame_time)
 
@@ -197,6 +198,18 @@ def reference_neighbours(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return following[first]
 
 
+def check_features(names: tuple[str, ...], local_inputs: bool, frame_tangent: str) -> None:
+    """ValueError unless `names` are distinct feature names (FEATURE_CHANNELS) that can be stacked as asked."""
+    unknown = [n for n in names if n not in FEATURE_CHANNELS]
+    if unknown or not names or len(set(names)) != len(names):
+        raise ValueError(f"inputs must be distinct names among {', '.join(FEATURE_CHANNELS)}; got "
+                         f"{', '.join(map(str, names)) or 'none'}")
+    if frame_tangent not in TANGENTS:
+        raise ValueError(f"frame_tangent must be one of {', '.join(TANGENTS)}, got '{frame_tangent}'")
+    if local_inputs and "normal" in names:
+        raise ValueError("in local frames the normal is (0, 0, 1) at every vertex: drop 'normal' from the inputs")
+
+
 class InputFeatures(nn.Module):
     """The network input (B, V, C) for the named features, stacked in `names` order.
 
@@ -210,13 +223,7 @@ class InputFeatures(nn.Module):
     def __init__(self, names: tuple[str, ...], faces: np.ndarray, rest_positions: np.ndarray,
                  local_inputs: bool = False, frame_tangent: str = "edge"):
         super().__init__()
-        if frame_tangent not in ("edge", "gravity"):
-            raise ValueError(f"frame_tangent must be 'edge' or 'gravity', got '{frame_tangent}'")
-        unknown = [n for n in names if n not in FEATURE_CHANNELS]
-        if unknown or not names or len(set(names)) != len(names):
-            raise ValueError(f"input features must be distinct names from {list(FEATURE_CHANNELS)}, got {names}")
-        if local_inputs and "normal" in names:
-            raise ValueError("in local frames the normal is (0, 0, 1) at every vertex: drop 'normal' from inputs")
+        check_features(names, local_inputs, frame_tangent)
         self.names, self.local_inputs, self.frame_tangent = tuple(names), local_inputs, frame_tangent
         n_vertices = len(rest_positions)
         edges = unique_edges(np.asarray(faces))
@@ -235,13 +242,13 @@ class InputFeatures(nn.Module):
         """Channel count of each feature, in stacking order (normalisation scales each group as one)."""
         return [FEATURE_CHANNELS[n] for n in self.names]
 
-    def frames(self, inputs: FrameInputs) -> torch.Tensor:
+    def frames(self, inputs: FrameBatch) -> torch.Tensor:
         """Local frames (B, V, 3, 3) of S x_low (model.local_frames.vertex_frames)."""
         x = inputs.positions
         hint = inputs.gravity if self.frame_tangent == "gravity" else None
         return vertex_frames(x, vertex_normals(x, self.faces), self.reference, hint)
 
-    def forward(self, inputs: FrameInputs) -> torch.Tensor:
+    def forward(self, inputs: FrameBatch) -> torch.Tensor:
         frames = self.frames(inputs) if self.local_inputs else None
         columns = []
         for name in self.names:
@@ -252,7 +259,7 @@ class InputFeatures(nn.Module):
             columns.append(value)
         return torch.cat(columns, dim=-1)
 
-    def _feature(self, name: str, inputs: FrameInputs) -> torch.Tensor:
+    def _feature(self, name: str, inputs: FrameBatch) -> torch.Tensor:
         x = inputs.positions
         if name == "position":
             return x

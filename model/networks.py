@@ -183,21 +183,6 @@ class Decoder(MeshNetwork):
         return self._run(z, mesh)
 
 
-class NormalizedRegressor(nn.Module):
-    """A mesh network between fixed (non-learnable) normalisations: inputs are centred and scaled to unit RMS,
-    outputs are scaled back to scene units. Keeps the network's numbers O(1) whatever the scene's size."""
-
-    def __init__(self, net: MeshNetwork, input_offset: torch.Tensor, input_scale: float, output_scale: float):
-        super().__init__()
-        self.net = net
-        self.register_buffer("input_offset", torch.as_tensor(input_offset, dtype=torch.float32).reshape(-1))
-        self.register_buffer("input_scale", torch.tensor(float(input_scale)))
-        self.register_buffer("output_scale", torch.tensor(float(output_scale)))
-
-    def forward(self, x: torch.Tensor, mesh: MeshHierarchy) -> torch.Tensor:
-        return self.net((x - self.input_offset) / self.input_scale, mesh) * self.output_scale
-
-
 @dataclasses.dataclass(frozen=True)
 class NetworkSpec:
     """Everything needed to rebuild a network (stored in model.pt). The architecture's letter picks the network:

@@ -18,9 +18,10 @@ from typing import Any, Callable
 
 import torch
 
-from model.mesh_hierarchy import MeshHierarchy
+from model.feature_regressor import FeatureRegressor
+from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
-from model.networks import NormalizedRegressor
+from model.mesh_hierarchy import MeshHierarchy
 
 CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
 TERMS = ("total", "l1", "l2", "normal")
@@ -57,23 +58,24 @@ class CheckpointError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class Frames:
-    """A split of the learning problem on one device: network inputs, target displacements, the mesh faces."""
+    """The learning problem on one device: what the network's inputs are made from (the store's positions are
+    the predictor S x_low), the target displacements, the mesh faces."""
 
-    inputs: torch.Tensor     # (F, V, C)
+    store: FrameStore
     targets: torch.Tensor    # (F, V, 3)
     faces: torch.Tensor      # (n_faces, 3) int64
 
 
-def split_errors(predict: Callable[[torch.Tensor], torch.Tensor], frames: Frames, ids: torch.Tensor,
+def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, ids: torch.Tensor,
                  batch_size: int, weights: LossWeights) -> dict[str, float]:
     """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
-    `predict` maps input positions to predicted displacements. Positions are input + displacement."""
+    `predict` maps a batch of frames to predicted displacements. Positions are S x_low + displacement."""
     sums = dict.fromkeys(("l1", "l2sq", "normal"), 0.0)
     with torch.no_grad():
         for start in range(0, len(ids), batch_size):
             batch = ids[start:start + batch_size]
-            inputs, targets = frames.inputs[batch], frames.targets[batch]
-            predicted, truth = inputs + predict(inputs), inputs + targets
+            inputs = frames.store.batch(batch)
+            predicted, truth = inputs.positions + predict(inputs), inputs.positions + frames.targets[batch]
             sums["l1"] += l1_loss(predicted, truth).item() * len(batch)
             sums["l2sq"] += l2_loss(predicted, truth).item() ** 2 * len(batch)
             sums["normal"] += normal_loss(predicted, truth, frames.faces).item() * len(batch)
@@ -82,7 +84,7 @@ def split_errors(predict: Callable[[torch.Tensor], torch.Tensor], frames: Frames
     return errors
 
 
-def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_ids: torch.Tensor,
+def fit(model: FeatureRegressor, mesh: MeshHierarchy, frames: Frames, train_ids: torch.Tensor,
         test_ids: torch.Tensor, settings: TrainSettings, resume_from: dict[str, Any] | None = None,
         save_checkpoint: Callable[[dict[str, Any]], None] | None = None, identity: dict[str, Any] | None = None,
         on_batch: Callable[[int, float], None] = lambda epoch, loss: None,
@@ -108,8 +110,9 @@ def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_i
         sums = dict.fromkeys(TERMS, 0.0)
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
-            inputs, targets = frames.inputs[batch], frames.targets[batch]
-            loss, terms = total_loss(inputs + model(inputs, mesh), inputs + targets, frames.faces, settings.weights)
+            inputs = frames.store.batch(batch)
+            loss, terms = total_loss(inputs.positions + model(inputs, mesh), inputs.positions + frames.targets[batch],
+                                     frames.faces, settings.weights)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -121,7 +124,7 @@ def fit(model: NormalizedRegressor, mesh: MeshHierarchy, frames: Frames, train_i
         for name in TERMS:
             history.train[name].append(sums[name] / len(order))
         model.eval()
-        test = split_errors(lambda x: model(x, mesh), frames, test_ids, settings.batch_size, settings.weights)
+        test = split_errors(lambda inputs: model(inputs, mesh), frames, test_ids, settings.batch_size, settings.weights)
         for name in TERMS:
             history.test[name].append(test[name])
         history.epoch_seconds.append(time.perf_counter() - start)

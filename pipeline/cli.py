@@ -4,11 +4,12 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
+import re
 import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from pipeline.config import read_settings
+from pipeline.config import load_settings, require_complete_settings
 from pipeline.errors import PipelineError
 
 
@@ -38,20 +39,20 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
     wins (a variant tried without editing the config). Each value is handed to argparse as the text the flag
     would get on a command line (a list comma-joined; None leaves the flag without a value), which argparse
     converts with the flag's own `type`: a setting and the same value typed by hand give the same argument.
-    (argparse does not check `choices` on defaults; the config schema has checked those values.) `settings` is
-    kept out of the returned namespace, so an artifact's recorded config holds the flags' values only.
+    (argparse does not check `choices` on defaults; the config schema has checked those values, as
+    `pipeline.config.read_settings` does, naming first a missing setting this stage reads.) `settings` is kept out
+    of the returned namespace, so an artifact's recorded config holds the flags' values only.
     """
     parser.add_argument("--settings", metavar="SETTINGS.json",
                         help="resolved scene settings (python -m pipeline.config): the defaults of the flags")
     settings_path = settings_of(argv)
     if settings_path is not None:
-        settings = read_settings(settings_path)
+        settings = load_settings(settings_path)
         try:
             defaults = flags_of(settings)
         except KeyError as err:
             raise PipelineError(f"{settings_path}: missing setting {err}") from None
-        except TypeError as err:     # a group that is not a JSON object
-            raise PipelineError(f"{settings_path}: settings of an unexpected shape ({err})") from None
+        require_complete_settings(settings, settings_path)
         parser.set_defaults(**{dest: _as_flag_text(value) for dest, value in defaults.items()})
     args = parser.parse_args(argv)
     del args.settings
@@ -64,6 +65,19 @@ def settings_of(argv: Sequence[str] | None) -> str | None:
     given = argparse.ArgumentParser(add_help=False)
     given.add_argument("--settings")
     return given.parse_known_args(argv)[0].settings
+
+
+def check_device(device: str, library: str, cuda_count: Callable[[], int]) -> None:
+    """Refuse a device that is not `cpu`, `cuda` or `cuda:N`, or a CUDA device beyond the `cuda_count()` that
+    `library` (torch, Warp) sees, before the library itself fails on it with a traceback."""
+    match = re.fullmatch(r"cpu|cuda(?::([0-9]+))?", device)
+    if match is None:
+        raise PipelineError(f"device '{device}' is not cpu, cuda or cuda:N (--device)")
+    if device != "cpu":
+        count = cuda_count()
+        if int(match[1] or 0) >= count:
+            raise PipelineError(f"device '{device}' requested but {library} finds {count} CUDA device(s) "
+                                f"(--device {'cpu' if count == 0 else f'cuda:0 .. cuda:{count - 1}'})")
 
 
 def refuse_aliases(outputs: Mapping[str, str | os.PathLike], inputs: Mapping[str, str | os.PathLike | None]) -> None:

@@ -2,9 +2,12 @@
 
 A scene's settings are `defaults` deep-merged with `scenes.<name>`, after the active profile's overlay has been
 merged over the whole config. The result must hold every key the schema knows, so that each stage reads all
-of its settings from one place (the resolved `settings.json` the Snakefile writes per scene). settings.json
-leaves out the number of sequences: it says how many sequences exist, not how any is made, so raising it changes
-no input of the artifacts already made (scenes/sequences.py names the sequences).
+of its settings from one place (the resolved `settings.json` the Snakefile writes per scene). Every number must be
+finite within float32's range (YAML and Python's JSON both read `.nan`/`NaN`, `.inf`/`Infinity` and 1e400 as
+numbers, and the schema's `minimum` lets NaN through). settings.json may have been edited by hand, so it is
+checked as strictly when it is read: numbers, the schema's types and ranges, no unknown key, every key present.
+settings.json leaves out the number of sequences: it says how many sequences exist, not how any is made, so
+raising it changes no input of the artifacts already made (scenes/sequences.py names the sequences).
 
 CLI: `python -m pipeline.config CONFIG.yaml SCENE OUT.json [--profile P] [--device D]` writes resolved settings
 (as settings.json holds them) and prints the scene's sequence names.
@@ -16,12 +19,12 @@ import copy
 import json
 import os
 import re
-import tempfile
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Collection, Sequence
 
 import yaml
 
+from pipeline.artifacts.h5 import FLOAT32_MAX, atomic_write
 from pipeline.errors import PipelineError
 from scenes.sequences import clip_key, held_out_clips, sequence_names, training_clips
 
@@ -39,19 +42,59 @@ def load_config(path: str | os.PathLike) -> dict:
         raise PipelineError(f"{path}: config file does not exist")
     try:
         config = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError) as err:
+        raise PipelineError(f"{path}: cannot read the config ({err})") from None
     except yaml.YAMLError as err:
-        raise PipelineError(f"{path}: not valid YAML ({err})") from None
+        raise PipelineError(_yaml_error(path, err)) from None
     validate_config(config, str(path))
     return config
 
 
+def _yaml_error(path: Path, err: yaml.YAMLError) -> str:
+    """One line `FILE:LINE:COLUMN: problem` for a YAML error, which PyYAML spreads over several (the offending
+    text and a caret, for the problem and for the construct it interrupted)."""
+    mark = getattr(err, "problem_mark", None)
+    if mark is None:
+        return f"{path}: not valid YAML ({' '.join(str(err).split())})"
+    context, begun = getattr(err, "context", None), getattr(err, "context_mark", None)
+    opened = f" ({context} at {begun.line + 1}:{begun.column + 1})" if context and begun else ""
+    return f"{path}:{mark.line + 1}:{mark.column + 1}: not valid YAML: {err.problem or context}{opened}"
+
+
 def validate_config(config: Any, source: str = "config") -> None:
     """Check `config` against the schema; the first problem becomes one error naming the key."""
+    _validate(config, load_schema(), source)
+
+
+def _validate(document: Any, schema: dict, source: str) -> None:
+    """Every number finite within float32's range, then the schema; the first problem is one error."""
     import jsonschema  # here, not at the top: stages that only read resolved settings do not need it
-    validator = jsonschema.Draft202012Validator(load_schema())
-    error = jsonschema.exceptions.best_match(validator.iter_errors(config))
+    unbounded = _first_unbounded_number(document)
+    if unbounded is not None:
+        where, value = unbounded
+        raise PipelineError(f"{source}: {where}: {value!r} is not a finite number within float32's range")
+    validator = jsonschema.Draft202012Validator(schema)
+    error = jsonschema.exceptions.best_match(validator.iter_errors(document))
     if error is not None:
         raise PipelineError(f"{source}: {_describe(error)}")
+
+
+def _first_unbounded_number(value: Any, where: tuple[str, ...] = ()) -> tuple[str, Any] | None:
+    """The dotted key and value of the first number that is NaN, infinite or beyond float32's range (where the
+    solver and the network compute), or None."""
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, list):
+        items = enumerate(value)
+    else:
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and not abs(value) <= FLOAT32_MAX:
+            return ".".join(where) or "top level", value
+        return None
+    for key, item in items:
+        found = _first_unbounded_number(item, (*where, str(key)))
+        if found is not None:
+            return found
+    return None
 
 
 def _describe(error) -> str:
@@ -95,17 +138,21 @@ def resolve_scene(config: dict, scene: str, profile: str | None = None, device: 
     if scene not in merged["scenes"]:
         raise PipelineError(f"{source}: unknown scene '{scene}' (known: {', '.join(sorted(merged['scenes']))})")
     settings = deep_merge(merged["defaults"], merged["scenes"][scene])
-    _require_complete(settings, load_schema()["$defs"]["scene_settings"], f"scenes.{scene}", source)
+    _require_complete(settings, load_schema()["$defs"]["scene_settings"], f"scenes.{scene}", source,
+                      hint=" (set it there or in defaults)")
     _check_consistent(settings, f"scenes.{scene}", source)
     settings.update(scene=scene, profile=profile, device=device or merged["device"])
     return settings
 
 
-def _require_complete(settings: dict, schema: dict, where: str, source: str) -> None:
+def _require_complete(settings: dict, schema: dict, where: str | None, source: str, hint: str = "",
+                      optional: Collection[str] = ()) -> None:
     """Every key the schema knows must be set, except those `x-required-when` reserves for other cases (a grid
-    scene needs no garment, a garment scene no rod motion); a key of another case is an error, not ignored."""
+    scene needs no garment, a garment scene no rod motion) and, at this level, `optional`; a key of another case
+    is an error, not ignored. `where` names this level in messages (None: the top level); `hint` ends the
+    message of a missing key."""
     conditional = schema.get("x-required-when")
-    needed, foreign = set(schema.get("properties", {})), set()
+    needed, foreign = set(schema.get("properties", {})) - set(optional), set()
     if conditional:
         cases = conditional["cases"]
         case = settings.get(conditional["key"])
@@ -115,15 +162,15 @@ def _require_complete(settings: dict, schema: dict, where: str, source: str) -> 
     if foreign:
         key = sorted(foreign)[0]
         owners = [c for c, keys in conditional["cases"].items() if key in keys]
-        raise PipelineError(f"{source}: key '{key}' in {where} applies only when {conditional['key']} is "
-                            f"{' or '.join(owners)} (here: {settings.get(conditional['key'])})")
+        raise PipelineError(f"{source}: key '{key}' in {where or 'top level'} applies only when "
+                            f"{conditional['key']} is {' or '.join(owners)} (here: {settings.get(conditional['key'])})")
     for key, sub in schema.get("properties", {}).items():
         if key not in needed:
             continue
         if key not in settings:
-            raise PipelineError(f"{source}: missing key '{key}' in {where} (set it there or in defaults)")
+            raise PipelineError(f"{source}: missing key '{key}' in {where or 'top level'}{hint}")
         if sub.get("type") == "object" and "properties" in sub:
-            _require_complete(settings[key], sub, f"{where}.{key}", source)
+            _require_complete(settings[key], sub, f"{where}.{key}" if where else key, source, hint)
 
 
 def _check_consistent(settings: dict, where: str, source: str) -> None:
@@ -138,6 +185,18 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     if settings["network"]["conv"] not in settings["operators"]["conv"]:
         fail(f"network.conv '{settings['network']['conv']}' is not among operators.conv "
              f"{settings['operators']['conv']}")
+    network = settings["network"]
+    if not garment and "body" in network["inputs"]:
+        fail("network.inputs 'body' needs a mannequin (mesh.generator 'garment')")
+    if network["input_frame"] == "local" and "normal" in network["inputs"]:
+        fail("network.inputs 'normal' is (0, 0, 1) everywhere with input_frame local: drop it")
+    if not garment and settings["study"]["sequence_counts"] != [1]:
+        fail("study.sequence_counts: a grid scene has one sequence, so its study can only count [1]")
+    for variant, inputs in settings["study"]["variants"].items():
+        if not garment and "body" in inputs["inputs"]:
+            fail(f"study.variants.{variant}: input 'body' needs a mannequin (mesh.generator 'garment')")
+        if inputs["input_frame"] == "local" and "normal" in inputs["inputs"]:
+            fail(f"study.variants.{variant}: input 'normal' is (0, 0, 1) everywhere with input_frame local")
     if not garment and settings["sequences"] != 1:
         fail(f"sequences {settings['sequences']}: a grid scene has one sequence (its rod's motion)")
     if settings["dataset"]["split"] == "held_out":
@@ -160,34 +219,63 @@ def _names(entries: list) -> str:
     return "[" + ", ".join(clip_key(entry) for entry in entries) + "]"
 
 
+# Read by the workflow only, never by a stage: kept out of settings.json, so that changing them reruns no stage
+# of the scene (more sequences add jobs; the study's grid adds study jobs).
+WORKFLOW_ONLY = ("sequences", "study")
+
+
 def shared_settings(settings: dict) -> dict:
-    """What settings.json holds: the resolved settings without the number of sequences (see the module
-    docstring)."""
-    return {key: value for key, value in settings.items() if key != "sequences"}
+    """What settings.json holds: the resolved settings without what only the workflow reads (WORKFLOW_ONLY)."""
+    return {key: value for key, value in settings.items() if key not in WORKFLOW_ONLY}
 
 
 def write_settings(settings: dict, path: str | os.PathLike) -> None:
-    """Write resolved settings as JSON, atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        json.dump(settings, f, indent=2, sort_keys=True)
-    os.replace(tmp, path)
+    """Write resolved settings as JSON, through the one safe-write helper (pipeline.artifacts.h5.atomic_write)."""
+    with atomic_write(path) as f:
+        f.write(json.dumps(settings, indent=2, sort_keys=True, allow_nan=False).encode())
 
 
 def read_settings(path: str | os.PathLike) -> dict:
-    """Settings written by `write_settings` (the per-scene settings.json)."""
+    """Settings written by `write_settings` (the per-scene settings.json), checked as `resolve_scene` checks a
+    scene's: `load_settings`, then every key present (a hand-edited file without `solver.substeps` would
+    otherwise run with the solver's own default)."""
+    settings = load_settings(path)
+    require_complete_settings(settings, path)
+    return settings
+
+
+def load_settings(path: str | os.PathLike) -> dict:
+    """A settings.json whose present keys are checked: finite numbers, the schema's types and ranges, no unknown
+    key; `require_complete_settings` checks that none is missing."""
     path = Path(path)
     if not path.is_file():
         raise PipelineError(f"{path}: settings file does not exist")
     try:
         settings = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as err:
+        raise PipelineError(f"{path}: cannot read the settings ({err})") from None
     except json.JSONDecodeError as err:
         raise PipelineError(f"{path}: not valid JSON ({err})") from None
     if not isinstance(settings, dict):
         raise PipelineError(f"{path}: not a JSON object of settings")
+    _validate(settings, _settings_schema(), str(path))
     return settings
+
+
+def require_complete_settings(settings: dict, path: str | os.PathLike) -> None:
+    """Every key of a scene's settings.json is present (those only the workflow reads may be left out)."""
+    _require_complete(settings, _settings_schema(), None, str(path), optional=WORKFLOW_ONLY)
+
+
+def _settings_schema() -> dict:
+    """The schema of settings.json: a scene's settings (WORKFLOW_ONLY keys allowed, not needed) and the scene's
+    name, profile and device, which `resolve_scene` adds."""
+    schema = load_schema()
+    scene = schema["$defs"]["scene_settings"]
+    name = {"type": "string", **schema["properties"]["scenes"]["propertyNames"]}
+    return {"$defs": schema["$defs"], **scene,
+            "properties": {**scene["properties"], "scene": name, "profile": schema["properties"]["profile"],
+                           "device": schema["properties"]["device"]}}
 
 
 def main(argv: Sequence[str] | None = None) -> None:

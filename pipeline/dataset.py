@@ -15,7 +15,9 @@ all in the reference frame (`world`, or `torso` using each scene.h5's `torso_tra
 S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
 training sequences' frames; every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split
 that measures generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
-state, capsules, pose, torso transforms) under scene.h5's names. docs/artifacts.md lists every dataset.
+state, capsules, pose, torso transforms) under scene.h5's names, and every frame the direction of gravity (and the
+body's capsules) in the reference frame, under `context/`: what the network's body- and gravity-relative inputs
+are made from. docs/artifacts.md lists every dataset.
 With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.test_fraction` and `dataset.seed` are
 the defaults of --frame, --test-fraction and --seed.
 """
@@ -31,8 +33,8 @@ import numpy as np
 from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
 from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
-from pipeline.artifacts.scene import read_mannequin_frames, read_sequence, read_torso_transforms
-from pipeline.artifacts.simulation import read_run_outline, read_trajectory
+from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
+from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
 from pipeline.errors import PipelineError
 from scenes.sequences import HELD_OUT, TRAIN
@@ -90,8 +92,20 @@ def find_sequences(folders: Sequence[str]) -> list[SequenceSource]:
     return sources
 
 
+def shared_physics(sources: list[SequenceSource]) -> RunPhysics:
+    """The time step and gravity all the sequences' runs were made with; an error naming a run that differs
+    (velocities and the gravity input would mean different things across frames)."""
+    runs = [(source.folder / SIM_LOW, read_run_physics(source.folder / SIM_LOW)) for source in sources]
+    first_path, first = runs[0]
+    for path, physics in runs[1:]:
+        if not (np.isclose(physics.dt, first.dt, rtol=1e-9) and np.allclose(physics.gravity, first.gravity)):
+            raise PipelineError(f"{path}: made with dt {physics.dt:g} s and gravity {physics.gravity.tolist()}, "
+                                f"{first_path} with {first.dt:g} s and {first.gravity.tolist()}")
+    return first
+
+
 def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-                   test_fraction: float, seed: int) -> DatasetLayout:
+                   test_fraction: float, seed: int, frame_time: float) -> DatasetLayout:
     """Where every frame comes from, and the split: of the training sequences' frames a seeded random share is
     test, the rest train; every frame of the held-out sequences is held out."""
     sequence = np.concatenate([np.full(s.kept, k) for k, s in enumerate(sources)])
@@ -106,13 +120,14 @@ def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_
         names=tuple(s.name for s in sources), roles=tuple(s.role for s in sources),
         clips=tuple(",".join(s.clips) for s in sources),
         split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips),
-        frame=frame, seed=seed, test_fraction=test_fraction)
+        frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time)
 
 
-def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray,
-                    frame: str) -> SequenceFrames:
-    """A sequence's kept frames of the learning problem; raises PipelineError naming the file that does not fit
-    the others (the subdivision, and the low-res faces of the first sequence)."""
+def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+                    physics: RunPhysics) -> SequenceFrames:
+    """A sequence's kept frames of the learning problem, with gravity (`physics`, world frame) and the body's
+    capsules in the reference frame; raises PipelineError naming the file that does not fit the others (the
+    subdivision, and the low-res faces of the first sequence)."""
     low_path, high_path = source.folder / SIM_LOW, source.folder / SIM_HIGH
     low_run, high_run = read_trajectory(low_path), read_trajectory(high_path)
     low, high = low_run.positions[source.first:], high_run.positions[source.first:]
@@ -126,24 +141,30 @@ def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces:
                                 f"the same mesh")
     if len(high_run.positions) != source.n_frames:
         raise PipelineError(f"{high_path}: {len(high_run.positions)} frames but {low_path} has {source.n_frames}")
+    mannequin = read_mannequin_frames(source.scene, source.first) if source.scene is not None else None
+    capsules = None if mannequin is None else (mannequin.per_frame[CAPSULE_A], mannequin.per_frame[CAPSULE_B])
+    gravity = np.repeat(physics.gravity[None] / np.linalg.norm(physics.gravity), len(low), axis=0)
     if frame == "torso":
         if source.scene is None:
             raise PipelineError(f"{source.folder}: --frame torso needs the sequence's {SCENE} (torso_transforms)")
         transforms = read_torso_transforms(source.scene, source.n_frames)[source.first:]
         low = apply_rigid_inverse(transforms[:, None], low)
         high = apply_rigid_inverse(transforms[:, None], high)
+        gravity = np.einsum("fji,fj->fi", transforms[:, :3, :3], gravity)      # R^T g: a direction turns only
+        if capsules is not None:
+            capsules = tuple(apply_rigid_inverse(transforms[:, None], ends) for ends in capsules)
     subdivided = np.stack([S @ x for x in low])
-    mannequin = read_mannequin_frames(source.scene, source.first) if source.scene is not None else None
     return SequenceFrames(subdivided.astype(np.float32), (high - subdivided).astype(np.float32),
-                          low.astype(np.float32), mannequin)
+                          low.astype(np.float32), gravity.astype(np.float32), mannequin,
+                          None if capsules is None else tuple(ends.astype(np.float32) for ends in capsules))
 
 
-def _all_frames(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray,
-                frame: str) -> Iterator[SequenceFrames]:
+def _all_frames(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+                physics: RunPhysics) -> Iterator[SequenceFrames]:
     """Each sequence's frames in turn, read when the writer asks for them; all with a mannequin or none."""
     with_body = None
     for source in sources:
-        part = sequence_frames(source, subdivision, low_faces, frame)
+        part = sequence_frames(source, subdivision, low_faces, frame, physics)
         if with_body is not None and (part.mannequin is not None) != with_body:
             raise PipelineError(f"{source.scene or source.folder}: some sequences have a mannequin and some not")
         with_body = part.mannequin is not None
@@ -172,9 +193,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     subdivision = read_subdivision(args.subdiv)
     sources = find_sequences(args.sequences)
     low_faces = read_run_outline(sources[0].folder / SIM_LOW)[1]
-    layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed)
+    physics = shared_physics(sources)
+    layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed,
+                            physics.dt)
     config = {name: getattr(args, name) for name in ("subdiv", "sequences", "frame", "test_fraction", "seed")}
-    write_dataset(args.out, config, layout, _all_frames(sources, subdivision, low_faces, args.frame))
+    write_dataset(args.out, config, layout, _all_frames(sources, subdivision, low_faces, args.frame, physics))
     if not args.quiet:
         split = layout.split
         print(f"dataset: {len(layout.sequence)} frames of {len(sources)} sequence(s) ({len(split.train)} train, "

@@ -1,62 +1,83 @@
-"""Stage `evaluate`: errors, timing, pictures and exported meshes of a trained upsampling network.
+"""Stage `evaluate`: errors, timing, pictures, videos, reports and exported meshes of a trained upsampling network.
 
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--settings SETTINGS.json]
-        [--renders DIR] [--export DIR] [--render-frames 3] [--export-frames 60] [--timing-frames 30]
-        [--device cpu] [--threads N] [--scene SCENE.h5] [--quiet]
+        [--html REPORT.html] [--train-log TRAIN.h5] [--scene SCENE.h5] [--renders DIR] [--videos DIR]
+        [--export DIR] [--render-frames 3] [--video-frames 120] [--export-frames 60] [--timing-frames 30]
+        [--device cpu] [--threads N] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (Loop subdivision, no network), so the network's gain shows.
-Renders (default: `renders/` beside REPORT.md) put low-res input | ground truth | network output | error maps
-side by side; the export folder (default `export/`) holds the predicted sequence as OBJ files and a GLB scene
-comparing input, truth and prediction. With --scene of a garment scene, renders show the mannequin too.
-docs/artifacts.md lists eval.h5's datasets. With --settings (a scene's resolved settings.json), `evaluation.*` and
-`device` are the defaults of the flags of the same names.
+Pictures (default: `renders/` beside REPORT.md): stills of test and held-out frames, low-res input | ground truth
+| network output | error maps, and plots of the per-frame error over time and, with --train-log, of the training
+curve. Videos (default: `videos/`): the held-out motion and a stretch of a training sequence around its test
+frames, low-res input | ground truth | network output | error, in real time (MP4, or GIF without an encoder).
+Every still and video frame goes through one camera, fitted to the garment of all frames shown, and one error
+colour scale. With --scene (a scene.h5, or dataset.h5, which carries each frame's mannequin) the body is drawn.
+The export folder (default `export/`) holds the predicted sequence as OBJ files and a GLB scene comparing input,
+truth and prediction. report.md links all of it; --html writes one self-contained page that embeds it.
+A failed run leaves nothing behind: folders are filled under temporary names beside their final ones and renamed
+at the end, every file is written atomically. docs/artifacts.md lists what is written. With --settings (a
+scene's resolved settings.json), `evaluation.*` and `device` are the defaults of the flags of the same names.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import contextlib
 import os
+import secrets
+import shutil
+import tempfile
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from geometry.rigid import apply_rigid_inverse
+from model.features import FrameStore
 from model.losses import LossWeights
 from model.training import split_errors
 from pipeline import cli
-from pipeline.artifacts.dataset import load_dataset, read_low_res
+from pipeline.artifacts.dataset import LearningData, load_dataset, read_low_res
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
 from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
+from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.errors import PipelineError
 from pipeline.torch_setup import configure_torch, frames_on
 from scenes.body_mesh import body_mesh
+from viz.animation import encode_animation
+from viz.comparison import Comparison, FrameMeshes, comparison_image, fit_comparison
 from viz.export import write_glb, write_obj_sequence
-from viz.render import Panel, render_panels, value_colors
+from viz.html_report import Links, Paragraphs, Picture, Section, Table, Video, report_html
+from viz.markdown_report import report_markdown
+from viz.plots import error_over_time, figure_bytes, training_curve
+from viz.render import png_bytes, value_colors
 
 PAPER_UNIT = 1e-3          # Table 3: "error should be multiplied by 10^-3"
 WARMUP_RUNS = 3
+VIDEO_PANEL_HEIGHT = 3.6   # inches at 100 dpi; stills are 4.5 and supersampled, video frames are not (speed)
+SPLIT_NAMES = {"train": "train", "test": "test", "held_out": "held-out"}
 
 
-def infer_all(model, mesh, inputs: torch.Tensor, batch_size: int = 8) -> torch.Tensor:
+def infer_all(model, mesh, store: FrameStore, batch_size: int = 8) -> torch.Tensor:
     """Predicted displacements of every frame."""
+    ids = torch.arange(len(store.positions), device=store.positions.device)
     with torch.no_grad():
-        return torch.cat([model(inputs[i:i + batch_size], mesh) for i in range(0, len(inputs), batch_size)])
+        return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])
 
 
-def time_inference(model, mesh, inputs: torch.Tensor) -> np.ndarray:
-    """Milliseconds per frame (batch of one) for each of `inputs`, after warm-up runs; synchronised on CUDA."""
-    sync = torch.cuda.synchronize if inputs.is_cuda else (lambda: None)
+def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> np.ndarray:
+    """Milliseconds per frame (batch of one: its input features and the network) for each frame of `ids`,
+    after warm-up runs; synchronised on CUDA."""
+    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
     times = []
     with torch.no_grad():
-        for i in range(-WARMUP_RUNS, len(inputs)):
-            frame = inputs[max(i, 0):max(i, 0) + 1]
+        for i in range(-WARMUP_RUNS, len(ids)):
+            frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
             sync()
             start = time.perf_counter()
             model(frame, mesh)
@@ -73,55 +94,114 @@ def per_frame_errors(displacement_error: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
-    """`count` frames spread evenly over `frames` (sorted ids)."""
-    if count <= 0:
-        return frames[:0]
-    return frames[np.unique(np.linspace(0, len(frames) - 1, min(count, len(frames))).round().astype(int))]
+    """`count` of `frames` (sorted ids) spread evenly: the middle one of each of `count` equal parts (so one
+    frame of a sequence is from its middle, not its first, still frame), or all of them."""
+    n = min(max(count, 0), len(frames))
+    return frames[((np.arange(n) + 0.5) * len(frames) / max(n, 1)).astype(np.int64)]
 
 
-def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str, n_frames: int) -> list | None:
-    """The mannequin's mesh at each of `frames` (of `n_frames`) in the dataset's reference frame, or None for a
-    scene without one (or no --scene)."""
-    body = None if scene_path is None else read_body(scene_path)
+def stretch_around_test_frames(data: LearningData, count: int) -> np.ndarray:
+    """`count` consecutive frames of one training sequence (all of it if shorter): the window holding the most
+    test frames, the earliest of equals. Test frames alone are a random share, rarely consecutive, and motion is
+    judged at its real speed. (A sequence's frames have consecutive ids in the dataset.)"""
+    is_test = np.zeros(len(data.inputs))
+    is_test[data.test] = 1.0
+    best, most = data.test[:0], -1.0
+    for sequence in np.unique(data.sequence[data.test]):
+        frames = np.flatnonzero(data.sequence == sequence)
+        n = min(count, len(frames))
+        if n <= 0:
+            break
+        tests = np.convolve(is_test[frames], np.ones(n), "valid")
+        start = int(np.argmax(tests))
+        if tests[start] > most:
+            best, most = frames[start:start + n], tests[start]
+    return best
+
+
+def body_meshes(scene_path: str | None, frames: np.ndarray, frame_name: str,
+                n_frames: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The mannequin's mesh at each of `frames` (of `n_frames`) in the dataset's reference frame; none for a
+    scene without one (or no --scene). Drawn at its collision surface: the renderer's z-buffer shows exactly what
+    is in front, so body seen through the cloth is cloth inside the body."""
+    body = None if scene_path is None or len(frames) == 0 else read_body(scene_path)
     if body is None:
-        return None
+        return {}
     skel, state = body
-    rotation, translation = state.rotation[frames], state.translation[frames]
-    torso = read_torso_transforms(scene_path, n_frames)[frames] if frame_name == "torso" else None
-    # Drawn a little inside its collision surface and finely cut: matplotlib sorts whole faces by depth, and
-    # large body faces a few mm under the cloth would otherwise poke through it.
-    inset = 0.01 * skel.height / 1.7
-    skel = dataclasses.replace(skel, radius_a=skel.radius_a - inset, radius_b=skel.radius_b - inset)
-    meshes = []
-    for i in range(len(frames)):
-        vertices, faces = body_mesh(skel, (rotation[i], translation[i]), segments=32)
+    torso = read_torso_transforms(scene_path, n_frames) if frame_name == "torso" else None
+    meshes = {}
+    for frame in frames:
+        vertices, faces = body_mesh(skel, (state.rotation[frame], state.translation[frame]))
         if torso is not None:
-            vertices = apply_rigid_inverse(torso[i], vertices)
-        meshes.append((vertices, faces))
+            vertices = apply_rigid_inverse(torso[frame], vertices)
+        meshes[int(frame)] = (vertices, faces)
     return meshes
 
 
-def render_frame(path: Path, frame: int, low: np.ndarray, low_faces: np.ndarray, predictor: np.ndarray,
-                 truth: np.ndarray, predicted: np.ndarray, faces: np.ndarray, body=None, split: str = "test") -> Path:
-    """Low-res input | ground truth | network output (on the body, if any) | |error| of the predictor (Loop
-    subdivision alone) and of the network, on one colour scale."""
-    predictor_error = np.linalg.norm(truth - predictor, axis=1)
-    network_error = np.linalg.norm(truth - predicted, axis=1)
-    panels = [Panel("low-res input", low, low_faces, backdrop=body),
-              Panel("high-res ground truth", truth, faces, backdrop=body),
-              Panel("network output", predicted, faces, backdrop=body),
-              Panel("error: Loop subdivision", truth, faces, predictor_error),
-              Panel("error: network", predicted, faces, network_error)]
-    # A few boundary vertices can carry errors far above the rest: saturate them so the pattern shows.
-    vmax = float(max(np.percentile(predictor_error, 99), np.percentile(network_error, 99)))
-    return render_panels(path, panels, vmax=vmax, title=f"{split} frame {frame}",
-                         value_label="|error| (scene units, clipped at 99th pct.)")
+@contextlib.contextmanager
+def staged_folders(finals: Mapping[str, tuple[Path, bool]]) -> Iterator[dict[str, Path]]:
+    """A new, empty temporary folder beside each final folder (role -> (path, keep even if empty)), renamed to
+    it once the block succeeds (replacing a folder of that name left by an earlier run), and removed with all it
+    holds if the block fails: a failed evaluation leaves no half-filled folder behind. A folder left empty is
+    dropped unless kept: a flag naming a folder (a Snakemake directory output) always gets one."""
+    staged: dict[str, Path] = {}
+    try:
+        for role, (final, _) in finals.items():
+            final.parent.mkdir(parents=True, exist_ok=True)
+            # A new folder of an unguessable name (os.mkdir fails on anything there, a planted link included),
+            # with the mode the umask gives a folder (mkdtemp's would be 0700).
+            staged[role] = final.parent / f".{final.name}.{secrets.token_hex(8)}"
+            os.mkdir(staged[role])
+        yield staged
+        for role, (final, keep_empty) in finals.items():
+            if keep_empty or any(staged[role].iterdir()):
+                _replace_folder(staged[role], final)
+    finally:
+        for folder in staged.values():
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _replace_folder(new: Path, final: Path) -> None:
+    """Rename `new` to `final`; whatever `final` was (a folder, a file, a link) is moved aside first, then
+    removed (os.replace cannot rename a folder onto a non-empty one)."""
+    if not final.exists() and not final.is_symlink():
+        os.replace(new, final)
+        return
+    trash = Path(tempfile.mkdtemp(prefix=f".{final.name}.old.", dir=final.parent))
+    try:
+        os.replace(final, trash / final.name)
+        os.replace(new, final)
+    finally:
+        shutil.rmtree(trash, ignore_errors=True)
+
+
+def video_clips(data: LearningData, count: int) -> list[tuple[str, np.ndarray, float, str]]:
+    """(name, frames, frames per second, caption) of each video: the held-out motion, `count` of its frames
+    spread evenly and played in real time, and a stretch of `count` consecutive frames of a training sequence
+    around its test frames, at the scene's frame rate; none for `count` 0."""
+    clips = []
+    rate = 1.0 / data.context.frame_time
+    held = pick_frames(data.held_out, count)
+    if len(held):
+        fps = rate * len(held) / len(data.held_out)
+        clips.append(("held_out", held, fps,
+                      f"Held-out motion ({data.held_out_clips}), never trained on: {len(held)} of its "
+                      f"{len(data.held_out)} frames, evenly spaced, in real time ({fps:.3g} frames/s)."))
+    stretch = stretch_around_test_frames(data, count)
+    if len(stretch):
+        n_test = np.isin(stretch, data.test).sum()
+        clips.append(("test", stretch, rate,
+                      f"Frames {stretch[0]}-{stretch[-1]} of a training sequence, {n_test} of them test frames "
+                      f"(the others trained on; each frame's title says which), at the scene's {rate:.3g} "
+                      f"frames/s."))
+    return clips
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
     evaluation = settings["evaluation"]
-    return {"render_frames": evaluation["render_frames"], "export_frames": evaluation["export_frames"],
-            "timing_frames": evaluation["timing_frames"], "device": settings["device"]}
+    return {"render_frames": evaluation["render_frames"], "video_frames": evaluation["video_frames"],
+            "export_frames": evaluation["export_frames"], "timing_frames": evaluation["timing_frames"],
+            "device": settings["device"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -129,120 +209,236 @@ def main(argv: Sequence[str] | None = None) -> None:
     for name in ("dataset", "operators", "model"):
         parser.add_argument(name)
     parser.add_argument("eval", help="eval.h5 to write"), parser.add_argument("report", help="report.md to write")
-    parser.add_argument("--renders", help="folder of PNG renders (default: renders/ beside the report)")
+    parser.add_argument("--html", help="self-contained report.html to write (default: none)")
+    parser.add_argument("--train-log", help="train.h5 of the model: its training curve goes in the reports")
+    parser.add_argument("--scene", help="scene.h5 (or dataset.h5) of a garment scene: draws the mannequin")
+    parser.add_argument("--renders", help="folder of stills and plots (default: renders/ beside the report)")
+    parser.add_argument("--videos", help="folder of videos (default: videos/ beside the report)")
     parser.add_argument("--export", help="folder of OBJ/GLB exports (default: export/ beside the report)")
-    parser.add_argument("--render-frames", type=int, default=3, help="test frames to render")
+    parser.add_argument("--render-frames", type=int, default=3,
+                        help="test (and held-out) frames shown as stills; 0: no stills and no plots")
+    parser.add_argument("--video-frames", type=int, default=120, help="frames of each video; 0: no videos")
     parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--scene", help="scene.h5: draws the mannequin in the renders of a garment scene")
     cli.add_threads(parser)
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
-    if args.timing_frames < 1 or args.render_frames < 0:
-        raise PipelineError("--timing-frames must be >= 1 and --render-frames >= 0")
+    if args.timing_frames < 1 or args.render_frames < 0 or args.video_frames < 0:
+        raise PipelineError("--timing-frames must be >= 1, --render-frames and --video-frames >= 0")
     report_dir = Path(args.report).parent
-    renders_dir = Path(args.renders) if args.renders else report_dir / "renders"
-    export_dir = Path(args.export) if args.export else report_dir / "export"
+    folders = {role: (Path(given) if given else report_dir / role, given is not None)
+               for role, given in (("renders", args.renders), ("videos", args.videos), ("export", args.export))}
+    cli.refuse_aliases({"eval.h5": args.eval, "report": args.report, **({"html": args.html} if args.html else {}),
+                        **{f"--{role}": path for role, (path, _) in folders.items()}},
+                       {"dataset": args.dataset, "operators": args.operators, "model": args.model,
+                        "scene": args.scene, "train log": args.train_log})
     device = configure_torch(args.device, 0, args.threads)
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     data = load_dataset(args.dataset)
     model, mesh, state = load_model(args.model, args.operators, str(device))
-    if mesh.vertex_counts[0] != data.inputs.shape[1]:
-        raise PipelineError(f"{args.dataset}: {data.inputs.shape[1]} vertices, but the model's mesh has "
-                            f"{mesh.vertex_counts[0]}")
+    if not np.array_equal(model.features.faces.cpu().numpy(), data.faces):
+        raise PipelineError(f"{args.dataset}: its mesh is not the one the model in {args.model} was trained on")
     low_positions, low_faces = read_low_res(args.dataset)
-    steps = tqdm(total=4, desc="evaluate", unit="step", disable=args.quiet)
+    train_log = read_train_log(args.train_log) if args.train_log else None
+    steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
     frames = frames_on(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
-    predict = {"network": lambda x: model(x, mesh), "predictor": torch.zeros_like}
+    predict = {"network": lambda inputs: model(inputs, mesh),
+               "predictor": lambda inputs: torch.zeros_like(inputs.positions)}
     errors = {who: {split: split_errors(fn, frames, torch.as_tensor(ids, device=device), 8, weights)
                     for split, ids in data.splits().items()}
               for who, fn in predict.items()}
-    displacement = infer_all(model, mesh, frames.inputs).cpu().numpy()
+    displacement = infer_all(model, mesh, frames.store).cpu().numpy()
     steps.update()
     timed = pick_frames(data.test, args.timing_frames)
-    times = time_inference(model, mesh, frames.inputs[torch.as_tensor(timed, device=device)])
+    times = time_inference(model, mesh, frames.store, torch.as_tensor(timed, device=device))
     steps.update()
     truth = data.inputs + data.targets
     predicted = data.inputs + displacement
-    network_frame = per_frame_errors(displacement - data.targets)
-    predictor_frame = per_frame_errors(-data.targets)
-    # With an unseen motion, half the pictures show it.
+    per_frame = {"network": per_frame_errors(displacement - data.targets), "predictor": per_frame_errors(-data.targets)}
+    # With an unseen motion, half the stills show it.
     n_held = args.render_frames // 2 if len(data.held_out) else 0
-    rendered = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
-    bodies = body_meshes(args.scene, rendered, data.frame, len(data.inputs)) or [None] * len(rendered)
-    pictures = [render_frame(renders_dir / f"frame_{frame:04d}.png", frame, low_positions[frame], low_faces,
-                             data.inputs[frame], truth[frame], predicted[frame], data.faces, body,
-                             "held-out" if frame in data.held_out else "test")
-                for frame, body in zip(rendered, bodies)]
-    steps.update()
-    n_export = len(predicted) if args.export_frames <= 0 else min(args.export_frames, len(predicted))
-    write_obj_sequence(export_dir / "predicted_obj", predicted[:n_export], data.faces, range(n_export))
-    if len(rendered):
-        frame = rendered[0]
-        error = np.linalg.norm(predicted[frame] - truth[frame], axis=1)
-        write_glb(export_dir / f"comparison_frame_{frame:04d}.glb",
-                  [("low_res_input", low_positions[frame], low_faces, None),
-                   ("ground_truth", truth[frame], data.faces, None),
-                   ("network_output", predicted[frame], data.faces, value_colors(error, float(error.max())))])
-    config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
-    write_evaluation(args.eval, config, Evaluation(errors, {"network": network_frame, "predictor": predictor_frame},
-                                                   predicted, times, timed, where, WARMUP_RUNS,
-                                                   state["parameter_count"]))
-    _write_report(Path(args.report), args, errors, times, where, state, data, pictures, export_dir, n_export,
-                  low_positions.shape[1])
+    stills = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
+    clips = video_clips(data, args.video_frames)
+    shown = np.unique(np.concatenate([stills, *(clip_frames for _, clip_frames, _, _ in clips)])).astype(np.int64)
+    bodies = body_meshes(args.scene, shown, data.frame, len(data.inputs))
+    comparison = None if len(shown) == 0 else fit_comparison(
+        [low_positions[shown]], [truth[shown]], low_faces, data.faces,
+        [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.inputs, predicted)])
+
+    def frame_meshes(frame: int) -> FrameMeshes:
+        return FrameMeshes(low_positions[frame], data.inputs[frame], truth[frame], predicted[frame],
+                           bodies.get(int(frame)))
+
+    def frame_title(frame: int) -> str:
+        split = next(name for name, ids in data.splits().items() if frame in ids)
+        return f"{SPLIT_NAMES[split]} frame {frame}"
+
+    with staged_folders(folders) as staged:
+        pictures = []
+        for frame in stills:
+            image = comparison_image(comparison, frame_meshes(frame), frame_title(frame))
+            pictures.append(staged["renders"] / f"frame_{frame:04d}.png")
+            pictures[-1].write_bytes(png_bytes(image))
+        plots = _write_plots(staged["renders"], per_frame, data, train_log) if args.render_frames else {}
+        steps.update()
+        videos = [(_write_video(staged["videos"] / name, comparison, clip_frames, fps, frame_meshes, frame_title),
+                   caption) for name, clip_frames, fps, caption in clips]
+        steps.update()
+        exports = _write_exports(staged["export"], args.export_frames, stills[:1], frame_meshes, low_faces,
+                                 data.faces, predicted)
+
+        def final(path: Path) -> Path:
+            role = next(role for role, folder in staged.items() if path.is_relative_to(folder))
+            return folders[role][0] / path.relative_to(staged[role])
+
+        def href(path: Path) -> str:
+            return os.path.relpath(final(path), report_dir)
+
+        files = [(label, href(path)) for label, path in exports] + [
+            ("eval.h5: errors, per-frame errors, predicted positions, inference times",
+             os.path.relpath(args.eval, report_dir))]
+        sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
+                                    pictures, plots, videos, files)
+        title = f"Evaluation of {args.model}"
+        markdown = report_markdown(title, sections, href).encode()
+        page = report_html(title, sections).encode() if args.html else None
+        config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
+        write_evaluation(args.eval, config, Evaluation(errors, per_frame, predicted, times, timed, where,
+                                                       WARMUP_RUNS, state["parameter_count"]))
+        with atomic_write(args.report) as f:
+            f.write(markdown)
+        if page is not None:
+            with atomic_write(args.html) as f:
+                f.write(page)
     steps.update()
     steps.close()
 
 
-def _write_report(path: Path, args, errors, times, device, state, data, pictures, export_dir, n_export,
-                  n_low) -> None:
+def _write_video(stem: Path, comparison: Comparison, frames: np.ndarray, fps: float,
+                 frame_meshes: Callable[[int], FrameMeshes], frame_title: Callable[[int], str]) -> Path:
+    """The frames' comparisons (the network's error only) as `stem`.mp4, or .gif without an encoder; each frame
+    is rendered as the encoder asks for it."""
+    animation = encode_animation((comparison_image(comparison, frame_meshes(frame), frame_title(frame),
+                                                   predictor_error=False, panel_height=VIDEO_PANEL_HEIGHT,
+                                                   supersample=1) for frame in frames), fps)
+    path = stem.with_suffix(animation.suffix)
+    path.write_bytes(animation.data)
+    return path
+
+
+def _write_exports(folder: Path, export_frames: int, glb_frames: np.ndarray,
+                   frame_meshes: Callable[[int], FrameMeshes], low_faces: np.ndarray, faces: np.ndarray,
+                   predicted: np.ndarray) -> list[tuple[str, Path]]:
+    """The first `export_frames` (0: all) predicted frames as OBJ, and each of `glb_frames` as a GLB comparison;
+    (label, path) of each."""
+    n_export = len(predicted) if export_frames <= 0 else min(export_frames, len(predicted))
+    written = write_obj_sequence(folder / "predicted_obj", predicted[:n_export], faces, range(n_export))
+    exports = [(f"predicted_obj/: predicted positions of frames 0-{n_export - 1} as OBJ", written[0].parent)]
+    for frame in glb_frames:
+        meshes = frame_meshes(frame)
+        error = np.linalg.norm(meshes.predicted - meshes.truth, axis=1)
+        path = write_glb(folder / f"comparison_frame_{frame:04d}.glb",
+                         [("low_res_input", meshes.low, low_faces, None), ("ground_truth", meshes.truth, faces, None),
+                          ("network_output", meshes.predicted, faces, value_colors(error, float(error.max())))])
+        exports.append((f"{path.name}: input, truth and error-coloured prediction side by side (any glTF viewer)",
+                        path))
+    return exports
+
+
+def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: TrainLog | None) -> dict[str, Path]:
+    """The per-frame L1 of the network and of Loop subdivision over the test and held-out frames, and the
+    training curve (with a train log), as PNGs in `folder`; by name."""
+    starts = np.flatnonzero(np.diff(data.sequence, prepend=-1) != 0)
+    held_clips = iter(data.held_out_clips.split(","))
+    labels = [next(held_clips, "held out") if np.isin(start, data.held_out) else f"seq {k}"
+              for k, start in enumerate(starts)]
+    figures = {"error_over_time": error_over_time(
+        per_frame["network"]["l1"] / PAPER_UNIT, per_frame["predictor"]["l1"] / PAPER_UNIT,
+        {name: ids for name, ids in data.splits().items() if name != "train"},
+        list(zip(starts.tolist(), labels)), error_label="L1 (x 1e-3 scene units)",
+        title="Per-frame error: network and Loop subdivision alone")}
+    if train_log is not None:
+        figures["training_curve"] = training_curve(train_log.train_total, train_log.test_total,
+                                                   title="Training curve (loss = eq. 7, weighted total)")
+    paths = {}
+    for name, figure in figures.items():
+        paths[name] = folder / f"{name}.png"
+        paths[name].write_bytes(figure_bytes(figure, "png", dpi=100))
+    return paths
+
+
+def _report_sections(args, state, data: LearningData, errors, times, device: str, n_low: int,
+                     train_log: TrainLog | None, pictures: list[Path], plots: dict[str, Path],
+                     videos: list[tuple[Path, str]], files: list[tuple[str, str]]) -> list[Section]:
+    """The report's contents, as pieces both report.md and report.html show."""
     spec, training = state["spec"], state["training"]
-    rel = lambda p: os.path.relpath(p, path.parent)  # noqa: E731
     scaled = lambda who, split, term: errors[who][split][term] / PAPER_UNIT  # noqa: E731
     splits = list(data.splits())
-    rows = []
-    for who, label in (("network", "network"), ("predictor", "Loop subdivision alone (predictor)")):
-        cells = [f"{scaled(who, s, t):.3f}" for s in splits for t in ("l1", "l2")]
-        rows.append(f"| {label} | " + " | ".join(cells) + f" | {errors[who]['test']['normal']:.4f} |")
+    header = ["", *[f"{SPLIT_NAMES[s]} {t}" for s in splits for t in ("L1", "L2")], "test Ln"]
+    rows = [[label, *[f"{scaled(who, s, t):.3f}" for s in splits for t in ("l1", "l2")],
+             f"{errors[who]['test']['normal']:.4f}"]
+            for who, label in (("network", "network"), ("predictor", "Loop subdivision alone (predictor)"))]
     gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in splits for t in ("l1", "l2")]
-    rows.append("| gain (predictor / network) | " + " | ".join(f"{g:.2f}x" for g in gains) + " | |")
-    header = "| | " + " | ".join(f"{s.replace('_', '-')} {t}" for s in splits for t in ("L1", "L2")) + " | test Ln |"
-    held_note = ([f"Held-out: every frame of the motion clip(s) `{data.held_out_clips}`, never seen in training (the "
-                  "generalisation test); test: a random share of the frames of the trained motions.", ""]
-                 if "held_out" in splits else [])
-    lines = [
-        f"# Evaluation of `{args.model}`", "",
-        f"- Network: {state['arch_expanded']} (encoder-decoder), conv {spec['conv']}, {spec['pool']} pooling, "
-        f"width {spec['width']:g}: **{state['parameter_count']:,} learnable parameters**.",
-        f"- Training: {training['epochs']} epochs on {training['device']}, batch size {training['batch_size']}, "
-        f"Adam lr {training['lr']:g}, seed {training['seed']}, loss weights "
-        f"L1 {training['loss_weights']['l1']:g} / L2 {training['loss_weights']['l2']:g} / "
-        f"Ln {training['loss_weights']['normal']:g}.",
-        f"- Data: `{args.dataset}`, {len(data.inputs)} frames ("
-        + ", ".join(f"{len(ids)} {name.replace('_', '-')}" for name, ids in data.splits().items()) + "), "
-        f"{n_low} low-res -> {data.inputs.shape[1]} high-res vertices, positions in the {data.frame} frame.", "",
-        "## Errors (x 1e-3 scene units, as paper Table 3)", "",
-        header, "|---" * (2 * len(splits) + 2) + "|", *rows, "", *held_note,
-        "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
-        "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).",
-        "", "## Inference time", "",
-        f"Median **{np.median(times):.2f} ms per frame** on {device} (network only, one frame per call, "
-        f"{len(times)} test frame(s) timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
-        f"max {times.max():.2f} ms). Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop subdivision): "
-        "2.2-26.6 ms for 4k-15k vertices.", "", "## Renders", "",
-        "Test (and held-out) frames: low-res input | high-res ground truth | network output | |error| of Loop subdivision "
-        "alone | |error| of the network (one colour scale, saturating at the 99th percentile of either).", "",
-        *[f"![{p.stem}]({rel(p)})" for p in pictures], "", "## Files", "",
-        f"- `{rel(Path(args.eval))}`: errors, per-frame errors, predicted positions, inference times.",
-        f"- `{rel(export_dir / 'predicted_obj')}/`: predicted positions of frames 0-{n_export - 1} as OBJ.",
+    rows.append(["gain (predictor / network)", *[f"{g:.2f}x" for g in gains], ""])
+    held_note = ("Held-out: every frame of the motion clip(s) `{}`, never seen in training (the generalisation "
+                 "test); test: a random share of the frames of the trained motions.\n\n".format(data.held_out_clips)
+                 if "held_out" in splits else "")
+    loss = training["loss_weights"]
+    training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
+                     ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
+                     ["seed", training["seed"]],
+                     ["loss weights L1 / L2 / Ln", f"{loss['l1']:g} / {loss['l2']:g} / {loss['normal']:g}"]]
+    if train_log is not None:
+        training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
+                          ["last epoch's test loss", float(train_log.test_total[-1])]]
+    features = state["features"]      # model.feature_regressor.FeatureSpec as saved
+    axes = {"local": f"each vertex's local frame (tangent: {features['frame_tangent']})",
+            "dataset": "the dataset's axes"}
+    input_rows = [["dataset", args.dataset],
+                  ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())],
+                  ["vertices", f"{n_low} low-res -> {data.inputs.shape[1]} high-res"],
+                  ["positions in", f"the {data.frame} frame"],
+                  ["network inputs (model.features)", ", ".join(features["inputs"])],
+                  ["input vectors in", axes[features["input_frame"]]],
+                  ["displacement predicted in", axes[features["output_frame"]]]]
+    error_pieces = [Table(header, rows), Paragraphs(
+        held_note + "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
+        "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).")]
+    if "error_over_time" in plots:
+        error_pieces.append(Picture(plots["error_over_time"], "L1 of each test and held-out frame, for the network "
+                                    "and for Loop subdivision alone; dashed lines: where a sequence starts."))
+    training_pieces: list = [Table(["", "value"], training_rows)]
+    if "training_curve" in plots:
+        training_pieces.append(Picture(plots["training_curve"], "Loss per epoch, train and test (log scale)."))
+    sections = [
+        Section("Network", [Paragraphs(
+            f"{state['arch_expanded']} (encoder-decoder), conv {spec['conv']}, {spec['pool']} pooling, width "
+            f"{spec['width']:g}: **{state['parameter_count']:,} learnable parameters**.")]),
+        Section("Errors (x 1e-3 scene units, as paper Table 3)", error_pieces),
     ]
+    if videos:
+        sections.append(Section("Videos", [Paragraphs(
+            "Low-res input | high-res ground truth | network output | |error| of the network, through one camera "
+            "and on one colour scale for every frame, the stills' too (saturating at the 99th percentile of the "
+            "errors of every frame shown).")] + [Video(path, caption) for path, caption in videos]))
     if pictures:
-        lines.append(f"- `{rel(export_dir)}/comparison_frame_*.glb`: input, truth and error-coloured prediction "
-                     "side by side (any glTF viewer).")
-    with atomic_write(path) as f:
-        f.write(("\n".join(lines) + "\n").encode())
+        sections.append(Section("Renders", [Paragraphs(
+            "Test (and held-out) frames: low-res input | high-res ground truth | network output | |error| of Loop "
+            "subdivision alone | |error| of the network (one colour scale, saturating at the 99th percentile of "
+            "the errors of every frame shown).")] + [Picture(path, path.stem) for path in pictures]))
+    sections += [
+        Section("Inputs", [Table(["", "value"], input_rows)]),
+        Section("Training", training_pieces),
+        Section("Inference time", [Paragraphs(
+            f"Median **{np.median(times):.2f} ms per frame** on {device} (input features and network, one frame "
+            f"per call, {len(times)} test frame(s) timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
+            f"max {times.max():.2f} ms). Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop "
+            "subdivision): 2.2-26.6 ms for 4k-15k vertices.")]),
+        Section("Files", [Links(files)]),
+    ]
+    return sections
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts.h5 import open_artifact, read_indices
+from pipeline.artifacts.h5 import FLOAT32_MAX, open_artifact, read_indices
 from pipeline.errors import PipelineError
 from geometry.mesh import validate_mesh
 
@@ -39,11 +39,16 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_mesh(source: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """Validate a mesh, turning the geometric complaint into an error that names its source."""
+    """Validate a mesh, turning the geometric complaint into an error that names its source. Coordinates must
+    also fit float32, in which the solver and the network compute (1e39 is finite in float64, inf there)."""
     try:
         validate_mesh(vertices, faces)
     except ValueError as err:
         raise PipelineError(f"{source}: {err}") from None
+    beyond = np.flatnonzero(np.abs(vertices).max(axis=1) > FLOAT32_MAX)
+    if len(beyond):
+        raise PipelineError(f"{source}: vertex {beyond[0]} at {vertices[beyond[0]].tolist()} lies beyond float32's "
+                            f"range (at most {FLOAT32_MAX:.3g} per coordinate)")
 
 
 def _load_h5_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:

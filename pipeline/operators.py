@@ -10,6 +10,7 @@ MESH is an OBJ/PLY/OFF/STL file or a pipeline HDF5 artifact holding `vertices` a
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any, Sequence
 
@@ -19,6 +20,11 @@ from pipeline.artifacts.operators import write_operators
 from pipeline.cli import add_quiet, parse_with_settings, run
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
+
+
+# Each pooling step keeps about 60 % of the vertices or fewer: past 30 steps a mesh of any size this pipeline can
+# make has long been collapsed as far as it goes, and further steps would only repeat its last level.
+MAX_LEVELS = 30
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
@@ -40,10 +46,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parse_with_settings(parser, argv, flags_from_settings)
 
     conv = _parse_conv(args.conv)
-    if args.levels < 0:
-        raise PipelineError(f"--levels must be >= 0, got {args.levels}")
-    if not args.quadric_threshold >= 0:
-        raise PipelineError(f"--quadric-threshold must be >= 0, got {args.quadric_threshold}")
+    if not 0 <= args.levels <= MAX_LEVELS:
+        raise PipelineError(f"--levels must be >= 0 and <= {MAX_LEVELS}, got {args.levels}")
+    if not 0 <= args.quadric_threshold < math.inf:
+        raise PipelineError(f"--quadric-threshold must be finite and >= 0, got {args.quadric_threshold}")
     vertices, faces = load_mesh(args.mesh)
     levels = build_operators(vertices, faces, conv, args.levels, args.quadric_threshold,
                              progress=None if args.quiet else _report)

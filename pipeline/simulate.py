@@ -11,6 +11,7 @@ holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iterat
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from typing import Sequence
 
@@ -66,8 +67,13 @@ def frame_inputs(drive: SceneDrive, f: int, pin_targets: np.ndarray,
 
 
 def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for frame f."""
+    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for frame f.
+    Unless `quiet`, says first how much work that is (the schema bounds frames, substeps and iterations)."""
     state = solver.state
+    if not quiet:
+        s = solver.settings
+        print(f"{label}: {n_frames - 1} frames x {s.substeps} substeps x {s.iterations} iterations over "
+              f"{state.positions.shape[0]:,} vertices and {solver.n_constraints:,} constraints", file=sys.stderr)
     positions = np.empty((n_frames, *state.positions.shape, 3), dtype=np.float32)
     positions[0] = state.read_positions()
     solve_ms = np.zeros(n_frames)
@@ -143,8 +149,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     settings = read_settings(args.settings)
     device = args.device or settings["device"]
-    if device.startswith("cuda") and not wp.get_cuda_device_count():
-        raise PipelineError(f"device '{device}' requested but Warp finds no CUDA device (use --device cpu)")
+    cli.check_device(device, "Warp", wp.get_cuda_device_count)
     if args.level == "low":
         run = simulate_low(settings, args.scene, device, args.quiet)
     else:

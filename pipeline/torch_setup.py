@@ -7,21 +7,22 @@ import os
 import numpy as np
 import torch
 
+from model.features import FrameStore
 from model.training import Frames
 from pipeline.artifacts.dataset import LearningData
+from pipeline.cli import check_device
 from pipeline.errors import PipelineError
 
 
 def configure_torch(device: str, seed: int, threads: int | None = None) -> torch.device:
     """Deterministic, seeded torch on `device` using `threads` CPU threads (default: torch's choice); fails
-    clearly if CUDA is asked for but absent."""
+    clearly for a device that is no device (`gpu7`) or a CUDA device torch does not see."""
     if threads is not None:
         if threads < 1:
             raise PipelineError(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
+    check_device(device, "torch", torch.cuda.device_count)
     if device.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise PipelineError(f"device '{device}' requested but torch finds no CUDA device (use --device cpu)")
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")   # deterministic cuBLAS
     torch.use_deterministic_algorithms(True)
     torch.set_flush_denormal(True)     # denormals in Adam's moments make CPU matmuls ~20x slower
@@ -30,6 +31,12 @@ def configure_torch(device: str, seed: int, threads: int | None = None) -> torch
 
 
 def frames_on(data: LearningData, device: torch.device | str) -> Frames:
-    """Every frame of the dataset as tensors on `device`."""
-    return Frames(torch.as_tensor(data.inputs, device=device), torch.as_tensor(data.targets, device=device),
-                  torch.as_tensor(data.faces.astype(np.int64), device=device))
+    """Every frame of the dataset, and what the network's inputs are made from, as tensors on `device`."""
+    def tensor(array: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(array, device=device)
+
+    context = data.context
+    store = FrameStore(tensor(data.inputs), tensor(data.previous), tensor(context.capsule_a),
+                       tensor(context.capsule_b), tensor(context.radius_a), tensor(context.radius_b),
+                       tensor(context.gravity), context.frame_time)
+    return Frames(store, tensor(data.targets), tensor(data.faces.astype(np.int64)))

@@ -1,15 +1,20 @@
 """Stage `train`: fit the upsampling network to a dataset on a mesh's operators → model.pt + train.h5.
 
     python -m pipeline.train DATASET.h5 OPERATORS.h5 MODEL.pt TRAIN.h5 [--settings SETTINGS.json]
-        --arch "D62 D124 D248 D D248 D_3 D248" [--conv RC13] [--pool avg] [--width 1.0] [--epochs 200]
+        --arch "D62 D124 D248 D D248 D_3 D248" [--conv RC13] [--pool avg] [--width 1.0]
+        [--inputs position,...] [--input-frame dataset|local] [--output-frame dataset|local]
+        [--frame-tangent edge|gravity] [--epochs 200]
         [--batch-size 3] [--lr 1e-3] [--loss-l1 1] [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0]
         [--checkpoint PATH] [--threads N] [--quiet]
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
 are complete. A file at the checkpoint path that is not a checkpoint is refused, not overwritten, and so is a
-checkpoint path equal to any other input or output. model.pt holds the state dict and everything needed to
-rebuild the network and to recognise the operators it was trained on (docs/artifacts.md). With --settings (a
+checkpoint path equal to any other input or output. The network sees the per-vertex features named by --inputs
+(model.features: the paper's absolute positions, or velocity, body, laplacian, gravity... relative to the body and
+the local surface), optionally in each vertex's local frame, and may answer in local frames too. model.pt holds
+the state dict and everything needed to rebuild the network and its inputs and to recognise the operators it was
+trained on (docs/artifacts.md). With --settings (a
 scene's resolved settings.json), `network.*`, `training.*` (loss weights from `training.loss`) and `device` are
 the defaults of the flags of the same names, --arch included.
 """
@@ -17,20 +22,22 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
 import torch
 from tqdm import tqdm
 
 from model.architecture import ArchitectureError
+from model.feature_regressor import FRAMES, FeatureRegressor, FeatureSpec
+from model.features import FEATURE_CHANNELS, TANGENTS
 from model.losses import LossWeights
-from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.networks import NetworkSpec, build_network
 from model.training import CheckpointError, TrainSettings, fit
 from pipeline import cli
-from pipeline.artifacts.dataset import LearningData, load_dataset
+from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
@@ -41,6 +48,8 @@ from pipeline.torch_setup import configure_torch, frames_on
 def flags_from_settings(settings: dict) -> dict[str, Any]:
     network, training = settings["network"], settings["training"]
     return {"arch": network["arch"], "conv": network["conv"], "pool": network["pool"], "width": network["width"],
+            "inputs": network["inputs"], "input_frame": network["input_frame"],
+            "output_frame": network["output_frame"], "frame_tangent": network["frame_tangent"],
             "epochs": training["epochs"], "batch_size": training["batch_size"], "lr": training["lr"],
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
             "loss_normal": training["loss"]["normal"], "device": settings["device"]}
@@ -54,6 +63,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--conv", default="RC13", help="operator tables to use: RC|EC|SP|SPD + size")
     parser.add_argument("--pool", default="avg", choices=["avg", "max"])
     parser.add_argument("--width", type=float, default=1.0, help="channel multiplier (paper x/2: 0.5)")
+    parser.add_argument("--inputs", default="position",
+                        help=f"per-vertex input features, comma-separated, in order: {', '.join(FEATURE_CHANNELS)} "
+                             f"(model.features)")
+    parser.add_argument("--input-frame", default="dataset", choices=FRAMES,
+                        help="vector inputs in the dataset's axes or in each vertex's local frame")
+    parser.add_argument("--output-frame", default="dataset", choices=FRAMES,
+                        help="the predicted displacement in the dataset's axes or in each vertex's local frame")
+    parser.add_argument("--frame-tangent", default="edge", choices=TANGENTS,
+                        help="local frames' tangent: a fixed edge, or gravity projected onto the surface")
     parser.add_argument("--epochs", type=int, default=200)
     parser.add_argument("--batch-size", type=int, default=3)
     parser.add_argument("--lr", type=float, default=1e-3)
@@ -68,16 +86,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if args.arch is None:    # required, but may come from --settings
         parser.error("the following arguments are required: --arch")
-    if args.epochs < 1 or args.batch_size < 1 or not args.lr > 0:
-        raise PipelineError("--epochs and --batch-size must be >= 1 and --lr > 0")
-    if min(args.loss_l1, args.loss_l2, args.loss_normal) < 0:
-        raise PipelineError("loss weights must be >= 0")
+    if args.epochs < 1 or args.batch_size < 1 or not 0 < args.lr < math.inf:
+        raise PipelineError("--epochs and --batch-size must be >= 1 and --lr finite and > 0")
+    if not all(0 <= w < math.inf for w in (args.loss_l1, args.loss_l2, args.loss_normal)):
+        raise PipelineError("loss weights must be finite and >= 0")
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads)
+    try:
+        features = FeatureSpec(tuple(args.inputs.split(",")), args.input_frame, args.output_frame, args.frame_tangent)
+    except ValueError as err:
+        raise PipelineError(f"--inputs/--input-frame/--frame-tangent: {err}") from None
     data = load_dataset(args.dataset)
-    spec = NetworkSpec(args.arch, args.conv, args.pool, args.width, data.inputs.shape[2], data.targets.shape[2])
+    if "body" in features.inputs and data.context.capsule_a.shape[1] == 0:
+        raise PipelineError(f"{args.dataset}: input 'body' needs the mannequin's capsules; this scene has no body")
+    spec = NetworkSpec(args.arch, args.conv, args.pool, args.width, features.channels, data.targets.shape[2])
     if spec.letter != "D":
         raise PipelineError(f"--arch '{args.arch}': the upsampling network is an encoder-decoder, written with "
                             f"D tokens (e.g. 'D62 D124 D248 D D248 D_3 D248')")
@@ -90,7 +114,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         net.check_mesh(mesh)
     except ValueError as err:
         raise PipelineError(f"{args.operators}: {err}") from None
-    model = _normalized(net, data)
+    frames = frames_on(data, device)
+    train_ids = torch.as_tensor(data.train, device=device)
+    model = FeatureRegressor(net, features, data.faces, data.rest_vertices).to(device)
+    model.normalise(frames.store, train_ids, frames.targets[train_ids])
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
     resume_from = read_checkpoint(checkpoint)
@@ -103,10 +130,10 @@ def main(argv: Sequence[str] | None = None) -> None:
             bar.update()
             bar.set_postfix_str(f"epoch {epoch + 1}/{args.epochs} loss {loss:.3e}")
 
-        identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec)}
+        identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec),
+                    "features": dataclasses.asdict(features)}
         try:
-            history = fit(model.to(device), mesh.to(device), frames_on(data, device),
-                          torch.as_tensor(data.train, device=device), torch.as_tensor(data.test, device=device),
+            history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
                           settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
                           on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
         except CheckpointError as err:
@@ -124,15 +151,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         Path(args.model).unlink(missing_ok=True)      # the two outputs come as a pair, or not at all
         raise
     checkpoint.unlink(missing_ok=True)
-
-
-def _normalized(net, data: LearningData) -> NormalizedRegressor:
-    """Fixed input/output normalisation from the training frames only."""
-    train_inputs, train_targets = data.inputs[data.train], data.targets[data.train]
-    offset = train_inputs.reshape(-1, train_inputs.shape[2]).mean(axis=0)
-    input_scale = float(np.sqrt(np.mean(np.square(train_inputs - offset)))) or 1.0
-    output_scale = float(np.sqrt(np.mean(np.square(train_targets)))) or 1.0
-    return NormalizedRegressor(net, torch.as_tensor(offset), input_scale, output_scale)
 
 
 if __name__ == "__main__":

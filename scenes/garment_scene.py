@@ -24,10 +24,14 @@ from scenes.skinning import rest_to_posed, skinning_weights
 
 def garment_rest(settings: dict) -> SceneRest:
     """The garment at rest on the mannequin, its attachment pins and skinning (`mesh.generator: garment`);
-    ValueError for settings it cannot build (a mesh too coarse for the garment)."""
+    ValueError for settings it cannot build (a mesh too coarse for the garment). `mesh.panels` cuts it
+    into panels with duplicated seam vertices; `mesh.weld` > 0 merges vertices that close, before the pins and
+    skinning are derived, so panels welded back give exactly the garment made whole."""
     mesh = settings["mesh"]
     skel = default_skeleton()
-    garment = make_garment(mesh["garment"], skel, mesh["max_edge"], mesh["seed"])
+    garment = make_garment(mesh["garment"], skel, mesh["max_edge"], mesh["seed"], mesh["panels"])
+    if mesh["weld"] > 0:
+        garment = garment.welded(mesh["weld"])
     influences, weights = skinning_weights(skel, garment.vertices, garment.faces)
     pin_ids = garment.attachment if settings["physics"]["pins"] else np.zeros(0, np.int64)
     return SceneRest(name=settings["scene"], generator=mesh["generator"], vertices=garment.vertices,

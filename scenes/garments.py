@@ -18,14 +18,19 @@ their border vertices, so the result is one manifold mesh:
 Faces are oriented so that normals point away from the body. Each piece's quads are split along the shorter
 diagonal; a piece's grid runs with its columns and rows such that (column direction) x (row direction) points
 outward. Attachment vertices (waist band, shoulder seams, top edges) are returned with the part they follow.
+
+With `panels`, the garment is then cut along seams into separate pieces whose seam vertices are duplicated, as
+an artist's export of a garment sewn from panels is (see `_panel_seams`); `Garment.welded` sews them back.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
 
-from geometry.mesh import validate_mesh
+from geometry.mesh import cut_along_edges, edge_faces, validate_mesh, weld_vertices
 from scenes.capsules import body_signed_distance, capsules_world
 from scenes.kinematics import rest_transforms
 from scenes.skeleton import Skeleton, default_skeleton
@@ -34,6 +39,8 @@ GARMENT_KINDS = ("patch", "cape", "skirt", "pants", "tshirt", "dress")
 BOUNDARY_LOOPS = {"patch": 1, "cape": 1, "skirt": 2, "pants": 3, "tshirt": 4, "dress": 4}
 SPACING = 0.6      # grid spacing as a fraction of max_edge: a square's diagonal is 0.85 max_edge
 CLEARANCE = 0.01   # least gap between any garment vertex and the rest-pose body, for a 1.7 tall body
+# Panel layout: horizontal seams at these fractions of the garment's height below its top.
+PANEL_SEAM_DEPTHS = (0.1, 0.4, 0.7)
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,13 +52,24 @@ class Garment:
     attachment: np.ndarray       # (A,) int64 vertex indices
     attachment_part: np.ndarray  # (A,) int64 skeleton part each attachment vertex follows
 
+    def welded(self, tolerance: float) -> "Garment":
+        """The garment with vertices closer than `tolerance` merged (geometry.mesh.weld_vertices): separate panels
+        sewn back into one mesh. Attachment vertices that merge keep their first entry."""
+        vertices, faces, old_to_new = weld_vertices(self.vertices, self.faces, tolerance)
+        _, first = np.unique(old_to_new[self.attachment], return_index=True)
+        keep = np.sort(first)
+        return Garment(self.kind, vertices, faces, old_to_new[self.attachment[keep]], self.attachment_part[keep])
 
-def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08, seed: int = 0) -> Garment:
+
+def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08, seed: int = 0,
+                 panels: bool = False) -> Garment:
     """Build a garment of `kind` for the skeleton's rest pose with every edge shorter than max_edge.
 
-    The seed varies the design within a small range (ease, lengths). Raises ValueError if max_edge is too coarse
-    for the garment's openings or if the result would come closer than CLEARANCE to the body (a skeleton with
-    proportions far from the default's).
+    The seed varies the design within a small range (ease, lengths). With `panels` the garment comes as separate
+    panels with duplicated seam vertices (`_panel_seams`); every copy of an attachment vertex is attached, in the
+    order of the whole garment's attachments, so that `welded` gives exactly the garment made without `panels`.
+    Raises ValueError if max_edge is too coarse for the garment's openings or if the result would come closer
+    than CLEARANCE to the body (a skeleton with proportions far from the default's).
     """
     if kind not in GARMENT_KINDS:
         raise ValueError(f"unknown garment kind '{kind}'; choose one of {', '.join(GARMENT_KINDS)}")
@@ -61,6 +79,12 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
     builder = _MeshBuilder(SPACING * max_edge)
     attachment, part = _BUILDERS[kind](body, builder, np.random.default_rng(seed))
     vertices, faces = builder.vertices, builder.faces
+    if panels:
+        vertices, faces, copied = cut_along_edges(vertices, faces, _panel_seams(body, vertices, faces))
+        rank = np.full(len(builder.vertices), len(attachment))
+        rank[attachment] = np.arange(len(attachment))
+        copies = np.flatnonzero(rank[copied] < len(attachment))
+        attachment = copies[np.argsort(rank[copied[copies]], kind="stable")]
     validate_mesh(vertices, faces)
     gap = body.distance(vertices)
     if gap.min() < CLEARANCE * body.scale:
@@ -69,6 +93,35 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
                          f"{gap[worst]:.4f} from the body (need {CLEARANCE * body.scale:.4f})")
     return Garment(kind=kind, vertices=vertices, faces=faces, attachment=np.asarray(attachment, dtype=np.int64),
                    attachment_part=np.full(len(attachment), body.skel.index(part), dtype=np.int64))
+
+
+def _panel_seams(body: _RestMannequin, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The seams (S, 2) of a garment sewn from about a dozen panels, along mesh edges. Horizontal seams at
+    PANEL_SEAM_DEPTHS of its height split it into bands. The middle bands are quartered by centre-front,
+    centre-back and side seams (the body's midplane and the coronal plane through the pelvis). Each piece of the
+    top and bottom bands (waistband or yoke, hems and cuffs) gets a single seam at its own centre back: a band
+    around the body stays one panel that meets itself along it, as a real waistband or cuff does, and an open
+    band (a cape's) is split there or, where the jagged seam stops short, slit."""
+    edges, sides = edge_faces(faces)
+    interior = sides[:, 1] >= 0
+    edges, a, b = edges[interior], sides[interior, 0], sides[interior, 1]
+    centre = vertices[faces].mean(axis=1)
+    top, bottom = vertices[:, 1].max(), vertices[:, 1].min()
+    # A face's band is that of its highest corner: both triangles of a quad row whose top edge is within a
+    # depth fall on its side, so the top band holds at least the first row however coarse the garment.
+    band = np.digitize(top - vertices[faces, 1].max(axis=1), np.asarray(PANEL_SEAM_DEPTHS) * (top - bottom))
+    same_band = band[a] == band[b]
+    closed = same_band & ((band[a] == 0) | (band[a] == len(PANEL_SEAM_DEPTHS)))
+    # The pieces of the top and bottom bands, each with its own centre.
+    graph = sp.coo_matrix((np.ones(int(same_band.sum())), (a[same_band], b[same_band])), shape=(len(faces),) * 2)
+    _, piece = csgraph.connected_components(graph, directed=False)
+    piece_centre = np.stack([np.bincount(piece, weights=centre[:, k]) for k in range(3)], 1) / np.bincount(piece)[:, None]
+    pelvis = body.joint("pelvis")
+    middle = np.where(closed[:, None], piece_centre[piece[a]], pelvis)
+    left_a, left_b = centre[a, 0] > middle[:, 0], centre[b, 0] > middle[:, 0]
+    front_a, front_b = centre[a, 2] > middle[:, 2], centre[b, 2] > middle[:, 2]
+    cut = ~same_band | ((left_a != left_b) & (~closed | ~front_a)) | ((front_a != front_b) & ~closed)
+    return edges[cut]
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from geometry.mesh import weld_vertices
 from geometry.rigid import apply_rigid
 from scenes.grid import first_row_pins, grid_cloth, sway_driver
 from scenes.scene import Pins, RodDriver, Scene, SceneRest
@@ -13,9 +14,13 @@ ONLY_SEQUENCE = sequence_name(TRAIN, 0)
 
 
 def grid_rest(settings: dict) -> SceneRest:
-    """The grid and its pins (`mesh.generator: grid`); ValueError for settings it cannot build."""
+    """The grid and its pins (`mesh.generator: grid`); ValueError for settings it cannot build. `mesh.weld`
+    > 0 merges vertices that close before the pins are chosen, as for any generator (a grid has no seams, so only
+    a tolerance near its edge length changes it)."""
     mesh = settings["mesh"]
     vertices, faces = grid_cloth(mesh["width"], mesh["height"], mesh["max_edge"], mesh["plane"], mesh["origin"])
+    if mesh["weld"] > 0:
+        vertices, faces, _ = weld_vertices(vertices, faces, mesh["weld"])
     pin_rule = settings["drivers"]["pins"]
     pin_ids = first_row_pins(vertices, mesh["plane"], pin_rule) if settings["physics"]["pins"] else np.zeros(0, int)
     return SceneRest(name=settings["scene"], generator=mesh["generator"], vertices=vertices, faces=faces,

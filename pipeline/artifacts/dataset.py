@@ -13,8 +13,9 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from model.features import previous_frames
 from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_indices
-from pipeline.artifacts.scene import MannequinFrames
+from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames
 from pipeline.errors import PipelineError
 
 STAGE = "dataset"
@@ -23,6 +24,9 @@ FACES, REST_VERTICES, LOW_POSITIONS, LOW_FACES = "faces", "rest_vertices", "low/
 SEQUENCE, SEQUENCE_FRAME = "sequence", "sequence_frame"
 SEQUENCE_NAMES, SEQUENCE_ROLES, SEQUENCE_CLIPS = "sequences/names", "sequences/role", "sequences/clips"
 SPLIT, SPLIT_TRAIN, SPLIT_TEST, SPLIT_HELD_OUT = "split", "split/train", "split/test", "split/held_out"
+# What the cloth of each frame moves in, in the dataset's reference frame: the inputs of body- and
+# gravity-relative network features (model.features).
+CONTEXT_GRAVITY, CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B = "context/gravity", "context/capsule_a", "context/capsule_b"
 SPLIT_MEANING = ("train: frames trained on; test: a seeded random share of the training sequences' frames; "
                  "held_out: every frame of the held-out sequences (unseen motion, the clips named in attr "
                  "held_out_clips; may be empty)")
@@ -56,6 +60,7 @@ class DatasetLayout:
     frame: str                   # reference frame of the positions: world or torso
     seed: int                    # of the split
     test_fraction: float
+    frame_time: float            # seconds between consecutive frames of a sequence
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +70,9 @@ class SequenceFrames:
     inputs: np.ndarray           # (n, V_high, 3) Loop-subdivided low-res positions S x_low
     targets: np.ndarray          # (n, V_high, 3) displacements x_high - S x_low
     low_positions: np.ndarray    # (n, V_low, 3)
+    gravity: np.ndarray          # (n, 3) unit direction of gravity in the reference frame
     mannequin: MannequinFrames | None   # garment scenes (pipeline.artifacts.scene.read_mannequin_frames)
+    capsules: tuple[np.ndarray, np.ndarray] | None   # garment scenes: end points a, b (n, P, 3) in the reference frame
 
 
 def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: DatasetLayout,
@@ -76,13 +83,20 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
         inputs = f.create_dataset(INPUT, (n_frames, n_vertices, 3), np.float32)
         targets = f.create_dataset(TARGET, (n_frames, n_vertices, 3), np.float32)
         low = f.create_dataset(LOW_POSITIONS, (n_frames, layout.n_low_vertices, 3), np.float32)
+        gravity = f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
         f[PREDICTOR] = f[INPUT]          # a hard link: Table 2's predictor is the input itself
         start = 0
         for part in sequences:
             rows = slice(start, start + len(part.inputs))
             inputs[rows], targets[rows], low[rows] = part.inputs, part.targets, part.low_positions
+            gravity[rows] = part.gravity
             if part.mannequin is not None:
                 _write_mannequin(f, part.mannequin, rows, n_frames)
+            if part.capsules is not None:
+                for name, ends in zip((CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B), part.capsules):
+                    if name not in f:
+                        f.create_dataset(name, (n_frames, *ends.shape[1:]), np.float32)
+                    f[name][rows] = ends
             start = rows.stop
         if start != n_frames:
             raise PipelineError(f"{path}: the sequences gave {start} frames, the layout says {n_frames}")
@@ -100,7 +114,12 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
         f[SPLIT].attrs.update(meaning=SPLIT_MEANING, held_out_clips=",".join(split.held_out_clips))
         f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=layout.frame, n_frames=n_frames,
                        n_vertices=n_vertices, n_sequences=len(layout.names), split_seed=layout.seed,
-                       test_fraction=layout.test_fraction)
+                       test_fraction=layout.test_fraction, frame_time=layout.frame_time)
+        f[CONTEXT_GRAVITY].attrs["meaning"] = "unit direction of gravity per frame, in the reference frame"
+        if CONTEXT_CAPSULE_A in f:
+            for name in (CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B):
+                f[name].attrs["meaning"] = (f"the body capsules' end points per frame (F, P, 3) in the reference "
+                                            f"frame; radii in {CAPSULE_RADIUS_A}, {CAPSULE_RADIUS_B}")
         f[INPUT].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
         f[TARGET].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
         f[SEQUENCE].attrs["meaning"] = ("index into sequences/names of each frame's sequence; frame f - 1 is the "
@@ -121,17 +140,33 @@ def _write_mannequin(f, mannequin: MannequinFrames, rows: slice, n_frames: int) 
 
 
 @dataclasses.dataclass(frozen=True)
+class FrameContext:
+    """What each frame's cloth moves in, in the dataset's reference frame (the network's non-cloth inputs)."""
+
+    gravity: np.ndarray      # (F, 3) unit direction
+    capsule_a: np.ndarray    # (F, P, 3) body capsules' end points; P = 0 for a scene without a body
+    capsule_b: np.ndarray    # (F, P, 3)
+    radius_a: np.ndarray     # (P,)
+    radius_b: np.ndarray     # (P,)
+    frame_time: float        # seconds between consecutive frames of a sequence
+
+
+@dataclasses.dataclass(frozen=True)
 class LearningData:
-    """The dataset artifact's arrays: inputs (= predictor) and target displacements, faces, split."""
+    """The dataset artifact's arrays: inputs (= predictor) and target displacements, faces, split, and what
+    the network's features are made from."""
 
     inputs: np.ndarray
     targets: np.ndarray
     faces: np.ndarray
+    rest_vertices: np.ndarray   # (V, 3) the subdivided rest mesh
     train: np.ndarray
     test: np.ndarray
     fingerprint: str
     held_out: np.ndarray   # frames of motions never trained on (may be empty)
     sequence: np.ndarray   # (F,) int64 sequence id of each frame: frame f - 1 precedes f if their ids agree
+    previous: np.ndarray   # (F,) int64 the frame before each frame in its sequence (itself at a sequence's start)
+    context: FrameContext
     frame: str = "world"   # reference frame of the positions
     held_out_clips: str = ""   # comma-separated motion clips of `held_out`
 
@@ -156,6 +191,14 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
                     else np.zeros(n_frames, np.int64))
         frame = str(f.attrs.get("frame", "world"))
         held_out_clips = str(f[SPLIT].attrs.get("held_out_clips", ""))
+        rest_vertices = read(f, REST_VERTICES, np.float64)
+        if rest_vertices.shape != inputs.shape[1:]:
+            raise PipelineError(f"{path}: '{REST_VERTICES}' {rest_vertices.shape} must be {inputs.shape[1:]}")
+        context = _read_context(f, n_frames)
+    try:
+        previous = previous_frames(sequence)
+    except ValueError as err:
+        raise PipelineError(f"{path}: '{SEQUENCE}': {err}") from None
     every = np.concatenate([train, test, held_out])
     if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every):
         raise PipelineError(f"{path}: '{SPLIT_TRAIN}', '{SPLIT_TEST}' (and '{SPLIT_HELD_OUT}') must be disjoint "
@@ -163,8 +206,33 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
     digest = hashlib.sha256(inputs.tobytes())
     digest.update(targets.tobytes())
     digest.update(train.tobytes())
-    return LearningData(inputs, targets, faces, train, test, digest.hexdigest(), held_out, sequence, frame,
-                        held_out_clips)
+    for array in (context.gravity, context.capsule_a, context.capsule_b, context.radius_a, context.radius_b):
+        digest.update(array.tobytes())
+    return LearningData(inputs, targets, faces, rest_vertices, train, test, digest.hexdigest(), held_out, sequence,
+                        previous, context, frame, held_out_clips)
+
+
+def _read_context(f, n_frames: int) -> FrameContext:
+    if CONTEXT_GRAVITY not in f or "frame_time" not in f.attrs:
+        raise PipelineError(f"{f.filename}: no '{CONTEXT_GRAVITY}' or attr 'frame_time': made by an older "
+                            f"pipeline.dataset; make it again")
+    frame_time = float(f.attrs["frame_time"])
+    gravity = read(f, CONTEXT_GRAVITY, np.float32)
+    if gravity.shape != (n_frames, 3) or not np.allclose(np.linalg.norm(gravity, axis=1), 1.0, atol=1e-4):
+        raise PipelineError(f"{f.filename}: '{CONTEXT_GRAVITY}' must hold ({n_frames}, 3) unit vectors")
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise PipelineError(f"{f.filename}: attr 'frame_time' must be finite and > 0, got {frame_time}")
+    if CONTEXT_CAPSULE_A not in f:
+        empty = np.zeros((n_frames, 0, 3), np.float32)
+        return FrameContext(gravity, empty, empty, np.zeros(0, np.float32), np.zeros(0, np.float32), frame_time)
+    a, b = read(f, CONTEXT_CAPSULE_A, np.float32), read(f, CONTEXT_CAPSULE_B, np.float32)
+    radius_a, radius_b = read(f, CAPSULE_RADIUS_A, np.float32), read(f, CAPSULE_RADIUS_B, np.float32)
+    n = len(radius_a)
+    if a.shape != (n_frames, n, 3) or b.shape != a.shape or radius_b.shape != (n,) or np.any(radius_a <= 0) \
+            or np.any(radius_b <= 0) or np.any(np.linalg.norm(b - a, axis=2) <= np.abs(radius_a - radius_b)):
+        raise PipelineError(f"{f.filename}: '{CONTEXT_CAPSULE_A}', '{CONTEXT_CAPSULE_B}' must be ({n_frames}, "
+                            f"{n}, 3) and the radii positive, each capsule longer than its radii differ")
+    return FrameContext(gravity, a, b, radius_a, radius_b, frame_time)
 
 
 def read_low_res(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

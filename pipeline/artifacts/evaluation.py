@@ -8,7 +8,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5
+from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.errors import PipelineError
 
 STAGE = "evaluate"
 
@@ -46,4 +47,20 @@ def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluat
         f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
         f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
                        warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
-                       timing="network only, batch of one frame")
+                       timing="input features and network, batch of one frame")
+
+
+def read_errors(path: str | os.PathLike) -> dict[str, dict[str, dict[str, float]]]:
+    """The split-wide errors an evaluation wrote: "network"/"predictor" -> split -> term -> value, each split
+    with at least its l1 and l2."""
+    with open_artifact(path) as f:
+        try:
+            errors = {who: {split: {term: float(read(f, f"errors/{who}/{split}/{term}")) for term in ("l1", "l2")}
+                            for split in f[f"errors/{who}"]}
+                      for who in ("network", "predictor")}
+        except (KeyError, TypeError, ValueError):
+            raise PipelineError(f"{path}: 'errors/network' and 'errors/predictor' must hold a group per split with "
+                                f"scalars l1 and l2: not an eval.h5 of pipeline.evaluate") from None
+    if set(errors["network"]) != set(errors["predictor"]):
+        raise PipelineError(f"{path}: the network and the predictor were evaluated on different splits")
+    return errors

@@ -6,9 +6,12 @@ would take for a finished one, and a link planted at a predictable name cannot r
 Every artifact carries the same provenance attrs: `stage`, `config` (JSON of the settings that made it),
 `versions` (JSON of package versions) and `length_unit`.
 
-Reads trust nothing in the file: `read` refuses NaN/inf, `read_indices` index arrays out of range or of the
-wrong shape, `read_csr` malformed sparse matrices, each as one `PipelineError` naming the file and dataset
-(an out-of-range index would otherwise reach scipy's or Warp's unchecked loops: a segfault, not an error).
+Reads trust nothing in the file: `read` refuses NaN/inf and values beyond float32's range, `read_indices` index
+arrays out of range or of the wrong shape, `read_csr` malformed sparse matrices, each as one `PipelineError`
+naming the file and dataset (an out-of-range index would otherwise reach scipy's or Warp's unchecked loops: a
+segfault, not an error); whatever else a damaged file makes h5py raise inside `open_artifact` becomes one such
+error too. A write that the file system refuses (a read-only folder, an output path that is a folder) is one
+error naming the output.
 """
 from __future__ import annotations
 
@@ -60,13 +63,16 @@ def _replaced_on_success(path: str | os.PathLike, suffix: str) -> Iterator[str]:
     itself is replaced, not followed.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    with _output_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
     try:
-        os.fchmod(fd, _FILE_MODE)
-        os.close(fd)
+        with _output_errors(path):
+            os.fchmod(fd, _FILE_MODE)
+            os.close(fd)
         yield tmp_name
-        os.replace(tmp_name, path)
+        with _output_errors(path):
+            os.replace(tmp_name, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.remove(tmp_name)
@@ -74,11 +80,33 @@ def _replaced_on_success(path: str | os.PathLike, suffix: str) -> Iterator[str]:
 
 
 @contextlib.contextmanager
+def _output_errors(path: Path) -> Iterator[None]:
+    """The file system's refusal to create, fill or rename an output (a read-only folder, a folder or a regular
+    file where the output or its folder should be, a full disk) as one error naming the output."""
+    try:
+        yield
+    except OSError as err:
+        raise PipelineError(f"{path}: cannot write the output ({_why_unwritable(path, err)})") from None
+
+
+def _why_unwritable(path: Path, err: OSError) -> str:
+    if path.is_dir():
+        return "it is a folder"
+    blocking = next((parent for parent in path.parents if parent.exists() and not parent.is_dir()), None)
+    if blocking is not None:
+        return f"{blocking} is a file, not a folder"
+    return err.strerror or str(err)
+
+
+@contextlib.contextmanager
 def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """A binary file to write that appears at `path` only if the block finishes without error (every output
     that is not HDF5: model.pt, the training checkpoint, report.md)."""
-    with _replaced_on_success(path, ".tmp") as tmp_name, open(tmp_name, "wb") as f:
-        yield f
+    with _replaced_on_success(path, ".tmp") as tmp_name:
+        with _output_errors(path):
+            f = open(tmp_name, "wb")
+        with f:
+            yield f
 
 
 @contextlib.contextmanager
@@ -87,12 +115,15 @@ def atomic_h5(path: str | os.PathLike, stage: str, config: Mapping[str, Any] | N
 
     Provenance attrs are set up front; the caller adds datasets and stage-specific attrs.
     """
-    with _replaced_on_success(path, ".tmp.h5") as tmp_name, h5py.File(tmp_name, "w") as f:
-        f.attrs["stage"] = stage
-        f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=_json_default)
-        f.attrs["versions"] = json.dumps(package_versions(), sort_keys=True)
-        f.attrs["length_unit"] = "scene unit (~1 m), y up"
-        yield f
+    with _replaced_on_success(path, ".tmp.h5") as tmp_name:
+        with _output_errors(path):
+            f = h5py.File(tmp_name, "w")
+        with f:
+            f.attrs["stage"] = stage
+            f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=_json_default)
+            f.attrs["versions"] = json.dumps(package_versions(), sort_keys=True)
+            f.attrs["length_unit"] = "scene unit (~1 m), y up"
+            yield f
 
 
 def _json_default(obj: Any) -> Any:
@@ -105,26 +136,62 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot record {type(obj).__name__} in an artifact's config attr")
 
 
-def open_artifact(path: str | os.PathLike) -> h5py.File:
-    """Open an existing artifact read-only, with a clear error if it is missing or not HDF5."""
+@contextlib.contextmanager
+def open_artifact(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """An existing artifact opened read-only for the block, with one clear error if it is missing or not HDF5,
+    or if reading it fails in the block.
+
+    Damaged metadata (a header, a B-tree or a heap overwritten) makes h5py raise what libhdf5 reports, as
+    OSError, KeyError, RuntimeError or ValueError, and the reader's conversions of what it got may raise more:
+    inside the block all of it is about this file's contents, so all of it becomes one `PipelineError` naming
+    the file (the reader's own `PipelineError`s pass unchanged).
+    """
     path = Path(path)
     if not path.is_file():
         raise PipelineError(f"{path}: input file does not exist")
     try:
-        return h5py.File(path, "r")
+        f = h5py.File(path, "r")
     except OSError as err:
-        raise PipelineError(f"{path}: not a readable HDF5 file ({err})") from None
+        raise PipelineError(f"{path}: not a readable HDF5 file ({_one_line(err)})") from None
+    with f:
+        try:
+            yield f
+        except PipelineError:
+            raise
+        except Exception as err:     # h5py and numpy raise many types for a damaged file; see the docstring
+            raise PipelineError(f"{path}: damaged or unreadable HDF5 file ({type(err).__name__}: "
+                                f"{_one_line(err)})") from None
+
+
+def _one_line(err: Exception) -> str:
+    """An exception's message on one line (a KeyError's without the quotes its str() adds)."""
+    return " ".join(str(err.args[0] if len(err.args) == 1 else err).split())
+
+
+# Every floating-point array ends up in float32 (Warp's kernels, torch's network, the artifacts' positions): a
+# finite float64 beyond this would turn into inf there.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def read(f: h5py.File, name: str, dtype: Any = None) -> np.ndarray:
-    """Read a whole dataset, naming the file and dataset if it is absent or holds NaN/inf."""
+    """Read a whole dataset, naming the file and dataset if it is absent or holds NaN, inf or a value beyond
+    float32's range; with a `dtype`, it must hold real numbers (numpy would turn text into an error of its own
+    and drop an imaginary part with a warning)."""
     if name not in f:
         raise PipelineError(f"{f.filename}: missing dataset '{name}'")
+    if not isinstance(f[name], h5py.Dataset):
+        raise PipelineError(f"{f.filename}: '{name}' is a group, not a dataset")
+    if dtype is not None and f[name].dtype.kind not in "biuf":
+        raise PipelineError(f"{f.filename}: dataset '{name}' holds {f[name].dtype} values, not real numbers")
     data = f[name][()]
+    if np.issubdtype(np.asarray(data).dtype, np.floating):
+        # checked before any conversion: float32 would turn a huge value into inf, with a warning on stderr
+        with np.errstate(invalid="ignore"):
+            if not np.all(np.abs(data) <= FLOAT32_MAX):
+                raise PipelineError(f"{f.filename}: dataset '{name}' contains NaN, inf or values beyond float32's "
+                                    f"range")
     if dtype is not None:
         data = np.asarray(data, dtype=dtype)
-    if np.issubdtype(np.asarray(data).dtype, np.floating) and not np.all(np.isfinite(data)):
-        raise PipelineError(f"{f.filename}: dataset '{name}' contains NaN or inf")
     return data
 
 

@@ -13,26 +13,28 @@ from typing import Any, Mapping
 
 import torch
 
+from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.mesh_hierarchy import MeshHierarchy
-from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.networks import NetworkSpec, build_network
 from model.training import CHECKPOINT_FORMAT
 from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.errors import PipelineError
 
-MODEL_FORMAT = "trimesh-cnn/model-1"
+MODEL_FORMAT = "trimesh-cnn/model-2"     # 1: absolute positions only, no feature spec
 
 
-def save_model(path: Path, model: NormalizedRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
+def save_model(path: Path, model: FeatureRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
                extra: Mapping[str, Any]) -> None:
-    state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "state_dict": model.state_dict(),
+    state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
+             "state_dict": model.state_dict(),
              "arch_expanded": str(model.net.arch), "parameter_count": model.net.parameter_count(),
              "operators": {"fingerprint": mesh.fingerprint(), "vertex_counts": mesh.vertex_counts}, **extra}
     _torch_save(path, state)
 
 
 def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
-               device: str) -> tuple[NormalizedRegressor, MeshHierarchy, dict]:
+               device: str) -> tuple[FeatureRegressor, MeshHierarchy, dict]:
     """A trained model and the hierarchy it runs on, after checking the operators are those it was trained on."""
     if not Path(path).is_file():
         raise PipelineError(f"{path}: model file does not exist")
@@ -42,8 +44,14 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
         raise PipelineError(f"{path}: not a readable model file ({type(err).__name__})") from None
     if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
         raise PipelineError(f"{path}: not a model written by pipeline.train (format {MODEL_FORMAT})")
-    spec = NetworkSpec(**state["spec"])
-    trained = state["operators"]
+    try:
+        _check_plain(state, _PLAIN_FIELDS)
+        spec, features = NetworkSpec(**state["spec"]), FeatureSpec(**state["features"])
+        weights = state["state_dict"]
+        faces, rest = weights["features.faces"].numpy(), weights["features.rest"].numpy()
+        trained = state["operators"]
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise PipelineError(f"{path}: damaged model file ({type(err).__name__}: {err})") from None
     mesh = load_hierarchy(operators_path, spec.conv, len(trained["vertex_counts"]))
     if mesh.vertex_counts != trained["vertex_counts"]:
         raise PipelineError(f"{operators_path}: the model in {path} was trained on a mesh hierarchy with vertex "
@@ -51,10 +59,37 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
     if mesh.fingerprint() != trained["fingerprint"]:
         raise PipelineError(f"{operators_path}: same vertex counts but different operator tables than the ones "
                             f"the model in {path} was trained on")
-    net = build_network(spec)
-    model = NormalizedRegressor(net, torch.zeros(spec.in_channels), 1.0, 1.0)
-    model.load_state_dict(state["state_dict"])
+    try:
+        model = FeatureRegressor(build_network(spec), features, faces, rest)
+        model.load_state_dict(weights)
+    except (ValueError, RuntimeError, IndexError) as err:
+        # A failed load_state_dict's message spans lines; its type says enough.
+        raise PipelineError(f"{path}: its weights do not fit the network it describes ({type(err).__name__})") \
+            from None
     return model.to(device).eval(), mesh.to(device), state
+
+
+# The plain values of model.pt that its readers use, and their types (a nested dict: the same for its keys).
+_NUMBER = (int, float)
+_PLAIN_FIELDS = {
+    "spec": {"arch": str, "conv": str, "pool": str, "width": _NUMBER, "in_channels": int, "out_channels": int},
+    "features": {"inputs": (list, tuple), "input_frame": str, "output_frame": str, "frame_tangent": str},
+    "arch_expanded": str, "parameter_count": int, "state_dict": dict,
+    "operators": {"fingerprint": str, "vertex_counts": (list, tuple)},
+    "training": {"epochs": int, "batch_size": int, "lr": _NUMBER, "seed": int, "device": str,
+                 "loss_weights": {"l1": _NUMBER, "l2": _NUMBER, "normal": _NUMBER}},
+}
+
+
+def _check_plain(values: dict, fields: dict, where: str = "") -> None:
+    """TypeError naming the first field of `fields` that `values` lacks or holds with another type."""
+    for name, kind in fields.items():
+        if not isinstance(values, dict) or name not in values:
+            raise TypeError(f"missing '{where}{name}'")
+        if isinstance(kind, dict):
+            _check_plain(values[name], kind, f"{where}{name}.")
+        elif not isinstance(values[name], kind) or isinstance(values[name], bool):
+            raise TypeError(f"'{where}{name}' is {type(values[name]).__name__}")
 
 
 def write_checkpoint(path: Path, state: dict[str, Any]) -> None:

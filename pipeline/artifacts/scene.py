@@ -157,9 +157,10 @@ def _sequence_attrs(scene: Scene) -> dict[str, dict[str, Any]]:
 
 
 def read_rest_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """The low-res rest mesh: vertices (V, 3) float64 and faces (F, 3) int64."""
+    """The low-res rest mesh: vertices (V, 3) float64 and faces (F, 3) int64, indices checked against V."""
     with open_artifact(path) as f:
-        return read(f, REST_VERTICES, np.float64), read(f, REST_FACES, np.int64)
+        vertices = read(f, REST_VERTICES, np.float64)
+        return vertices, read_indices(f, REST_FACES, len(vertices), shape=(None, 3))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -272,14 +273,16 @@ def read_body(path: str | os.PathLike) -> tuple[Skeleton, BodyState] | None:
     with open_artifact(path) as f:
         if BODY not in f:
             return None
-        skeleton = _skeleton_from_h5(f[BODY])
+        skeleton = _skeleton_from_h5(f)
         state = BodyState(**{name: read(f, f"{BODY_STATE}/{name}", np.float64) for name in BODY_STATE_ARRAYS})
     return skeleton, state
 
 
-def _skeleton_from_h5(group: h5py.Group) -> Skeleton:
-    """The skeleton stored in scene.h5's `body` group."""
-    return Skeleton(names=tuple(n.decode() for n in group[SKELETON_NAMES][()]),
-                    parents=group[SKELETON_PARENTS][()].astype(np.int64),
-                    **{name: np.asarray(group[name][()], dtype=np.float64) for name in SKELETON_ARRAYS},
+def _skeleton_from_h5(f: h5py.File) -> Skeleton:
+    """The skeleton stored in scene.h5's `body` group; a joint's parent is another joint, or -1 for the root."""
+    group = f[BODY]
+    names = tuple(n.decode() for n in read(f, f"{BODY}/{SKELETON_NAMES}"))
+    return Skeleton(names=names,
+                    parents=read_indices(f, f"{BODY}/{SKELETON_PARENTS}", len(names), shape=(len(names),), lower=-1),
+                    **{name: read(f, f"{BODY}/{name}", np.float64) for name in SKELETON_ARRAYS},
                     height=float(group.attrs[SKELETON_HEIGHT]))

@@ -6,9 +6,10 @@ import dataclasses
 import os
 from typing import Any, Literal, Mapping
 
+import h5py
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.artifacts.h5 import atomic_h5, config_of, open_artifact, read, read_indices
 from pipeline.errors import PipelineError
 
 
@@ -52,13 +53,48 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
 
 
 def read_trajectory(path: str | os.PathLike) -> Trajectory:
+    """Positions (F, V, 3) and faces, whose indices are checked against V."""
     with open_artifact(path) as f:
-        return Trajectory(read(f, "positions", np.float64), read(f, "faces", np.int64))
+        n_vertices = _positions_shape(f)[1]
+        return Trajectory(read(f, "positions", np.float64), read_indices(f, "faces", n_vertices, shape=(None, 3)))
 
 
 def read_run_outline(path: str | os.PathLike) -> tuple[int, np.ndarray]:
     """The number of frames of a run and its faces (T, 3) int64, without reading its positions."""
     with open_artifact(path) as f:
-        if "positions" not in f or f["positions"].ndim != 3:
-            raise PipelineError(f"{path}: missing dataset 'positions' (F, V, 3)")
-        return f["positions"].shape[0], read(f, "faces", np.int64)
+        n_frames, n_vertices = _positions_shape(f)
+        return n_frames, read_indices(f, "faces", n_vertices, shape=(None, 3))
+
+
+def _positions_shape(f: h5py.File) -> tuple[int, int]:
+    """Frames and vertices of a run's `positions` (F, V, 3)."""
+    if "positions" not in f or f["positions"].ndim != 3 or f["positions"].shape[2] != 3:
+        raise PipelineError(f"{f.filename}: missing dataset 'positions' (F, V, 3)")
+    return f["positions"].shape[:2]
+
+
+@dataclasses.dataclass(frozen=True)
+class RunPhysics:
+    """The time step and gravity a run was made with (its provenance config's `solver`)."""
+
+    dt: float                      # seconds between stored frames
+    gravity: np.ndarray            # (3,) scene units / s^2, world frame
+
+
+def read_run_physics(path: str | os.PathLike) -> RunPhysics:
+    """`solver.dt` and `solver.gravity` of the settings a run was made with, checked: dt finite and > 0, gravity
+    three finite numbers, not all zero (its direction is a network input)."""
+    with open_artifact(path) as f:
+        solver = config_of(f).get("solver")
+    if not isinstance(solver, dict) or "dt" not in solver or "gravity" not in solver:
+        raise PipelineError(f"{path}: its config attr holds no solver.dt and solver.gravity: not a run written by "
+                            f"pipeline.simulate")
+    try:
+        dt, gravity = float(solver["dt"]), np.asarray(solver["gravity"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PipelineError(f"{path}: config solver.dt must be a number and solver.gravity three numbers") from None
+    if not (np.isfinite(dt) and dt > 0) or gravity.shape != (3,) or not np.all(np.isfinite(gravity)) \
+            or not np.any(gravity):
+        raise PipelineError(f"{path}: config solver.dt must be finite and > 0 and solver.gravity three finite "
+                            f"numbers, not all zero")
+    return RunPhysics(dt, gravity)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class SolverSettings:
@@ -26,6 +28,10 @@ class SolverSettings:
     self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
 
     def __post_init__(self):
+        # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
+        not_finite = [name for name, value in vars(self).items() if not np.all(np.isfinite(value))]
+        if not_finite:
+            raise ValueError(f"solver setting '{not_finite[0]}' is not finite: {getattr(self, not_finite[0])}")
         checks = {
             "dt": self.dt > 0, "substeps": self.substeps >= 1, "iterations": self.iterations >= 1,
             "compression_allowance": 0 < self.compression_allowance <= 1,

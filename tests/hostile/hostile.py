@@ -14,11 +14,14 @@ from pathlib import Path
 import numpy as np
 
 from geometry.loop_subdivision import loop_subdivide
-from pipeline import cli
+from pipeline import cli, scene
 from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.config import load_config, resolve_scene, shared_settings, write_settings
 
 REPO = Path(__file__).resolve().parents[2]
 N_FRAMES = 8
+# The solver settings a run records (pipeline.simulate): the dataset reads its frame time and gravity there.
+SIM_CONFIG = {"solver": {"dt": 0.1, "gravity": [0.0, -9.81, 0.0]}}
 ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
 
 
@@ -28,10 +31,10 @@ class Run:
     stderr: str
 
 
-def run_stage(stage: str, *args, cwd: Path = REPO) -> Run:
+def run_stage(stage: str, *args, cwd: Path = REPO, timeout: float = 300) -> Run:
     """`python -m pipeline.<stage> ARGS` in its own process."""
     done = subprocess.run([sys.executable, "-m", f"pipeline.{stage}", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd, timeout=300)
+                          text=True, cwd=cwd, timeout=timeout)
     return Run(done.returncode, done.stderr)
 
 
@@ -72,6 +75,17 @@ def grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
 
 
+def patch_settings() -> dict:
+    """What settings.json holds for the patch scene (a 2 x 2 sheet) on the CPU profile."""
+    return shared_settings(resolve_scene(load_config(REPO / "workflow_config.yaml"), "patch", "cpu"))
+
+
+def write_patch_scene(folder: Path) -> None:
+    """settings.json of the patch scene and, as scene.h5, the scene of its first sequence."""
+    write_settings(patch_settings(), folder / "settings.json")
+    scene.main([str(folder / "settings.json"), str(folder / "scene.h5"), "--sequence", "train_000"])
+
+
 def dataset_command(subdiv: Path, out: Path, folder: Path) -> list[Path | str]:
     """The arguments of `pipeline.dataset` building `out` from `subdiv` and the sequence of `write_simulations`
     in `folder`."""
@@ -89,7 +103,7 @@ def write_simulations(folder: Path, n: int = 5) -> None:
     smooth = np.stack([subdivision @ x for x in low])
     high = smooth + 0.01 * np.sin(12 * smooth[:, :, 0] + 0.3 * t)[..., None] * np.array([0.0, 0.0, 1.0])
     for name, positions, f in (("sim_low", low, faces), ("sim_high", high, high_faces)):
-        with atomic_h5(folder / "sequence" / f"{name}.h5", "simulate") as out:
+        with atomic_h5(folder / "sequence" / f"{name}.h5", "simulate", SIM_CONFIG) as out:
             out["positions"] = positions.astype(np.float32)
             out["faces"] = f.astype(np.int32)
     with atomic_h5(folder / "subdiv.h5", "subdivide") as out:

@@ -1,31 +1,76 @@
-"""The feature-input regressor: normalisation statistics by hand, and a whole network (features, local frames,
-mesh CNN) that turns exactly with a rigid motion of everything it sees."""
+"""The feature-input regressor: normalisation statistics against numpy over every frame at once, and a whole
+network (features, local frames, mesh CNN) that turns exactly with a rigid motion of everything it sees."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
 
-from model.feature_regressor import FeatureRegressor, feature_statistics
-from model.features import FrameInputs, InputFeatures
+import model.feature_regressor as feature_regressor
+from model.feature_regressor import FeatureRegressor, FeatureSpec, store_statistics
+from model.features import FrameBatch, FrameStore, previous_frames
 from model.networks import NetworkSpec, build_network
 
 
-def test_feature_statistics_centre_channels_and_scale_each_feature_as_one():
-    features = torch.randn(4, 10, 5, dtype=torch.float64) * torch.tensor([1.0, 2.0, 3.0, 5.0, 0.0],
-                                                                          dtype=torch.float64) + 7.0
-    offset, scale = feature_statistics(features, [3, 1, 1])
-    normalised = (features - offset) / scale
-    torch.testing.assert_close(normalised.mean(dim=(0, 1)), torch.zeros(5, dtype=torch.float64))
-    assert torch.isclose(normalised[..., :3].square().mean(), torch.tensor(1.0, dtype=torch.float64))
-    assert torch.isclose(normalised[..., 3].square().mean(), torch.tensor(1.0, dtype=torch.float64))
-    assert scale[0] == scale[1] == scale[2] and scale[4] == 1.0            # one scale per feature; constant: 1
+def _store(vertices: np.ndarray, n_frames: int = 9) -> FrameStore:
+    """Frames of a waving, drifting sheet in two sequences, one capsule under it, gravity along -y."""
+    rng = np.random.default_rng(2)
+    t = np.arange(n_frames)[:, None, None]
+    noise = 0.02 * rng.normal(size=(n_frames, *vertices.shape))
+    positions = vertices[None] + 0.05 * np.sin(t + 3 * vertices[None, :, :1]) + noise
+    capsule = np.broadcast_to(np.array([[[0.0, -1.0, 0.0]]]), (n_frames, 1, 3))
+    t32 = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)      # noqa: E731
+    previous = previous_frames(np.array([0] * 4 + [1] * (n_frames - 4)))
+    return FrameStore(t32(positions), torch.as_tensor(previous), t32(capsule), t32(capsule + [1.0, 0.0, 0.0]),
+                      torch.tensor([0.3]), torch.tensor([0.2]), t32(np.tile([0.0, -1.0, 0.0], (n_frames, 1))), 0.1)
 
 
-def _inputs(x, previous, a, b, gravity) -> FrameInputs:
+def test_store_statistics_centre_channels_and_scale_each_feature_as_one(grid, monkeypatch):
+    vertices, faces, _ = grid
+    store = _store(vertices)
+    features = FeatureSpec(("velocity", "body", "gravity", "rest_position")).features(faces, vertices)
+    ids = torch.tensor([0, 2, 3, 5, 6, 8])
+    monkeypatch.setattr(feature_regressor, "STATISTICS_FRAMES", 4)       # measured on frames 0, 3, 5, 8
+    offset, scale = store_statistics(features, store, ids, batch_size=3)
+    every = features(store.batch(torch.tensor([0, 3, 5, 8]))).double().numpy().reshape(-1, features.channels)
+    np.testing.assert_allclose(offset, every.mean(axis=0), rtol=1e-5, atol=1e-6)
+    centred = every - every.mean(axis=0)
+    expected = [np.sqrt(np.mean(centred[:, a:b] ** 2)) for a, b in ((0, 3), (3, 7), (7, 10), (10, 13))]
+    np.testing.assert_allclose(scale[[0, 3, 7, 10]], [expected[0], expected[1], 1.0, expected[3]], rtol=1e-5)
+    assert expected[2] < 1e-6                           # gravity never varies: scale 1, not 0
+    assert torch.all(scale[:3] == scale[0]) and torch.all(scale[3:7] == scale[3])   # one scale per feature
+
+
+def test_normalise_gives_unit_inputs_and_the_target_rms(grid):
+    vertices, faces, _ = grid
+    store = _store(vertices)
+    spec = FeatureSpec(("position", "laplacian"), "dataset", "local", "edge")
+    model = FeatureRegressor(build_network(NetworkSpec("D4 D D6", "RC7", in_channels=spec.channels)), spec, faces,
+                             vertices)
+    ids, targets = torch.arange(9), 0.01 * torch.randn(9, len(vertices), 3)
+    model.normalise(store, ids, targets)
+    encoded, frames = model.encode(store.batch(ids))
+    torch.testing.assert_close(encoded.mean(dim=(0, 1)), torch.zeros(6), atol=1e-5, rtol=0)
+    torch.testing.assert_close(encoded[..., :3].square().mean(), torch.tensor(1.0), rtol=1e-4, atol=0)
+    assert frames.shape == (9, len(vertices), 3, 3)
+    assert model.output_scale == pytest.approx(float(targets.square().mean().sqrt()), rel=1e-6)
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"inputs": ()}, "distinct names"), ({"inputs": ("position", "position")}, "distinct names"),
+    ({"inputs": ("speed",)}, "distinct names"), ({"input_frame": "world"}, "input_frame"),
+    ({"output_frame": "torso"}, "output_frame"), ({"frame_tangent": "up"}, "frame_tangent"),
+    ({"inputs": ("normal",), "input_frame": "local"}, "normal"),
+])
+def test_feature_spec_refuses_what_cannot_be_built(fields, message):
+    with pytest.raises(ValueError, match=message):
+        FeatureSpec(**fields)
+
+
+def _inputs(x, previous, a, b, gravity) -> FrameBatch:
     t = lambda array: torch.as_tensor(array, dtype=torch.float64)[None]      # noqa: E731
     radii = torch.tensor([0.2, 0.1], dtype=torch.float64)
-    return FrameInputs(t(x), t(previous), t(previous), t(a), t(b), radii, radii, t(gravity), 0.1)
+    return FrameBatch(t(x), t(previous), t(previous), t(a), t(b), radii, radii, t(gravity), 0.1)
 
 
 def test_local_inputs_and_outputs_make_the_whole_regressor_rotation_equivariant(grid):
@@ -35,11 +80,9 @@ def test_local_inputs_and_outputs_make_the_whole_regressor_rotation_equivariant(
     previous = x + 0.01 * rng.normal(size=x.shape)
     a, b = np.array([[0.3, -0.5, 0.2], [0.6, 0.4, 0.6]]), np.array([[0.5, -0.4, 0.8], [0.9, 0.6, 0.2]])
     gravity = np.array([0.0, -0.6, -0.8])
-    features = InputFeatures(("velocity", "body", "laplacian", "strain", "gravity"), faces, vertices,
-                             local_inputs=True, frame_tangent="gravity")
-    net = build_network(NetworkSpec("D4 D D6", "RC7", in_channels=features.channels))
-    model = FeatureRegressor(net, features, torch.zeros(features.channels), torch.ones(features.channels), 0.1,
-                             output_frame="local").double().eval()
+    spec = FeatureSpec(("velocity", "body", "laplacian", "strain", "gravity"), "local", "local", "gravity")
+    net = build_network(NetworkSpec("D4 D D6", "RC7", in_channels=spec.channels))
+    model = FeatureRegressor(net, spec, faces, vertices, output_scale=0.1).double().eval()
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     rotation = q * np.sign(np.diag(r)) * np.sign(np.linalg.det(q))
     move = lambda p: p @ rotation.T + np.array([1.0, -2.0, 0.5])           # noqa: E731
@@ -52,23 +95,20 @@ def test_local_inputs_and_outputs_make_the_whole_regressor_rotation_equivariant(
 
 def test_channel_counts_must_agree(grid):
     vertices, faces, _ = grid
-    features = InputFeatures(("normal", "body"), faces, vertices)
     with pytest.raises(ValueError, match="input channels"):
-        FeatureRegressor(build_network(NetworkSpec("D4 D D6", "RC7")), features, torch.zeros(7), torch.ones(7), 1.0)
+        FeatureRegressor(build_network(NetworkSpec("D4 D D6", "RC7")), FeatureSpec(("normal", "body")), faces,
+                         vertices)
 
 
 def test_encoded_inputs_can_be_cached_and_decoded_later(grid):
     vertices, faces, mesh = grid
-    rng = np.random.default_rng(1)
-    x = vertices + 0.05 * rng.normal(size=vertices.shape)
-    features = InputFeatures(("normal", "laplacian"), faces, vertices)
-    net = build_network(NetworkSpec("D4 D D6", "RC7", in_channels=features.channels))
-    inputs = _inputs(x, x, np.zeros((2, 3)), np.ones((2, 3)), np.array([0.0, -1.0, 0.0]))
-    offset, scale = feature_statistics(features.double()(inputs), features.groups())
+    store = _store(vertices)
     for frame in ("dataset", "local"):
-        model = FeatureRegressor(net, features, offset, scale, 0.1, frame).double().eval()
+        spec = FeatureSpec(("normal", "laplacian"), "dataset", frame)
+        net = build_network(NetworkSpec("D4 D D6", "RC7", in_channels=spec.channels))
+        model = FeatureRegressor(net, spec, faces, vertices, output_scale=0.1).eval()
+        inputs = store.batch(torch.tensor([1, 5]))
         encoded, frames = model.encode(inputs)
         assert (frames is None) == (frame == "dataset")
-        torch.testing.assert_close(encoded.square().mean(), torch.tensor(1.0, dtype=torch.float64))
         with torch.no_grad():
             torch.testing.assert_close(model.decode(encoded, frames, mesh), model(inputs, mesh))

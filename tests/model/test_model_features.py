@@ -11,7 +11,7 @@ import torch
 
 from geometry.mesh import unique_edges
 from geometry.shapes import cube_sphere, grid_patch
-from model.features import (FEATURE_CHANNELS, FrameInputs, FrameSource, InputFeatures, capsule_distances,
+from model.features import (FEATURE_CHANNELS, FrameBatch, FrameStore, InputFeatures, capsule_distances,
                             nearest_capsule, previous_frames, principal_stretches, reference_neighbours,
                             umbrella_laplacian, vertex_normals)
 from scenes.capsules import capsule_signed_distance
@@ -30,12 +30,12 @@ def _random_rotation(seed: int) -> np.ndarray:
 
 
 def _frame_inputs(positions, previous=None, before_previous=None, a=None, b=None, gravity=None,
-                  frame_time=0.1) -> FrameInputs:
+                  frame_time=0.1) -> FrameBatch:
     x = _t(positions)[None]
     a = _t([[[0.0, -2.0, 0.0]]]) if a is None else _t(a)
     b = _t([[[0.0, -3.0, 0.0]]]) if b is None else _t(b)
     radii = torch.full((a.shape[1],), 0.5, dtype=F64)
-    return FrameInputs(x, x if previous is None else _t(previous)[None],
+    return FrameBatch(x, x if previous is None else _t(previous)[None],
                        x if before_previous is None else _t(before_previous)[None], a, b, radii, radii.clone(),
                        _t([[0.0, -1.0, 0.0]]) if gravity is None else _t(gravity), frame_time)
 
@@ -169,7 +169,7 @@ def test_previous_frames_restart_at_each_sequence_and_batches_gather_history():
         previous_frames(np.array([1, 1, 2, 1]))
     positions = torch.arange(6, dtype=F64)[:, None, None].expand(6, 2, 3)          # frame f sits at f
     capsules = torch.zeros(6, 1, 3, dtype=F64)
-    source = FrameSource(positions, torch.as_tensor(previous), capsules, capsules, torch.ones(1), torch.ones(1),
+    source = FrameStore(positions, torch.as_tensor(previous), capsules, capsules, torch.ones(1), torch.ones(1),
                          torch.zeros(6, 3, dtype=F64), 0.5)
     batch = source.batch(torch.tensor([2, 3, 4]))
     assert batch.positions[:, 0, 0].tolist() == [2, 3, 4]

@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from model.losses import LossWeights
-from model.networks import NetworkSpec, NormalizedRegressor, build_network
+from model.feature_regressor import FeatureRegressor, FeatureSpec
+from model.features import FrameStore
+from model.networks import NetworkSpec, build_network
 from model.training import CheckpointError, Frames, TrainSettings, fit, split_errors
 
 
@@ -18,12 +20,16 @@ def _problem(grid):
     base = torch.as_tensor(vertices, dtype=torch.float32)
     inputs = base + 0.05 * torch.randn(7, *base.shape, generator=generator)
     targets = 0.01 * torch.sin(7 * inputs)
-    return mesh, Frames(inputs, targets, torch.as_tensor(faces))
+    no_body = torch.zeros(len(inputs), 0, 3)
+    store = FrameStore(inputs, torch.arange(len(inputs)), no_body, no_body, torch.zeros(0), torch.zeros(0),
+                       torch.tensor([[0.0, -1.0, 0.0]]).expand(len(inputs), 3), 0.1)
+    return mesh, Frames(store, targets, torch.as_tensor(faces))
 
 
-def _model() -> NormalizedRegressor:
+def _model(grid) -> FeatureRegressor:
     torch.manual_seed(0)
-    return NormalizedRegressor(build_network(NetworkSpec("D8 D D8", "RC7")), torch.zeros(3), 1.0, 0.01)
+    net = build_network(NetworkSpec("D8 D D8", "RC7"))
+    return FeatureRegressor(net, FeatureSpec(("position",)), grid[1], grid[0], output_scale=0.01)
 
 
 def _stored(state: dict) -> dict:
@@ -39,13 +45,13 @@ def test_resumed_training_equals_uninterrupted(grid):
     mesh, frames = _problem(grid)
     train_ids, test_ids = torch.arange(6), torch.tensor([6])
     saved, notices = [], []
-    first = _model()
+    first = _model(grid)
     fit(first, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2),
         save_checkpoint=lambda state: saved.append(_stored(state)), on_notice=notices.append)
-    resumed = _model()
+    resumed = _model(grid)
     history = fit(resumed, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4), resume_from=saved[-1],
                   on_notice=notices.append)
-    straight = _model()
+    straight = _model(grid)
     reference = fit(straight, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4))
     assert len(saved) == 2 and history.resumed_from_epoch == 2 and notices == ["resuming after epoch 2"]
     assert history.train["total"] == reference.train["total"]
@@ -57,24 +63,24 @@ def test_resumed_training_equals_uninterrupted(grid):
 def test_stale_checkpoint_starts_afresh_and_a_damaged_one_is_an_error(grid):
     mesh, frames = _problem(grid)
     saved = []
-    fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1, lr=1e-2),
+    fit(_model(grid), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1, lr=1e-2),
         save_checkpoint=lambda state: saved.append(_stored(state)))
     notices = []
-    history = fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1),
+    history = fit(_model(grid), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1),
                   resume_from=saved[0], on_notice=notices.append)
     assert history.resumed_from_epoch == 0 and "starting afresh" in notices[0]
     damaged = {**saved[0], "model": {"no such": torch.zeros(1)}}
     with pytest.raises(CheckpointError, match="cannot be restored"):
-        fit(_model(), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1, lr=1e-2),
+        fit(_model(grid), mesh, frames, torch.arange(6), torch.tensor([6]), TrainSettings(epochs=1, lr=1e-2),
             resume_from=damaged)
 
 
 def test_split_errors_match_numpy(grid):
     _, frames = _problem(grid)
     ids = torch.tensor([0, 2, 3, 5, 6])
-    errors = split_errors(lambda x: 0.5 * torch.sin(7 * x) * 0.01, frames, ids, batch_size=2,
+    errors = split_errors(lambda inputs: 0.5 * torch.sin(7 * inputs.positions) * 0.01, frames, ids, batch_size=2,
                           weights=LossWeights(1.0, 2.0, 0.0))
-    difference = (0.5 * 0.01 * np.sin(7 * frames.inputs.numpy()) - frames.targets.numpy())[ids.numpy()]
+    difference = (0.5 * 0.01 * np.sin(7 * frames.store.positions.numpy()) - frames.targets.numpy())[ids.numpy()]
     assert np.isclose(errors["l1"], np.abs(difference).mean(), rtol=1e-5)
     # L2 over the whole split, not a mean of per-batch L2s
     assert np.isclose(errors["l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-5)

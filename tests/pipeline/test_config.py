@@ -193,7 +193,7 @@ def test_without_settings_the_flags_keep_their_own_defaults():
     (None, "settings file does not exist"),
     ("{not json", "not valid JSON"),
     ('{"network": {"width": 1}}', "missing setting 'training'"),
-    ('{"network": 1, "training": {}}', "settings of an unexpected shape"),
+    ('{"network": 1, "training": {}}', "network: 1 is not of type 'object'"),
     ("[1, 2]", "not a JSON object of settings"),
 ])
 def test_bad_settings_file_is_one_clear_error(tmp_path, content, message):

@@ -33,7 +33,7 @@ def write_sequence(folder: Path, settings: dict, name: str, S) -> np.ndarray:
     high = np.stack([S @ x for x in low]) + 0.002 * np.cos(0.2 * t)
     high_faces = loop_subdivide(rest, faces, 1)[1]
     for level, positions, f in (("low", low, faces), ("high", high, high_faces)):
-        with atomic_h5(folder / f"sim_{level}.h5", f"simulate_{level}") as out:
+        with atomic_h5(folder / f"sim_{level}.h5", f"simulate_{level}", settings) as out:
             out["positions"], out["faces"] = positions.astype(np.float32), f.astype(np.int32)
     return low
 
@@ -115,6 +115,40 @@ def test_each_frame_carries_its_mannequin_under_the_scene_names(scene):
     skeleton, state = read_body(root / "dataset.h5")
     assert skeleton.height == 1.7 and len(state.rotation) == len(sequence)
     assert read_torso_transforms(root / "dataset.h5", len(sequence)).shape == (len(sequence), 4, 4)
+
+
+def test_each_frame_carries_gravity_and_the_capsules_in_the_torso_frame(scene):
+    root, _, _ = scene
+    data = load_dataset(root / "dataset.h5")
+    with h5py.File(root / "dataset.h5") as f:
+        world_a, torso = f["capsules/a"][()], f["torso_transforms"][()]
+        assert f.attrs["frame_time"] == pytest.approx(1 / 60)
+    gravity = np.array([0.0, -1.0, 0.0])                     # solver.gravity (0, -9.81, 0), as a unit vector
+    for i in (0, len(torso) // 2, len(torso) - 1):
+        rotation, translation = torso[i, :3, :3], torso[i, :3, 3]
+        np.testing.assert_allclose(data.context.gravity[i], np.linalg.solve(rotation, gravity), atol=1e-6)
+        np.testing.assert_allclose(data.context.capsule_a[i], np.linalg.solve(rotation, (world_a[i] - translation).T).T,
+                                   atol=1e-5)
+    assert data.context.capsule_b.shape == data.context.capsule_a.shape and np.all(data.context.radius_a > 0)
+    # the previous frame restarts at each sequence's first kept frame
+    starts = np.flatnonzero(np.r_[True, data.sequence[1:] != data.sequence[:-1]])
+    np.testing.assert_array_equal(data.previous[starts], starts)
+    np.testing.assert_array_equal(np.delete(data.previous, starts), np.delete(np.arange(len(data.previous)) - 1, starts))
+
+
+def test_sequences_made_with_another_time_step_are_refused(scene, tmp_path, capsys):
+    root, _, _ = scene
+    other = tmp_path / "train_009"
+    other.mkdir()
+    (other / "scene.h5").write_bytes((root / "train_001" / "scene.h5").read_bytes())
+    for level in ("low", "high"):
+        with h5py.File(root / "train_001" / f"sim_{level}.h5") as f, \
+                atomic_h5(other / f"sim_{level}.h5", f"simulate_{level}", {"solver": {"dt": 0.01, "gravity": [0, -9.81, 0]}}) as out:
+            out["positions"], out["faces"] = f["positions"][()], f["faces"][()]
+    with pytest.raises(SystemExit):
+        run_dataset(root / "subdiv.h5", tmp_path / "d.h5", root / "train_000", other)
+    assert f"{other / 'sim_low.h5'}: made with dt 0.01 s" in capsys.readouterr().err
+    assert not (tmp_path / "d.h5").exists()
 
 
 def run_dataset(*args) -> None:

@@ -3,7 +3,9 @@ operators built by meshops; plus resume-after-kill, the clear errors of bad inpu
 defaults of the stages' flags."""
 from __future__ import annotations
 
+import base64
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -11,6 +13,7 @@ import time
 from pathlib import Path
 
 import h5py
+import imageio_ffmpeg
 import numpy as np
 import pytest
 import torch
@@ -23,6 +26,8 @@ from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
 N_FRAMES = 12
+# The solver settings a run records (pipeline.simulate): the dataset reads its frame time and gravity there.
+SIM_CONFIG = {"solver": {"dt": 0.1, "gravity": [0.0, -9.81, 0.0]}}
 ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
 
 
@@ -46,7 +51,7 @@ def write_simulation(folder: Path, n: int = 5, transform=lambda x, f: x) -> None
     smooth = np.stack([subdivision @ x for x in low])
     high = smooth + 0.01 * np.sin(12 * smooth[:, :, 0] + 0.3 * t)[..., None] * np.array([0.0, 0.0, 1.0])
     for name, positions, f in (("sim_low", low, faces), ("sim_high", high, high_faces)):
-        with atomic_h5(folder / f"{name}.h5", "simulate") as out:
+        with atomic_h5(folder / f"{name}.h5", "simulate", SIM_CONFIG) as out:
             out["positions"] = np.stack([transform(p, i) for i, p in enumerate(positions)]).astype(np.float32)
             out["faces"] = f.astype(np.int32)
     with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
@@ -141,7 +146,7 @@ def test_training_writes_model_and_falling_loss_curves(trained):
 def test_evaluation_errors_renders_and_exports(trained):
     out = trained / "eval"
     stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", out / "eval.h5",
-          out / "report.md", "--render-frames", "1", "--timing-frames", "3", "--quiet")
+          out / "report.md", "--render-frames", "1", "--timing-frames", "3", "--video-frames", "0", "--quiet")
     with h5py.File(trained / "dataset.h5") as f:
         inputs, target = f["input"][()], f["target"][()]
         test_ids, faces = f["split/test"][()], f["faces"][()]
@@ -158,13 +163,65 @@ def test_evaluation_errors_renders_and_exports(trained):
     assert errors["network/test/l1"] < errors["predictor/test/l1"]       # the network beats Loop subdivision
     report = (out / "report.md").read_text()
     assert "10,349 learnable parameters" in report and "Loop subdivision alone" in report
-    pictures = sorted((out / "renders").glob("*.png"))
+    pictures = sorted((out / "renders").glob("frame_*.png"))
     assert len(pictures) == 1 and f"]({pictures[0].relative_to(out)})" in report
     obj = trimesh.load(out / "export/predicted_obj/frame_0003.obj", process=False)
     np.testing.assert_allclose(obj.vertices, predicted[3], atol=1e-5)
     assert np.array_equal(obj.faces, faces)
     scene = trimesh.load(next((out / "export").glob("*.glb")))
     assert set(scene.geometry) == {"low_res_input", "ground_truth", "network_output"}
+    assert not (out / "videos").exists() and not (out / "report.html").exists()    # --video-frames 0, no --html
+
+
+def data_uri_bytes(uri: str) -> bytes:
+    assert uri.startswith("data:") and ";base64," in uri
+    return base64.b64decode(uri.split(";base64,", 1)[1])
+
+
+def test_evaluation_report_page_embeds_its_pictures_and_videos(trained):
+    """report.html holds the tables, the stills, the plots (the training curve from --train-log) and the videos,
+    each embedded byte for byte; report.md links the same files; a video decodes to its frame count, at the
+    scene's frame rate."""
+    out = trained / "html"
+    stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", out / "eval.h5",
+          out / "report.md", "--html", out / "report.html", "--train-log", trained / "train.h5",
+          "--render-frames", "1", "--video-frames", "5", "--timing-frames", "1", "--quiet")
+    page = (out / "report.html").read_text()
+    sources = re.findall(r'<(?:img|video) src="([^"]+)"', page)
+    files = sorted((out / "renders").glob("*.png")) + sorted((out / "videos").iterdir())
+    assert [p.name for p in files] == ["error_over_time.png", "frame_0009.png", "training_curve.png", "test.mp4"]
+    assert sorted(data_uri_bytes(uri) for uri in sources) == sorted(p.read_bytes() for p in files)
+    assert "10,349 learnable parameters" in page and page.count("<table>") == 3     # errors, inputs, training
+    report = (out / "report.md").read_text()
+    assert all(f"]({p.relative_to(out)})" in report for p in files)
+    assert "](export/predicted_obj)" in report and 'href="export/predicted_obj"' in page
+    # The synthetic sheet's one sequence of 12 frames (dt 0.1 s) has one test frame: 5 frames around it.
+    reader = imageio_ffmpeg.read_frames(str(out / "videos" / "test.mp4"))
+    meta = next(reader)
+    assert meta["fps"] == 10 and sum(1 for _ in reader) == 5
+    with h5py.File(trained / "dataset.h5") as f:
+        assert f["split/test"][()].tolist() == [9]
+    assert "Frames 5-9 of a training sequence, 1 of them test frames" in report
+
+
+def test_evaluation_failing_midway_leaves_nothing_behind(trained, tmp_path, monkeypatch):
+    """Renders and exports are written before the videos: a failure encoding a video must take them away too,
+    and any folder of an earlier run stays as it was."""
+    out = tmp_path / "out"
+    (out / "renders").mkdir(parents=True)
+    (out / "renders" / "earlier.png").write_bytes(b"an earlier run's")
+
+    def failing(frames, fps):
+        next(iter(frames))                       # the first video frame is rendered, then the encoder fails
+        raise OSError("disk full")
+
+    monkeypatch.setattr(evaluate, "encode_animation", failing)
+    with pytest.raises(OSError, match="disk full"):
+        stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt",
+              out / "eval.h5", out / "report.md", "--html", out / "report.html", "--render-frames", "1",
+              "--video-frames", "2", "--timing-frames", "1", "--quiet")
+    assert sorted(p.name for p in out.iterdir()) == ["renders"]
+    assert [p.name for p in (out / "renders").iterdir()] == ["earlier.png"]
 
 
 def test_resume_after_kill_ends_like_an_uninterrupted_run(work, tmp_path):
@@ -230,9 +287,10 @@ def settings(work) -> dict:
     """The smoke scene's resolved settings, sized to these tests' mesh and network, in work/settings.json."""
     resolved = resolve_scene(load_config(REPO / "workflow_config.yaml"), "patch")
     resolved["operators"].update(conv=["RC7"], levels=4)
-    resolved["network"].update(arch="D8 D16 D D16", conv="RC7", width=1)
+    resolved["network"].update(arch="D8 D16 D D16", conv="RC7", width=1, inputs=["velocity", "laplacian", "gravity"],
+                               input_frame="local", output_frame="local", frame_tangent="gravity")
     resolved["training"].update(epochs=2, lr=0.002, loss={"l1": 1.0, "l2": 0.5, "normal": 0.0})
-    resolved["evaluation"].update(render_frames=1, export_frames=2, timing_frames=2)
+    resolved["evaluation"].update(render_frames=1, video_frames=2, export_frames=2, timing_frames=2)
     write_settings(resolved, work / "settings.json")
     return resolved
 
@@ -246,11 +304,14 @@ def _spelled_out(settings: dict) -> dict[str, list]:
         "dataset": ["--frame", settings["dataset"]["frame"], "--test-fraction", settings["dataset"]["test_fraction"],
                     "--seed", settings["dataset"]["seed"]],
         "train": ["--arch", network["arch"], "--conv", network["conv"], "--pool", network["pool"], "--width",
-                  network["width"], "--epochs", training["epochs"], "--batch-size", training["batch_size"], "--lr",
+                  network["width"], "--inputs", ",".join(network["inputs"]), "--input-frame",
+                  network["input_frame"], "--output-frame", network["output_frame"], "--frame-tangent",
+                  network["frame_tangent"], "--epochs", training["epochs"], "--batch-size", training["batch_size"], "--lr",
                   training["lr"], "--seed", training["seed"], "--loss-l1", loss["l1"], "--loss-l2", loss["l2"],
                   "--loss-normal", loss["normal"], "--device", settings["device"]],
-        "evaluate": ["--render-frames", evaluation["render_frames"], "--export-frames", evaluation["export_frames"],
-                     "--timing-frames", evaluation["timing_frames"], "--device", settings["device"]],
+        "evaluate": ["--render-frames", evaluation["render_frames"], "--video-frames", evaluation["video_frames"],
+                     "--export-frames", evaluation["export_frames"], "--timing-frames", evaluation["timing_frames"],
+                     "--device", settings["device"]],
     }
 
 
@@ -285,6 +346,7 @@ def test_settings_make_the_artifacts_their_flags_make(work, settings, tmp_path):
             assert model_a["training"] == model_b["training"] and model_a["spec"] == model_b["spec"]
             assert all(torch.equal(model_a["state_dict"][k], model_b["state_dict"][k]) for k in model_a["state_dict"])
     assert configs["train"]["width"] == 1.0 and configs["train"]["lr"] == 0.002 and configs["train"]["epochs"] == 2
+    assert configs["train"]["inputs"] == "velocity,laplacian,gravity" and configs["train"]["output_frame"] == "local"
     assert configs["operators"]["conv"] == ["RC7"] and configs["evaluate"]["timing_frames"] == 2
     assert not any("settings" in config for config in configs.values())
 

@@ -113,7 +113,8 @@ def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, **mannequin) -> Path:
         "frames": TINY_FRAMES, "sequences": sequences, "mesh": {"max_edge": 0.25},
         "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5, **mannequin}},
         "solver": {"substeps": 2, "iterations": 10}, "high_res": {"subdivision_levels": 1},
-        "training": {"epochs": 1}, "evaluation": {"render_frames": 2, "export_frames": 2, "timing_frames": 2}}
+        "training": {"epochs": 1},
+        "evaluation": {"render_frames": 2, "video_frames": 4, "export_frames": 2, "timing_frames": 2}}
     path = tmp_path / name
     path.write_text(yaml.safe_dump(config))
     return path
@@ -148,13 +149,40 @@ def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_m
         np.testing.assert_allclose(x[:, s["pins/ids"][()]], s["pins/targets"][()], atol=1e-5)
     report = (out / "report.md").read_text()
     assert "held-out L1" in report and "never seen in training" in report
-    assert len(list((out / "renders").glob("*.png"))) == 2
+    assert len(list((out / "renders").glob("frame_*.png"))) == 2
+    assert sorted(p.name for p in (out / "videos").glob("*.mp4")) == ["held_out.mp4", "test.mp4"]
+    page = (out / "report.html").read_text()
+    assert page.count('<video src="data:video/mp4;base64,') == 2 and "Held-out motion (walk)" in page
 
     more = snakemake(workdir, "-n", "results/pants/", "--configfile", str(tiny_pants(tmp_path, "more.yaml", 3)))
     assert more.returncode == 0, tail(more)
     assert planned_counts(more) == {"sequence": 1, "simulate_low": 1, "simulate_high": 1, "dataset": 1, "train": 1,
                                     "evaluate": 1, "results/pants/": 1, "total": 7}
     assert "seq=train_002" in more.stdout
+
+
+def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(workdir, tmp_path):
+    """`results/pants/study/` on the tiny pants: datasets of the first 1 and 2 training sequences (each with the
+    held-out walk), both input variants trained on each for the same number of optimiser steps, one table."""
+    config = tiny_pants(tmp_path, "study.yaml")
+    overlay = yaml.safe_load(config.read_text())
+    overlay["profiles"]["cpu"]["scenes"]["pants"]["study"] = {"sequence_counts": [1, 2]}
+    config.write_text(yaml.safe_dump(overlay))
+    run = snakemake(workdir, "results/pants/study/", "--configfile", str(config))
+    assert run.returncode == 0, tail(run)
+    out = workdir / "results" / "pants" / "study"
+    with h5py.File(out / "n1" / "dataset.h5") as f:
+        assert [n.decode() for n in f["sequences/names"][()]] == ["train_000", "held_out_000"]
+    with h5py.File(out / "study.h5") as f:
+        assert f["counts"][()].tolist() == [1, 2]
+        assert [v.decode() for v in f["variants"][()]] == ["positions", "body_relative"]
+        assert np.isfinite(f["l1/network/held_out"][()]).all()
+    epochs = {}
+    for n in (1, 2):
+        with h5py.File(out / f"n{n}" / "body_relative" / "train.h5") as f:
+            epochs[n] = f.attrs["epochs"]
+    assert epochs == {1: 2, 2: 1}          # the scene's 1 epoch on 2 sequences: 2 epochs on one
+    assert "Loop subdivision alone" in (out / "report.md").read_text()
 
 
 def test_a_bvh_clip_is_an_input_of_its_sequence_and_a_missing_one_is_named(tmp_path):
@@ -181,7 +209,7 @@ def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_
     assert set(jobs) == STAGES | {"all"}
     scene = CONFIG["default_scene"]
     assert all(job["wildcards"].startswith(f"scene={scene}") for name, job in jobs.items() if name != "all")
-    assert jobs["simulate_high"]["wildcards"] == f"scene={scene}, seq=held_out_000"    # the last sequence
+    assert f"wildcards: scene={scene}, seq=held_out_000" in run.stdout     # the held-out sequence is planned
     for name in STAGES:
         job, seq = jobs[name], jobs[name]["wildcards"].split("seq=")[-1] + "/" if name in PER_SEQUENCE else ""
         assert job["log"] == f"results/{scene}/logs/{seq}{name}.log"
@@ -211,8 +239,9 @@ def test_no_config_value_reaches_a_shell_command(tmp_path):
     assert "pwned" not in run.stdout + run.stderr and not (tmp_path / "pwned").exists()
     shells = {name: job["shell"] for name, job in planned_jobs(run).items() if job.get("shell", "None") != "None"}
     assert set(shells) == STAGES - {"settings"}
-    words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--export", "--threads",
-             "2", "--quiet", "--sequence", "train_000"}     # the one sequence name of a grid scene
+    words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--videos", "--export",
+             "--html", "--train-log", "--threads", "2", "--quiet", "--sequence",
+             "train_000"}     # the one sequence name of a grid scene
     for name, command in shells.items():
         python, *rest = shlex.split(command)
         assert Path(python).resolve() == Path(sys.executable).resolve()    # Snakemake's own interpreter

@@ -6,14 +6,19 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 import trimesh
 
-from geometry.mesh import edge_faces, unique_edges, validate_mesh
+import yaml
+
+from geometry.mesh import edge_faces, unique_edges, validate_mesh, weld_vertices
+from pipeline.config import resolve_scene
 from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
 from scenes.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
 from scenes.kinematics import rest_transforms
+from scenes.registry import build_rest
 from scenes.skeleton import default_skeleton
 
 SKEL = default_skeleton()
 REST = rest_transforms(SKEL)
+CONFIG = yaml.safe_load(open("workflow_config.yaml"))
 
 
 @pytest.fixture(scope="module")
@@ -145,3 +150,56 @@ def test_invalid_requests_are_named():
         make_garment("poncho", SKEL)
     with pytest.raises(ValueError, match="max_edge must be positive"):
         make_garment("pants", SKEL, max_edge=0.0)
+
+
+def pieces(vertices, faces):
+    """Connected component of each vertex."""
+    edges = unique_edges(faces)
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2)
+    return csgraph.connected_components(graph, directed=False)[1]
+
+
+@pytest.mark.parametrize("max_edge", [0.08, 0.15])
+@pytest.mark.parametrize("kind", GARMENT_KINDS)
+def test_panels_are_separate_pieces_that_a_weld_sews_back_into_the_whole_garment(garments, kind, max_edge):
+    whole = garments[kind, max_edge]
+    panels = make_garment(kind, SKEL, max_edge=max_edge, panels=True)
+    validate_mesh(panels.vertices, panels.faces)
+    assert pieces(panels.vertices, panels.faces).max() + 1 >= 6     # 6-15 panels, whatever the garment
+    # every vertex is a copy of a vertex of the whole garment, at exactly its position; seams have several
+    _, _, original = weld_vertices(panels.vertices, panels.faces, 0.0)
+    assert np.array_equal(panels.vertices, whole.vertices[original]) and len(panels.vertices) > len(whole.vertices)
+    # every copy of an attachment vertex is attached, in the order of the whole garment's attachments
+    assert np.array_equal(np.sort(panels.attachment), np.flatnonzero(np.isin(original, whole.attachment)))
+    rank = np.argsort(whole.attachment)[np.searchsorted(whole.attachment[np.argsort(whole.attachment)],
+                                                        original[panels.attachment])]
+    assert np.all(np.diff(rank) >= 0)
+    welded = panels.welded(1e-6)
+    assert np.array_equal(welded.vertices, whole.vertices) and np.array_equal(welded.faces, whole.faces)
+    assert np.array_equal(welded.attachment, whole.attachment)
+    assert np.array_equal(welded.attachment_part, whole.attachment_part)
+
+
+@pytest.mark.parametrize("kind", ["pants", "skirt"])
+def test_the_waistband_is_one_panel_that_meets_itself_and_carries_every_pin(kind):
+    g = make_garment(kind, SKEL, max_edge=0.15, panels=True)
+    piece = pieces(g.vertices, g.faces)
+    band = piece == piece[g.attachment[0]]
+    assert np.all(band[g.attachment])
+    assert len(np.unique(g.vertices[band], axis=0)) < band.sum(), "closed by a seam whose vertices are duplicated"
+
+
+def test_scene_builders_cut_panels_and_weld_them_before_pins_and_skinning():
+    settings = resolve_scene(CONFIG, "pants", "cpu")
+    whole = build_rest(settings)
+    cut = build_rest({**settings, "mesh": {**settings["mesh"], "panels": True}})
+    assert len(cut.vertices) > len(whole.vertices) and len(cut.pin_ids) > len(whole.pin_ids)
+    assert cut.skinning_weights.shape == (len(cut.vertices), whole.skinning_weights.shape[1])
+    sewn = build_rest({**settings, "mesh": {**settings["mesh"], "panels": True, "weld": 1e-6}})
+    for name in ("vertices", "faces", "pin_ids", "pin_part", "skinning_influences", "skinning_weights"):
+        assert np.array_equal(getattr(sewn, name), getattr(whole, name)), name
+    grid = resolve_scene(CONFIG, "flag", "cpu")
+    assert np.array_equal(build_rest({**grid, "mesh": {**grid["mesh"], "weld": 1e-6}}).vertices,
+                          build_rest(grid).vertices)
+    with pytest.raises(ValueError, match="face"):     # a weld wider than the grid's edges leaves no mesh
+        build_rest({**grid, "mesh": {**grid["mesh"], "weld": 0.5}})

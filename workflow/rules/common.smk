@@ -64,7 +64,8 @@ def sequence_folders(wildcards):
 
 
 # What `results/<scene>/` stands for: every final product of a scene (the rest are their inputs).
-PRODUCTS = ("operators.h5", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "renders", "export")
+PRODUCTS = ("operators.h5", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html", "renders",
+            "videos", "export")
 SEQUENCE_PRODUCTS = ("sim_low.h5", "sim_high.h5")
 
 

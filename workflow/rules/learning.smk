@@ -43,19 +43,21 @@ rule train:
 
 
 # dataset.h5 carries each frame's mannequin under scene.h5's names, so it is also the --scene the renders draw
-# the body from (a garment scene's frames come from many sequences' scene files).
+# the body from (a garment scene's frames come from many sequences' scene files). The videos are a folder: their
+# suffix (.mp4, or .gif without an encoder) is known only once encoded.
 rule evaluate:
     input:
         settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5",
-        model=f"{OUT}/model.pt",
+        model=f"{OUT}/model.pt", train_log=f"{OUT}/train.h5",
     output:
-        eval=f"{OUT}/eval.h5", report=f"{OUT}/report.md",
-        renders=directory(f"{OUT}/renders"), export=directory(f"{OUT}/export"),
+        eval=f"{OUT}/eval.h5", report=f"{OUT}/report.md", html=f"{OUT}/report.html",
+        renders=directory(f"{OUT}/renders"), videos=directory(f"{OUT}/videos"), export=directory(f"{OUT}/export"),
     log: log_of("evaluate")
     benchmark: benchmark_of("evaluate")
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
-        "{output.report:q} --scene {input.dataset:q} --renders {output.renders:q} --export {output.export:q} "
+        "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
+        "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
