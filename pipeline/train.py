@@ -123,7 +123,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()
-    with tqdm(total=args.epochs * steps_per_epoch, desc="train", unit="batch", disable=args.quiet) as bar:
+    # A second between updates: through Snakemake's `| tee` the bar is also the job's log.
+    with tqdm(total=args.epochs * steps_per_epoch, desc="train", unit="batch", disable=args.quiet,
+              mininterval=1.0) as bar:
         def on_batch(epoch: int, loss: float) -> None:
             if bar.n == 0:
                 bar.update(epoch * steps_per_epoch)      # a resumed run starts past the checkpointed epochs

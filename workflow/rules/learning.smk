@@ -30,6 +30,7 @@ rule dataset:
         "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
 
 
+# Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains.
 rule train:
     input: settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5"
     output: model=f"{OUT}/model.pt", history=f"{OUT}/train.h5"
@@ -39,7 +40,7 @@ rule train:
     resources: mem_mb=8000, gpu=gpus_on_device
     shell:
         "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
-        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "--settings {input.settings:q} --threads {threads} 2>&1 | tee {log:q}"
 
 
 # dataset.h5 carries each frame's mannequin under scene.h5's names, so it is also the --scene the renders draw
