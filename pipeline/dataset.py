@@ -33,6 +33,7 @@ import numpy as np
 from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
 from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
+from pipeline.artifacts.h5 import check_same_mesh
 from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
@@ -192,6 +193,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
     subdivision = read_subdivision(args.subdiv)
     sources = find_sequences(args.sequences)
+    for source in sources:      # equal vertex counts are not enough: the runs must be of the mesh S subdivides
+        for run in (SIM_LOW, SIM_HIGH):
+            check_same_mesh(args.subdiv, source.folder / run)
     low_faces = read_run_outline(sources[0].folder / SIM_LOW)[1]
     physics = shared_physics(sources)
     layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed,

@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from geometry.rigid import apply_rigid
 from pipeline import cli
+from pipeline.artifacts.h5 import check_same_mesh, mesh_fingerprint
 from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
 from pipeline.artifacts.simulation import SimulationRun, read_trajectory, write_simulation
 from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
@@ -104,6 +105,9 @@ def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: s
                   quiet: bool) -> SimulationRun:
     s = solver_settings(settings)
     drive = read_scene_drive(scene_path, s.body_collision)
+    scene_mesh = mesh_fingerprint(*read_rest_mesh(scene_path))
+    for path in (subdiv_path, low_path):     # before any work: S of another mesh would multiply without complaint
+        check_same_mesh(path, scene_path, scene_mesh)
     subdivision, harmonics = read_subdivision(subdiv_path), read_harmonics(subdiv_path)
     S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
     basis, mass = harmonics.basis, harmonics.mass
@@ -154,7 +158,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         run = simulate_low(settings, args.scene, device, args.quiet)
     else:
         run = simulate_high(settings, args.scene, args.subdiv, args.sim_low, device, args.quiet)
-    write_simulation(args.out, args.level, settings, run, device)
+    write_simulation(args.out, args.level, settings, run, device, mesh_fingerprint(*read_rest_mesh(args.scene)))
 
 
 if __name__ == "__main__":

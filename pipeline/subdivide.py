@@ -23,6 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from pipeline.artifacts.h5 import mesh_fingerprint
 from pipeline.artifacts.subdiv import Harmonics, Subdivision, write_subdiv
 from pipeline.cli import add_quiet, parse_with_settings, run
 from pipeline.errors import PipelineError
@@ -121,7 +122,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         progress.set_postfix_str("writing")
         config = {"mesh": str(args.mesh), "levels": args.levels, "vertices_per_harmonic": args.vertices_per_harmonic}
         write_subdiv(args.out, config, args.levels, args.vertices_per_harmonic, len(low_vertices),
-                     Subdivision(subdivision, high_vertices, high_faces), Harmonics(basis, eigenvalues, mass))
+                     Subdivision(subdivision, high_vertices, high_faces), Harmonics(basis, eigenvalues, mass),
+                     mesh_fingerprint(low_vertices, low_faces))
         progress.update()
 
 

@@ -4,7 +4,9 @@ Every output (HDF5 or not) is written to a fresh, uniquely named temporary file 
 renamed only once complete, so an interrupted or failed stage never leaves a half-written file that Snakemake
 would take for a finished one, and a link planted at a predictable name cannot redirect the write.
 Every artifact carries the same provenance attrs: `stage`, `config` (JSON of the settings that made it),
-`versions` (JSON of package versions) and `length_unit`.
+`versions` (JSON of package versions) and `length_unit`. Every artifact derived from a scene's low-res rest mesh
+also carries `source_mesh`, that mesh's `mesh_fingerprint`, so that a stage can refuse inputs made from different
+meshes (`check_same_mesh`) even where their vertex counts agree.
 
 Reads trust nothing in the file: `read` refuses NaN/inf and values beyond float32's range, `read_indices` index
 arrays out of range or of the wrong shape, `read_csr` malformed sparse matrices, each as one `PipelineError`
@@ -16,6 +18,7 @@ error naming the output.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import importlib.metadata
 import json
 import os
@@ -198,6 +201,39 @@ def read(f: h5py.File, name: str, dtype: Any = None) -> np.ndarray:
 def config_of(f: h5py.File) -> dict[str, Any]:
     """The config recorded in an artifact's attrs."""
     return json.loads(f.attrs.get("config", "{}"))
+
+
+SOURCE_MESH = "source_mesh"      # root attr: mesh_fingerprint of the low-res rest mesh an artifact derives from
+
+
+def mesh_fingerprint(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """SHA-256 (hex) of a mesh: its shapes, float64 vertices and int64 faces. Artifacts store vertices as float64
+    and faces as int32 or int64, so a mesh read back from any of them has the fingerprint it was written with."""
+    digest = hashlib.sha256()
+    for array in (np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64)):
+        digest.update(np.asarray(array.shape, dtype=np.int64).tobytes())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
+def check_same_mesh(path: str | os.PathLike, other: str | os.PathLike, other_fingerprint: str | None = None) -> None:
+    """Refuse `path` unless it derives from the same low-res mesh as `other` (whose fingerprint is
+    `other_fingerprint`, or else its `source_mesh` attr).
+
+    Equal vertex counts are not enough: S of another mesh of as many vertices multiplies without complaint and
+    gives a high-res run, or a dataset, of nonsense. An artifact without the attr (made by hand, as test fixtures
+    are) is not checked: it can only be compared where both sides have a fingerprint.
+    """
+    fingerprint = _source_mesh_of(path)
+    other_fingerprint = other_fingerprint or _source_mesh_of(other)
+    if fingerprint is not None and other_fingerprint is not None and fingerprint != other_fingerprint:
+        raise PipelineError(f"{path}: made from another mesh than {other}")
+
+
+def _source_mesh_of(path: str | os.PathLike) -> str | None:
+    with open_artifact(path) as f:
+        value = f.attrs.get(SOURCE_MESH)
+    return None if value is None else str(value)
 
 
 def write_csr(group: h5py.Group, name: str, matrix: sp.spmatrix) -> None:

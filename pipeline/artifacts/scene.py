@@ -14,7 +14,7 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_indices
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
 from pipeline.errors import PipelineError
 from scenes.motion import BodyState
 from scenes.program import ProgramClip
@@ -59,7 +59,7 @@ def write_scene_rest(path: str | os.PathLike, rest: SceneRest, settings: Mapping
     """Write what every sequence of a scene shares; `settings` (the resolved scene settings) are its `config`."""
     with atomic_h5(path, STAGE, settings) as f:
         _write(f, _rest_datasets(rest), _rest_attrs(rest))
-        f.attrs.update(scene=rest.name, generator=rest.generator)
+        f.attrs.update(scene=rest.name, generator=rest.generator, **_source_mesh(rest))
 
 
 def write_scene(path: str | os.PathLike, scene: Scene, settings: Mapping[str, Any]) -> None:
@@ -68,8 +68,14 @@ def write_scene(path: str | os.PathLike, scene: Scene, settings: Mapping[str, An
     with atomic_h5(path, STAGE, settings) as f:
         _write(f, {**_rest_datasets(scene.rest), **_sequence_datasets(scene)},
                {**_rest_attrs(scene.rest), **_sequence_attrs(scene)})
-        f.attrs.update(scene=scene.rest.name, generator=scene.rest.generator, sequence=scene.sequence,
+        f.attrs.update(scene=scene.rest.name, generator=scene.rest.generator, **_source_mesh(scene.rest),
+                       sequence=scene.sequence,
                        role=parse_sequence_name(scene.sequence)[0], frames=scene.n_frames, dt=scene.dt)
+
+
+def _source_mesh(rest: SceneRest) -> dict[str, str]:
+    """The root attr naming the rest mesh that subdiv.h5 and the runs derive from (docs/artifacts.md)."""
+    return {SOURCE_MESH: mesh_fingerprint(rest.vertices, rest.faces)}
 
 
 def _write(f: h5py.File, datasets: dict[str, np.ndarray], attrs: dict[str, dict[str, Any]]) -> None:

@@ -9,7 +9,7 @@ from typing import Any, Literal, Mapping
 import h5py
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, config_of, open_artifact, read, read_indices
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, config_of, open_artifact, read, read_indices
 from pipeline.errors import PipelineError
 
 
@@ -36,9 +36,11 @@ class Trajectory:
 
 
 def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
-                     run: SimulationRun, device: str) -> None:
-    """Write one run; `settings` (the resolved scene settings) are its provenance `config`."""
+                     run: SimulationRun, device: str, source_mesh: str) -> None:
+    """Write one run; `settings` (the resolved scene settings) are its provenance `config`, `source_mesh` the
+    `mesh_fingerprint` of the scene's low-res rest mesh (that of a high-res run too: the mesh it derives from)."""
     with atomic_h5(path, f"simulate_{level}", settings) as f:
+        f.attrs[SOURCE_MESH] = source_mesh
         f.create_dataset("positions", data=run.positions.astype(np.float32))
         f.create_dataset("faces", data=run.faces.astype(np.int32))
         f.create_dataset("rest_vertices", data=run.rest_vertices.astype(np.float64))

@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
 from pipeline.errors import PipelineError
 
 STAGE = "subdivide"
@@ -34,8 +34,10 @@ class Harmonics:
 
 
 def write_subdiv(path: str | os.PathLike, config: Mapping[str, Any], levels: int, vertices_per_harmonic: int,
-                 n_low_vertices: int, subdivision: Subdivision, harmonics: Harmonics) -> None:
+                 n_low_vertices: int, subdivision: Subdivision, harmonics: Harmonics, source_mesh: str) -> None:
+    """Write the subdivision of a low-res mesh whose `mesh_fingerprint` is `source_mesh`."""
     with atomic_h5(path, STAGE, config) as f:
+        f.attrs[SOURCE_MESH] = source_mesh
         f.attrs["levels"] = levels
         f.attrs["n_low_vertices"] = n_low_vertices
         f.attrs["n_high_vertices"] = len(subdivision.vertices)

@@ -15,7 +15,7 @@ import numpy as np
 
 from geometry.loop_subdivision import loop_subdivide
 from pipeline import cli, scene
-from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, write_csr
 from pipeline.config import load_config, resolve_scene, shared_settings, write_settings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -94,8 +94,9 @@ def dataset_command(subdiv: Path, out: Path, folder: Path) -> list[Path | str]:
 
 def write_simulations(folder: Path, n: int = 5) -> None:
     """subdiv.h5 of a sheet (one Loop subdivision level) and, in sequence/, sim_low.h5 and sim_high.h5 of it
-    waving."""
+    waving, each marked as made from that sheet."""
     vertices, faces = grid(n)
+    source_mesh = mesh_fingerprint(vertices, faces)
     subdivision, high_faces = loop_subdivide(vertices, faces, 1)
     t = np.arange(N_FRAMES)[:, None]
     low = np.repeat(vertices[None], N_FRAMES, axis=0)
@@ -106,7 +107,9 @@ def write_simulations(folder: Path, n: int = 5) -> None:
         with atomic_h5(folder / "sequence" / f"{name}.h5", "simulate", SIM_CONFIG) as out:
             out["positions"] = positions.astype(np.float32)
             out["faces"] = f.astype(np.int32)
+            out.attrs[SOURCE_MESH] = source_mesh
     with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
+        out.attrs[SOURCE_MESH] = source_mesh
         write_csr(out, "S", subdivision)
         out["vertices"] = subdivision @ vertices
         out["faces"] = high_faces.astype(np.int32)
