@@ -221,7 +221,7 @@ def _names(entries: list) -> str:
 
 # Read by the workflow only, never by a stage: kept out of settings.json, so that changing them reruns no stage
 # of the scene (more sequences add jobs; the study's grid adds study jobs).
-WORKFLOW_ONLY = ("sequences", "study")
+WORKFLOW_ONLY = ("sequences", "shard", "study")
 
 
 def shared_settings(settings: dict) -> dict:

@@ -1,9 +1,11 @@
 """Simulate stage: the low-res XPBD run, and the high-res run held to it by harmonic test functions.
 
 CLI:
-  python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [--device D] [--quiet]
-  python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [--device D] [--quiet]
+  python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [SCENE.h5 OUT.h5 ...] [--device D] [--quiet]
+  python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [...] [--device D] [--quiet]
 SCENE.h5 is one sequence's scene (results/<scene>/sequences/<name>/scene.h5), which also sets the frame count.
+Several sequences (of one garment) are stepped together as one batch, a solver world each: on a GPU a batch
+costs about what one sequence does until the device is full (the workflow's `shard` key sizes it).
 The high-res run follows the same pins (carried over through the subdivision), collides with the same body, and
 holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al.
 2011).
@@ -13,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -55,110 +58,179 @@ def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray, low_part: np.ndarray
     return high_pins, np.asarray(low_part, dtype=np.int64)[strongest]
 
 
-def solver_body(drive: SceneDrive) -> dict:
-    """ClothSolver constructor arguments for the body at frame 0 (none without body collision)."""
-    return {} if drive.capsules is None else {"capsules": drive.capsules[0], "capsule_radii": drive.capsule_radii}
+@dataclass(frozen=True)
+class Batch:
+    """The sequences a simulate job steps together (one world each): their scene files and drives, checked to
+    share the mesh, the pinned vertices and the body's shape."""
+    scene_paths: list[str]
+    drives: list[SceneDrive]
+    mesh: str                      # mesh_fingerprint of the shared low-res rest mesh
+
+    @property
+    def n_frames(self) -> int:
+        """The longest sequence's frames: the batch steps that many; a shorter sequence's world holds its last
+        frame's inputs meanwhile, and its extra frames are dropped."""
+        return max(d.n_frames for d in self.drives)
+
+    def stack(self, per_sequence, f: int) -> np.ndarray:
+        """(B, ...) frame f of each sequence's per-frame array (its last frame for one that has ended)."""
+        return np.stack([a[min(f, len(a) - 1)] for a in per_sequence])
+
+    def body(self) -> dict:
+        """ClothSolver constructor arguments for the body at frame 0 (none without body collision)."""
+        first = self.drives[0]
+        if first.capsules is None:
+            return {}
+        return {"capsules": self.stack([d.capsules for d in self.drives], 0), "capsule_radii": first.capsule_radii}
+
+    def capsules(self, f: int) -> np.ndarray | None:
+        return None if self.drives[0].capsules is None else self.stack([d.capsules for d in self.drives], f)
 
 
-def frame_inputs(drive: SceneDrive, f: int, pin_targets: np.ndarray,
-                 harmonic_target: np.ndarray | None = None) -> FrameInputs:
-    """ClothSolver.step inputs for frame f."""
-    return FrameInputs(pin_targets=pin_targets, harmonic_target=harmonic_target,
-                       capsules=None if drive.capsules is None else drive.capsules[f])
+def read_batch(scene_paths: Sequence[str], body_collision: bool) -> Batch:
+    """Each sequence's drive; one error naming the file if a sequence is not of the first one's garment."""
+    drives, mesh = [], None
+    for path in scene_paths:
+        rest, faces = read_rest_mesh(path)
+        check_mesh(path, rest, faces)
+        drive = read_scene_drive(path, body_collision)
+        fingerprint = mesh_fingerprint(rest, faces)
+        if mesh is None:
+            mesh, first = fingerprint, drive
+        elif fingerprint != mesh:
+            raise PipelineError(f"{path}: not the same mesh as {scene_paths[0]}: a batch steps sequences of one "
+                                f"garment")
+        elif (not np.array_equal(drive.pins.ids, first.pins.ids)
+              or (drive.capsule_radii is not None and not np.array_equal(drive.capsule_radii, first.capsule_radii))):
+            raise PipelineError(f"{path}: its pinned vertices or body shape differ from those of {scene_paths[0]}")
+        drives.append(drive)
+    return Batch(list(scene_paths), drives, mesh)
 
 
-def run_frames(solver: ClothSolver, n_frames: int, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Step frames 1..n-1 (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for frame f.
-    Unless `quiet`, says first how much work that is (the schema bounds frames, substeps and iterations)."""
+def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Step frames 1..n-1 of the batch (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for
+    frame f. Returns positions (F, B, V, 3) and the ms each frame took the whole batch. Unless `quiet`, says first
+    how much work that is (the schema bounds frames, substeps and iterations)."""
     state = solver.state
+    n_frames, worlds = batch.n_frames, solver.worlds
     if not quiet:
         s = solver.settings
-        print(f"{label}: {n_frames - 1} frames x {s.substeps} substeps x {s.iterations} iterations over "
-              f"{state.positions.shape[0]:,} vertices and {solver.n_constraints:,} constraints", file=sys.stderr)
-    positions = np.empty((n_frames, *state.positions.shape, 3), dtype=np.float32)
-    positions[0] = state.read_positions()
+        print(f"{label}: {worlds} sequence(s) x {n_frames - 1} frames x {s.substeps} substeps x {s.iterations} "
+              f"iterations over {solver.world_vertices:,} vertices and {solver.n_constraints:,} constraints",
+              file=sys.stderr)
+    positions = np.empty((n_frames, worlds, solver.world_vertices, 3), dtype=np.float32)
+    positions[0] = state.read_world_positions()
     solve_ms = np.zeros(n_frames)
     for f in tqdm(range(1, n_frames), desc=label, disable=quiet, unit="frame"):
         start = time.perf_counter()
         try:
             solver.step(state, inputs(f))
         except UnstableSimulation as err:
-            raise PipelineError(f"{label}: simulation blew up (NaN or speed > max_speed) at frame {f}, {err}") from None
-        positions[f] = state.positions.numpy()
+            raise PipelineError(f"{batch.scene_paths[err.world]}: {label}: simulation blew up (NaN or speed > "
+                                f"max_speed) at frame {f}, substep {err.substep}") from None
+        positions[f] = state.read_world_positions()
         solve_ms[f] = (time.perf_counter() - start) * 1e3
     return positions, solve_ms
 
 
-def simulate_low(settings: dict, scene_path: str, device: str, quiet: bool) -> SimulationRun:
-    rest, faces = read_rest_mesh(scene_path)
-    check_mesh(scene_path, rest, faces)
+def simulate_low(settings: dict, scene_paths: Sequence[str], device: str, quiet: bool) -> list[SimulationRun]:
+    """The low-res runs of a batch of sequences, one per scene file."""
     s = solver_settings(settings)
-    drive = read_scene_drive(scene_path, s.body_collision)
-    pins = drive.pins
-    solver = ClothSolver(rest, faces, s, device, pins.ids, **solver_body(drive))
-    positions, solve_ms = run_frames(solver, drive.n_frames, lambda fr: frame_inputs(drive, fr, pins.targets[fr]),
-                                     f"{scene_path} low-res", quiet)
-    return SimulationRun(positions, faces, rest, pins.ids, solve_ms, solver.n_constraints)
+    batch = read_batch(scene_paths, s.body_collision)
+    rest, faces = read_rest_mesh(scene_paths[0])
+    pin_ids = batch.drives[0].pins.ids
+    solver = ClothSolver(rest, faces, s, device, pin_ids, worlds=len(scene_paths), **batch.body())
+    targets = [d.pins.targets for d in batch.drives]
+
+    def inputs(f: int) -> FrameInputs:
+        return FrameInputs(pin_targets=batch.stack(targets, f), capsules=batch.capsules(f))
+
+    positions, solve_ms = run_frames(solver, batch, inputs, "low-res", quiet)
+    return [SimulationRun(positions[:d.n_frames, w], faces, rest, pin_ids, solve_ms[:d.n_frames],
+                          solver.n_constraints, batch_worlds=solver.worlds) for w, d in enumerate(batch.drives)]
 
 
-def simulate_high(settings: dict, scene_path: str, subdiv_path: str, low_path: str, device: str,
-                  quiet: bool) -> SimulationRun:
+def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, low_paths: Sequence[str],
+                  device: str, quiet: bool) -> list[SimulationRun]:
+    """The high-res runs of a batch of sequences (scene file and low-res run of each), one subdivision."""
     s = solver_settings(settings)
-    drive = read_scene_drive(scene_path, s.body_collision)
-    scene_mesh = mesh_fingerprint(*read_rest_mesh(scene_path))
-    for path in (subdiv_path, low_path):     # before any work: S of another mesh would multiply without complaint
-        check_same_mesh(path, scene_path, scene_mesh)
+    batch = read_batch(scene_paths, s.body_collision)
+    for path in (subdiv_path, *low_paths):  # before any work: S of another mesh would multiply without complaint
+        check_same_mesh(path, scene_paths[0], batch.mesh)
     subdivision, harmonics = read_subdivision(subdiv_path), read_harmonics(subdiv_path)
     S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
     basis, mass = harmonics.basis, harmonics.mass
-    x_low = read_trajectory(low_path).positions
-    if S.shape != (len(rest), x_low.shape[1]):
-        raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
-                            f"{low_path} has {x_low.shape[1]}")
-    if len(x_low) != drive.n_frames:
-        raise PipelineError(f"{low_path}: has {len(x_low)} frames, the scene {scene_path} {drive.n_frames}")
-    pins, part = subdivided_pins(S, drive.pins.ids, drive.pins.part)
-    targets = apply_rigid(drive.pins.transforms[:, part], rest[pins])
+    x_lows = [read_trajectory(path).positions for path in low_paths]
+    for x_low, low_path, drive, scene_path in zip(x_lows, low_paths, batch.drives, scene_paths):
+        if S.shape != (len(rest), x_low.shape[1]):
+            raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
+                                f"{low_path} has {x_low.shape[1]}")
+        if len(x_low) != drive.n_frames:
+            raise PipelineError(f"{low_path}: has {len(x_low)} frames, the scene {scene_path} {drive.n_frames}")
+    low_pins = batch.drives[0].pins
+    pins, part = subdivided_pins(S, low_pins.ids, low_pins.part)
+    targets = [apply_rigid(d.pins.transforms[:, part], rest[pins]) for d in batch.drives]
     try:
         constraint = harmonic_constraint(basis, mass, pins)
     except ValueError as err:
         raise PipelineError(f"{subdiv_path}: {err}") from None
     # B^T M (S x_low) per frame: the low-frequency content the high-res run must reproduce.
     mass_basis_t = (mass[:, None] * basis).T
-    harmonic_targets = np.einsum("kv,fvc->fkc", mass_basis_t, np.stack([S @ x for x in x_low]))
-    solver = ClothSolver(rest, faces, s, device, pins, initial_positions=S @ x_low[0],
-                         harmonic=constraint, harmonic_target=harmonic_targets[0], **solver_body(drive))
+    harmonic_targets = [np.einsum("kv,fvc->fkc", mass_basis_t, np.stack([S @ x for x in x_low])) for x_low in x_lows]
+    solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
+                         harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),
+                         worlds=len(scene_paths), **batch.body())
 
-    def inputs(fr: int) -> FrameInputs:
-        return frame_inputs(drive, fr, targets[fr], harmonic_targets[fr])
+    def inputs(f: int) -> FrameInputs:
+        return FrameInputs(pin_targets=batch.stack(targets, f), harmonic_target=batch.stack(harmonic_targets, f),
+                           capsules=batch.capsules(f))
 
-    positions, solve_ms = run_frames(solver, drive.n_frames, inputs, f"{scene_path} high-res", quiet)
-    high_content = np.einsum("kv,fvc->fkc", mass_basis_t, positions.astype(np.float64))
-    residual = (np.linalg.norm((high_content - harmonic_targets).reshape(len(positions), -1), axis=1)
-                / np.linalg.norm(high_content.reshape(len(positions), -1), axis=1))
-    return SimulationRun(positions, faces, rest, pins, solve_ms, solver.n_constraints, residual, basis.shape[1])
+    positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet)
+    runs = []
+    for w, (drive, target) in enumerate(zip(batch.drives, harmonic_targets)):
+        x = positions[:drive.n_frames, w]
+        high_content = np.einsum("kv,fvc->fkc", mass_basis_t, x.astype(np.float64))
+        residual = (np.linalg.norm((high_content - target).reshape(len(x), -1), axis=1)
+                    / np.linalg.norm(high_content.reshape(len(x), -1), axis=1))
+        runs.append(SimulationRun(x, faces, rest, pins, solve_ms[:drive.n_frames], solver.n_constraints, residual,
+                                  basis.shape[1], batch_worlds=solver.worlds))
+    return runs
+
+
+def sequence_groups(level: str, files: Sequence[str]) -> list[tuple[str, ...]]:
+    """The CLI's sequences: (scene, out) pairs for `low`, (scene, subdiv, sim_low, out) groups for `high`."""
+    size = 2 if level == "low" else 4
+    if len(files) % size:
+        names = "SCENE OUT" if level == "low" else "SCENE SUBDIV SIM_LOW OUT"
+        raise PipelineError(f"simulate {level} takes groups of {names}; got {len(files)} paths")
+    return [tuple(files[i:i + size]) for i in range(0, len(files), size)]
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.simulate", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="level", required=True)
-    low = sub.add_parser("low", help="the low-res run")
-    low.add_argument("settings"), low.add_argument("scene"), low.add_argument("out")
-    high = sub.add_parser("high", help="the high-res run, constrained to the low-res one")
-    for name in ("settings", "scene", "subdiv", "sim_low", "out"):
-        high.add_argument(name)
-    for p in (low, high):
-        p.add_argument("--device", help="Warp device (cpu, cuda:0); default: the settings' device")
-        cli.add_quiet(p)
+    parser.add_argument("level", choices=("low", "high"), help="the low-res run, or the high-res run constrained "
+                                                                "to the low-res one")
+    parser.add_argument("settings")
+    parser.add_argument("files", nargs="+", metavar="PATH",
+                        help="low: SCENE OUT [SCENE OUT ...]; high: SCENE SUBDIV SIM_LOW OUT [...]")
+    parser.add_argument("--device", help="Warp device (cpu, cuda:0); default: the settings' device")
+    cli.add_quiet(parser)
     args = parser.parse_args(argv)
+    groups = sequence_groups(args.level, args.files)
     settings = read_settings(args.settings)
     device = args.device or settings["device"]
     cli.check_device(device, "Warp", wp.get_cuda_device_count)
+    scenes = [group[0] for group in groups]
     if args.level == "low":
-        run = simulate_low(settings, args.scene, device, args.quiet)
+        runs = simulate_low(settings, scenes, device, args.quiet)
     else:
-        run = simulate_high(settings, args.scene, args.subdiv, args.sim_low, device, args.quiet)
-    write_simulation(args.out, args.level, settings, run, device, mesh_fingerprint(*read_rest_mesh(args.scene)))
+        subdivs = {group[1] for group in groups}
+        if len(subdivs) > 1:
+            raise PipelineError(f"{groups[1][1]}: a batch is one garment: every sequence takes the same SUBDIV")
+        runs = simulate_high(settings, scenes, groups[0][1], [group[2] for group in groups], device, args.quiet)
+    source_mesh = mesh_fingerprint(*read_rest_mesh(scenes[0]))
+    for group, run in zip(groups, runs):
+        write_simulation(group[-1], args.level, settings, run, device, source_mesh)
 
 
 if __name__ == "__main__":

@@ -61,6 +61,19 @@ def sequence_names(settings: dict) -> list[str]:
             + [sequence_name(HELD_OUT, i) for i in range(len(held_out_clips(settings)))])
 
 
+def sequence_shards(settings: dict) -> list[list[str]]:
+    """The scene's sequences in groups of `shard` (settings as resolved), each a batch one simulate job steps
+    together: training and held-out sequences apart and in order, so raising `sequences` changes only the last
+    training shard."""
+    size = settings["shard"]
+    names = sequence_names(settings)
+    shards = []
+    for role in (TRAIN, HELD_OUT):
+        of_role = [name for name in names if parse_sequence_name(name)[0] == role]
+        shards += [of_role[i:i + size] for i in range(0, len(of_role), size)]
+    return shards
+
+
 def sequence_clips(settings: dict, name: str) -> list:
     """The clip entries sequence `name` plays (a training sequence: the pool its program draws from)."""
     role, index = parse_sequence_name(name)

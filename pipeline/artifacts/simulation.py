@@ -25,6 +25,7 @@ class SimulationRun:
     n_constraints: int
     harmonic_residual: np.ndarray | None = None   # (F,) high-res run only
     n_harmonics: int | None = None                # high-res run only
+    batch_worlds: int = 1                         # sequences stepped together (solve_ms is the whole batch's)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,8 +47,10 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
         f.create_dataset("rest_vertices", data=run.rest_vertices.astype(np.float64))
         f.create_dataset("pins/ids", data=run.pin_ids.astype(np.int64))
         f.create_dataset("solve_ms", data=run.solve_ms.astype(np.float64))
-        f["solve_ms"].attrs["meaning"] = "wall time of each frame's solve in ms (frame 0: initial state, 0)"
-        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=len(run.positions))
+        f["solve_ms"].attrs["meaning"] = ("wall time of each frame's solve in ms, for the whole batch of `batch` "
+                                          "sequences stepped together (frame 0: initial state, 0)")
+        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=len(run.positions),
+                       batch=run.batch_worlds)
         if run.harmonic_residual is not None:
             f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
             f["harmonic_residual"].attrs["meaning"] = "|B^T M (x_high - S x_low)| / |B^T M x_high| per frame"

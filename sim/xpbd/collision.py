@@ -40,15 +40,17 @@ neighbor_list = wp.types.vector(length=MAX_VALENCE, dtype=int)
 @wp.struct
 class Capsules:
     """The body as tapered capsules at the start and end of the frame, and per-vertex body-contact state of the
-    substep."""
-    start: wp.array2d(dtype=wp.vec3)  # (P, 2) end points a, b at the start of the frame
-    end: wp.array2d(dtype=wp.vec3)    # (P, 2) at its end
-    radius: wp.array2d(dtype=float)   # (P, 2) radii at a and b
+    substep. World w's capsules are rows w P .. w P + P - 1 (P = per_world; 0 without body collision)."""
+    start: wp.array2d(dtype=wp.vec3)  # (B P, 2) end points a, b at the start of the frame
+    end: wp.array2d(dtype=wp.vec3)    # (B P, 2) at its end
+    radius: wp.array2d(dtype=float)   # (B P, 2) radii at a and b
+    per_world: int                    # capsules per world
     thickness: float                  # cloth stays this far outside every capsule
     reach: float                      # capsules closer than this to the prediction are watched in the iterations
     friction: float
-    near: wp.array(dtype=int)         # (V,) capsules watched in this substep: c + 1 in each byte, 0 ends the list
-    push: wp.array(dtype=float)       # (V,) total outward correction by the body in this substep
+    near: wp.array(dtype=int)         # (B V,) capsules watched in this substep: c + 1 in each byte (c counted within
+                                      # the vertex's world), 0 ends the list
+    push: wp.array(dtype=float)       # (B V,) total outward correction by the body in this substep
 
 
 @wp.struct
@@ -58,6 +60,11 @@ class SelfContacts:
     A contact is a vertex i and a triangle t not near it in the mesh, with the side of t that i was on at the
     substep start. Vertex i lists it as side * (t + 1), triangle t as side * (i + 1): a vertex gathers the
     corrections it receives from its own list and from the lists of the triangles around it, without atomics.
+
+    With several worlds the faces of world w are rows w F .. w F + F - 1 (their vertex ids already those of world
+    w), and all worlds share one BVH whose boxes are offset by world_offset: a query meets its own world's
+    triangles only, unless a world's cloth strays a lattice spacing from the others' (contact_side then still
+    rejects the other world's triangles, so the offset only ever saves time).
     """
     faces: wp.array(dtype=wp.vec3i)
     face_offsets: wp.array(dtype=int)  # CSR of the faces around each vertex
@@ -73,6 +80,10 @@ class SelfContacts:
     face_count: wp.array(dtype=int)
     thickness: float
     reach: float                       # pairs within this distance at the prediction become candidates
+    world_vertices: int                # vertices per world
+    world_faces: int                   # triangles per world
+    lattice: int                       # worlds per lattice row (and per layer: lattice^2)
+    spacing: float                     # lattice spacing of the worlds' BVH boxes
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -125,6 +136,12 @@ def segment_point_distance(p0: wp.vec3, p1: wp.vec3, q: wp.vec3) -> float:
     d = p1 - p0
     t = wp.clamp(wp.dot(q - p0, d) / wp.max(wp.dot(d, d), 1.0e-20), 0.0, 1.0)
     return wp.length(p0 + t * d - q)
+
+
+@wp.func
+def first_capsule(i: int, sub: Substep, capsules: Capsules) -> int:
+    """Row of the first capsule of vertex i's world."""
+    return (i // sub.world_vertices) * capsules.per_world
 
 
 @wp.func
@@ -206,12 +223,14 @@ def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float,
 
 
 @wp.func
-def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules, fraction: float) -> wp.vec3:
-    """keep_outside for every capsule watched by vertex i, one after the other, at `fraction` of the frame; the
-    distances moved add to the vertex's push (the normal impulse that friction is limited by)."""
+def push_out_of_body(i: int, first: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules,
+                     fraction: float) -> wp.vec3:
+    """keep_outside for every capsule watched by vertex i (whose world's capsules start at row `first`), one after
+    the other, at `fraction` of the frame; the distances moved add to the vertex's push (the normal impulse that
+    friction is limited by)."""
     near = capsules.near[i]
     while near != 0:
-        c = (near & 255) - 1
+        c = first + (near & 255) - 1
         near = near >> 8
         a, b = capsule_at(capsules, c, fraction)
         x, moved = keep_outside(x_from, x, a, b, capsules.radius[c, 0], capsules.radius[c, 1], capsules.thickness)
@@ -221,7 +240,8 @@ def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules, fr
 
 
 @wp.func
-def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, capsules: Capsules, f0: float, f1: float) -> wp.vec3:
+def apply_friction(i: int, first: int, x: wp.vec3, x_start: wp.vec3, capsules: Capsules, f0: float,
+                   f1: float) -> wp.vec3:
     """Position-based Coulomb friction (Macklin et al. 2014, "Unified particle physics", sec. 6.1) against the
     touching capsule: the vertex's displacement relative to where the capsule would have carried it loses its
     tangential part up to friction * push (stick), or that much of it (slide). The tangent plane of a convex body
@@ -229,7 +249,7 @@ def apply_friction(i: int, x: wp.vec3, x_start: wp.vec3, capsules: Capsules, f0:
     best = int(0)
     best_d = float(1.0e30)
     best_n = wp.vec3(0.0)
-    for c in range(capsules.start.shape[0]):
+    for c in range(first, first + capsules.per_world):
         a, b = capsule_at(capsules, c, f1)
         d, n = capsule_distance(x, a, b, capsules.radius[c, 0], capsules.radius[c, 1])
         if d < best_d:
@@ -289,6 +309,8 @@ def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, t: int, x: 
     them apart), and at the prediction i projects into t (down to -DETECT_SLACK) and lies within `reach` of its
     plane, or on the other side than at the start by no more than its motion relative to t (it crossed during the
     prediction). `neighbors` holds i's mesh neighbours (a local copy: this runs for every candidate)."""
+    if t // sc.world_faces != i // sc.world_vertices:
+        return 0
     tri = sc.faces[t]
     for k in range(3):
         if tri[k] == i:
@@ -370,7 +392,8 @@ def predict_with_body(sub: Substep, pins: PinDrive, capsules: Capsules):
     push = float(0.0)
     if sub.inv_mass[i] > 0.0:
         x_start = sub.x_prev[i]
-        for c in range(capsules.start.shape[0]):
+        first = first_capsule(i, sub, capsules)
+        for c in range(first, first + capsules.per_world):
             ra = capsules.radius[c, 0]
             rb = capsules.radius[c, 1]
             a0, b0 = capsule_at(capsules, c, sub.f0)
@@ -386,7 +409,7 @@ def predict_with_body(sub: Substep, pins: PinDrive, capsules: Capsules):
             push = push + moved
             d, n = capsule_distance(xi, a1, b1, ra, rb)
             if d < capsules.reach and watched < WATCHED:
-                near = near | ((c + 1) << (8 * watched))
+                near = near | ((c - first + 1) << (8 * watched))
                 watched += 1
     sub.x[i] = xi
     capsules.near[i] = near
@@ -405,16 +428,25 @@ def projection_box(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
     return wp.min(wp.min(a, b), c), wp.max(wp.max(a, b), c)
 
 
+@wp.func
+def world_offset(w: int, sc: SelfContacts) -> wp.vec3:
+    """Where world w's boxes sit in the shared BVH: on a lattice `spacing` apart (world 0 at the origin, so a
+    single world's boxes are its own). Only the boxes move, never the positions."""
+    n = sc.lattice
+    return sc.spacing * wp.vec3(float(w % n), float((w // n) % n), float(w // (n * n)))
+
+
 @wp.kernel
 def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts):
-    """Box of every triangle's projection_box at the substep start and at the prediction, padded by `reach`;
-    empties the triangle's contact list."""
+    """Box of every triangle's projection_box at the substep start and at the prediction, padded by `reach` and
+    placed at its world's offset; empties the triangle's contact list."""
     t = wp.tid()
     tri = sc.faces[t]
     lo, hi = projection_box(x[tri[0]], x[tri[1]], x[tri[2]])
     lo_start, hi_start = projection_box(x_prev[tri[0]], x_prev[tri[1]], x_prev[tri[2]])
-    sc.face_lower[t] = wp.min(lo, lo_start) - wp.vec3(sc.reach)
-    sc.face_upper[t] = wp.max(hi, hi_start) + wp.vec3(sc.reach)
+    offset = world_offset(t // sc.world_faces, sc)
+    sc.face_lower[t] = wp.min(lo, lo_start) - wp.vec3(sc.reach) + offset
+    sc.face_upper[t] = wp.max(hi, hi_start) + wp.vec3(sc.reach) + offset
     sc.face_count[t] = 0
 
 
@@ -423,8 +455,9 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     """Contact lists: vertex i queries the triangle BVH with its swept box and lists each candidate triangle t,
     and adds itself to t's list (a slot taken with an integer atomic; sort_face_lists then restores a fixed order).
     A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
-    on the wrong side of the plane is pushed back rather than through. The BVH traversal order is fixed by the
-    tree, so the lists are deterministic. A full list drops the rest and raises flags[overflow_flag]. Pinned
+    on the wrong side of the plane is pushed back rather than through. Each list is sorted by triangle, so the
+    lists are deterministic and independent of the tree. A full list drops the rest and raises the world's
+    flags[w, overflow_flag]. Pinned
     vertices list nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
     predictions, x_prev the substep's start positions."""
     i = wp.tid()
@@ -441,7 +474,8 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
         n_neighbors = sc.edge_offsets[i + 1] - first
         for a in range(n_neighbors):
             neighbors[a] = sc.vertex_neighbors[first + a]
-        query = wp.bvh_query_aabb(sc.face_bvh, wp.min(x_prev[i], x[i]), wp.max(x_prev[i], x[i]))
+        offset = world_offset(i // sc.world_vertices, sc)
+        query = wp.bvh_query_aabb(sc.face_bvh, wp.min(x_prev[i], x[i]) + offset, wp.max(x_prev[i], x[i]) + offset)
         t = int(0)
         while wp.bvh_query_next(query, t):
             side = contact_side(i, neighbors, n_neighbors, t, x, x_prev, sc)
@@ -457,24 +491,34 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
                     sc.face_contacts[t, slot] = side * (i + 1)
                     count += 1
                 else:
-                    sub.flags[overflow_flag] = 1
+                    sub.flags[i // sub.world_vertices, overflow_flag] = 1
+    # Triangles in id order rather than the tree's: the sums of the iterations then do not depend on the BVH, so a
+    # world stepped in a batch (one tree over all worlds) moves exactly as when stepped alone.
+    sort_list(sc.vertex_contacts, i, count)
     sc.vertex_count[i] = count
+
+
+@wp.func
+def sort_list(lists: wp.array2d(dtype=int), row: int, n: int):
+    """Sort the first n entries of a contact list by the id they name, ignoring the side's sign (insertion sort of
+    a few entries)."""
+    for a in range(1, n):
+        code = lists[row, a]
+        b = a
+        while b > 0 and wp.abs(lists[row, b - 1]) > wp.abs(code):
+            lists[row, b] = lists[row, b - 1]
+            b -= 1
+        lists[row, b] = code
 
 
 @wp.kernel
 def sort_face_lists(sc: SelfContacts):
-    """Sort each triangle's list by vertex (insertion sort of a few entries), so that the iterations sum the
-    corrections in an order that does not depend on which thread took which slot."""
+    """Sort each triangle's list by vertex, so that the iterations sum the corrections in an order that does not
+    depend on which thread took which slot."""
     t = wp.tid()
     n = wp.min(sc.face_count[t], FACE_LIST)
     sc.face_count[t] = n
-    for a in range(1, n):
-        code = sc.face_contacts[t, a]
-        b = a
-        while b > 0 and wp.abs(sc.face_contacts[t, b - 1]) > wp.abs(code):
-            sc.face_contacts[t, b] = sc.face_contacts[t, b - 1]
-            b -= 1
-        sc.face_contacts[t, b] = code
+    sort_list(sc.face_contacts, t, n)
 
 
 @wp.kernel
@@ -523,7 +567,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
     if active > 0:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
-    sweep.x_out[i] = push_out_of_body(i, xi, xi + dx, capsules, sub.f1)
+    sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
 
 
 @wp.kernel
@@ -535,14 +579,15 @@ def finish_substep(sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Ca
     i = wp.tid()
     xi = x_solved[i]
     if sub.inv_mass[i] > 0.0:
+        first = first_capsule(i, sub, capsules)
         if capsules.friction > 0.0:
             if capsules.push[i] > 0.0:
-                xi = apply_friction(i, xi, sub.x_prev[i], capsules, sub.f0, sub.f1)
+                xi = apply_friction(i, first, xi, sub.x_prev[i], capsules, sub.f0, sub.f1)
         # Capsules overlap at the joints; in the crook between two, leaving one may enter the other, so the
         # capsules take turns a few times (alternating projections converge to the crease).
         for _ in range(FINAL_PASSES):
             total = float(0.0)
-            for c in range(capsules.start.shape[0]):
+            for c in range(first, first + capsules.per_world):
                 a, b = capsule_at(capsules, c, sub.f1)
                 ra = capsules.radius[c, 0]
                 rb = capsules.radius[c, 1]

@@ -14,6 +14,12 @@ three is in wp.funcs, which `sim.xpbd.collision` calls to fuse contacts into the
 The kernels take their arrays in structs grouped by what they describe (the substep, the pins, the distance
 constraints, one Jacobi sweep's buffers, the harmonic projection), so that the collision kernels, which replace
 the first three, take the same groups plus their own.
+
+Batches: a solver may step B independent copies ("worlds") of one cloth together, each with its own pins, body
+and harmonic targets. The worlds' vertices are stored one after the other (vertex i belongs to world
+i // world_vertices), so every per-vertex kernel runs unchanged over all of them in one launch; only what a
+vertex shares with others of its world (capsules, harmonic modes, contact triangles, the blow-up flags) is found
+through its world index.
 """
 from __future__ import annotations
 
@@ -37,15 +43,17 @@ class Substep:
     f0: float                        # fraction of the frame at the substep start
     f1: float                        # at its end
     index: int                       # the substep's number in the frame, its slot in `flags`
-    flags: wp.array(dtype=int)       # one per substep (blow-up), then one for overflowing self-contact lists
+    world_vertices: int              # vertices per world: vertex i is in world i // world_vertices
+    flags: wp.array2d(dtype=int)     # (B, substeps + 1): per world one flag per substep (blow-up), then one for
+                                     # overflowing self-contact lists
 
 
 @wp.struct
 class PinDrive:
     """Kinematic pins: vertex i with slot[i] >= 0 follows target slot[i], interpolated linearly within the frame."""
-    slot: wp.array(dtype=int)        # (V,) -1 for a free vertex
-    start: wp.array(dtype=wp.vec3)   # (P,) targets at the start of the frame
-    end: wp.array(dtype=wp.vec3)     # (P,) at its end
+    slot: wp.array(dtype=int)        # (B V,) -1 for a free vertex
+    start: wp.array(dtype=wp.vec3)   # (B P,) targets at the start of the frame, world by world
+    end: wp.array(dtype=wp.vec3)     # (B P,) at its end
 
 
 @wp.struct
@@ -73,14 +81,15 @@ class JacobiSweep:
 
 @wp.struct
 class HarmonicProjection:
-    """The hard constraint B^T M (x - S x_low) = 0 on the device, with its reduction buffers."""
+    """The hard constraint B^T M (x - S x_low) = 0 on the device, with its reduction buffers. The bases are one
+    world's (every world has the same mesh and pins); residuals and targets are per world."""
     mass_basis: wp.array2d(dtype=float)          # (V, K) M B
     correction_basis_t: wp.array2d(dtype=float)  # (K, V) A^T, A = P_free B (B^T M P_free B)^{-1}
     rows_per_chunk: int
-    partial: wp.array2d(dtype=wp.vec3)           # (V / rows_per_chunk, K) partial sums of B^T M x
-    residual: wp.array(dtype=wp.vec3)            # (K,)
-    target_start: wp.array(dtype=wp.vec3)        # (K,) B^T M S x_low at the start of the frame
-    target_end: wp.array(dtype=wp.vec3)          # (K,) at its end
+    partial: wp.array3d(dtype=wp.vec3)           # (B, V / rows_per_chunk, K) partial sums of B^T M x
+    residual: wp.array2d(dtype=wp.vec3)          # (B, K)
+    target_start: wp.array2d(dtype=wp.vec3)      # (B, K) B^T M S x_low at the start of the frame
+    target_end: wp.array2d(dtype=wp.vec3)        # (B, K) at its end
 
 
 @wp.func
@@ -159,7 +168,7 @@ def store_state(i: int, xi: wp.vec3, sub: Substep):
     sub.v[i] = vi
     speed = wp.length(vi)
     if not (speed <= sub.max_speed):  # also true for NaN
-        sub.flags[sub.index] = 1
+        sub.flags[i // sub.world_vertices, sub.index] = 1
 
 
 @wp.kernel
@@ -171,26 +180,27 @@ def update_velocities(sub: Substep, x_solved: wp.array(dtype=wp.vec3)):
 
 @wp.kernel
 def harmonic_partial_sums(x: wp.array(dtype=wp.vec3), hp: HarmonicProjection):
-    """partial[c, k] = sum over the rows i of chunk c of (M B)[i, k] x_i: the first half of the reduction
-    B^T M x. Threads with consecutive k read consecutive entries of row i, so loads coalesce on GPU."""
-    c, k = wp.tid()
+    """partial[w, c, k] = sum over the rows i of chunk c of (M B)[i, k] x_i in world w: the first half of the
+    reduction B^T M x. Threads with consecutive k read consecutive entries of row i, so loads coalesce on GPU."""
+    w, c, k = wp.tid()
     n = hp.mass_basis.shape[0]
     start = c * hp.rows_per_chunk
     end = wp.min(start + hp.rows_per_chunk, n)
+    first = w * n
     acc = wp.vec3(0.0)
     for i in range(start, end):
-        acc = acc + hp.mass_basis[i, k] * x[i]
-    hp.partial[c, k] = acc
+        acc = acc + hp.mass_basis[i, k] * x[first + i]
+    hp.partial[w, c, k] = acc
 
 
 @wp.kernel
 def harmonic_residual(hp: HarmonicProjection, target_fraction: float):
-    """r_k = (B^T M x)_k - (B^T M S x_low)_k, the low-res side interpolated linearly within the frame."""
-    k = wp.tid()
+    """r_k = (B^T M x)_k - (B^T M S x_low)_k of world w, the low-res side interpolated linearly within the frame."""
+    w, k = wp.tid()
     acc = wp.vec3(0.0)
-    for c in range(hp.partial.shape[0]):
-        acc = acc + hp.partial[c, k]
-    hp.residual[k] = acc - wp.lerp(hp.target_start[k], hp.target_end[k], target_fraction)
+    for c in range(hp.partial.shape[1]):
+        acc = acc + hp.partial[w, c, k]
+    hp.residual[w, k] = acc - wp.lerp(hp.target_start[w, k], hp.target_end[w, k], target_fraction)
 
 
 @wp.kernel
@@ -199,7 +209,10 @@ def harmonic_project(hp: HarmonicProjection, x: wp.array(dtype=wp.vec3)):
     B^T M (x - S x_low) = 0 that leaves pinned vertices (zero rows of A) where they are. A is stored transposed
     (K, V) so that consecutive vertices read consecutive entries."""
     i = wp.tid()
+    n = hp.mass_basis.shape[0]
+    w = i // n
+    row = i - w * n
     acc = wp.vec3(0.0)
-    for k in range(hp.residual.shape[0]):
-        acc = acc + hp.correction_basis_t[k, i] * hp.residual[k]
+    for k in range(hp.residual.shape[1]):
+        acc = acc + hp.correction_basis_t[k, row] * hp.residual[w, k]
     x[i] = x[i] - acc

@@ -7,6 +7,11 @@ and derives velocities. With body or self-collision on, the same steps use the k
 captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
 arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the solver
 makes the state it steps.
+
+A solver steps `worlds` independent copies of the cloth at once (B sequences of one garment, each with its own
+pins, body motion and harmonic targets): the kernels run over the worlds' vertices one after the other (see
+`sim.xpbd.kernels`), so a batch costs the launches of one cloth. Arrays of every world are world-major: the state
+holds (B V, 3) positions, and a per-world input is (B, ...) (or, with one world, also without the batch axis).
 """
 from __future__ import annotations
 
@@ -27,14 +32,20 @@ from sim.xpbd.settings import SolverSettings
 
 @dataclass(frozen=True, eq=False)
 class ClothState:
-    """What a frame advances: the positions and velocities of the cloth's vertices, (V,) vec3 device arrays. Made
-    by ClothSolver (`solver.state`); stepping updates the arrays in place, so they are the same every frame."""
+    """What a frame advances: the positions and velocities of the vertices of every world, (B V,) vec3 device
+    arrays, world after world. Made by ClothSolver (`solver.state`); stepping updates the arrays in place, so they
+    are the same every frame."""
     positions: wp.array
     velocities: wp.array
+    worlds: int = 1
 
     def read_positions(self) -> np.ndarray:
-        """(V, 3) float64 copy on the host."""
+        """(B V, 3) float64 copy on the host (world w's vertices are rows w V .. w V + V - 1)."""
         return self.positions.numpy().astype(np.float64)
+
+    def read_world_positions(self) -> np.ndarray:
+        """(B, V, 3) float32 copy on the host."""
+        return self.positions.numpy().reshape(self.worlds, -1, 3)
 
     def read_velocities(self) -> np.ndarray:
         return self.velocities.numpy().astype(np.float64)
@@ -47,15 +58,23 @@ class ClothState:
 class FrameInputs:
     """The kinematic inputs of a frame, at its end; the solver interpolates each linearly across the substeps from
     the previous frame's values. Each is needed exactly when the solver has what it drives (pinned vertices, a
-    harmonic constraint, body collision)."""
-    pin_targets: np.ndarray | None = None      # (P, 3) positions of the pinned vertices
-    harmonic_target: np.ndarray | None = None  # (K, 3) B^T M S x_low, for a run with the harmonic constraint
-    capsules: np.ndarray | None = None         # (N, 2, 3) capsule end points, with body collision
+    harmonic constraint, body collision). Each has a leading world axis (B, ...), optional with one world."""
+    pin_targets: np.ndarray | None = None      # (B, P, 3) positions of the pinned vertices
+    harmonic_target: np.ndarray | None = None  # (B, K, 3) B^T M S x_low, for a run with the harmonic constraint
+    capsules: np.ndarray | None = None         # (B, N, 2, 3) capsule end points, with body collision
 
 
 class UnstableSimulation(RuntimeError):
-    """Positions became non-finite or a vertex exceeded the speed limit."""
+    """Positions became non-finite or a vertex exceeded the speed limit; `world` and `substep` say where first."""
 
+    def __init__(self, world: int, substep: int):
+        super().__init__(f"world {world}, substep {substep}")
+        self.world, self.substep = world, substep
+
+
+# Worlds' boxes in the shared self-contact BVH lie this many rest-mesh diagonals apart (collision.world_offset):
+# far enough that no two worlds' cloths meet unless one strays several garment sizes from the others.
+WORLD_SPACING = 8.0
 
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
@@ -71,37 +90,47 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     `step(state, inputs)` advances `solver.state`, the one state the solver makes: a CUDA graph replays its launches
     with the device arrays it was captured with, and the solver also keeps memory of the trajectory (the previous
     frame's inputs, from which a frame interpolates, and the sides of the self-contacts), so a second trajectory
-    needs a second solver. The state starts at `initial_positions` (default: the rest positions) with zero
-    velocities; the pins start where the state has them, and `harmonic_target` (K, 3) and `capsules` (N, 2, 3) give
-    the other inputs at frame 0, `capsule_radii` (N, 2) the capsules' radii at a and b.
+    needs a second solver (or a second world of one). `worlds` copies of the cloth are stepped together, all with
+    the same mesh, settings and pinned vertices. The state starts at `initial_positions` ((V, 3) for every world,
+    or (B, V, 3); default: the rest positions) with zero velocities; the pins start where the state has them, and
+    `harmonic_target` (B, K, 3) and `capsules` (B, N, 2, 3) give the other inputs at frame 0, `capsule_radii`
+    (N, 2) the capsules' radii at a and b (one body shape for every world).
     """
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
                  pinned: np.ndarray, initial_positions: np.ndarray | None = None,
                  harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
-                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None):
+                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1):
+        if not (isinstance(worlds, int) and worlds >= 1):
+            raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         self.settings = settings
         self.device = wp.get_device(device)
-        n = len(rest_vertices)
+        self.worlds = worlds
+        self.world_vertices = n = len(rest_vertices)
         s = settings
         h = s.dt / s.substeps
         mass = s.density * lumped_mass(rest_vertices, faces)
         pinned = np.asarray(pinned, dtype=np.int64)
         inv_mass = 1.0 / mass
         inv_mass[pinned] = 0.0
-        x0 = rest_vertices if initial_positions is None else initial_positions
+        x0 = rest_vertices if initial_positions is None else np.asarray(initial_positions, dtype=np.float64)
+        if x0.shape == (n, 3):
+            x0 = np.broadcast_to(x0, (worlds, n, 3))
+        x0 = self._per_world(x0, (n, 3), "initial_positions")
 
         arr = self._array
-        self.state = ClothState(positions=arr(x0, wp.vec3), velocities=arr(np.zeros((n, 3)), wp.vec3))
+        self.state = ClothState(positions=arr(x0, wp.vec3), velocities=arr(np.zeros((worlds * n, 3)), wp.vec3),
+                                worlds=worlds)
         x_prev = arr(x0, wp.vec3)
         x_work = arr(x0, wp.vec3)
-        # One flag per substep (blow-up) and a last one for overflowing self-contact lists.
-        self.flags = arr(np.zeros(s.substeps + 1), int)
-        self._substeps = self._substep_structs(h, x_prev, arr(inv_mass, float))
+        # Per world one flag per substep (blow-up) and a last one for overflowing self-contact lists.
+        self.flags = arr(np.zeros((worlds, s.substeps + 1)), int)
+        self._substeps = self._substep_structs(h, x_prev, arr(np.tile(inv_mass, worlds), float))
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
         self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n)
-        lambdas = (arr(np.zeros(self.n_constraints), float), arr(np.zeros(self.n_constraints), float))
+        total = worlds * self.n_constraints
+        lambdas = (arr(np.zeros(total), float), arr(np.zeros(total), float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
         self.harmonic_projection = (None if harmonic is None
                                     else self._harmonic_projection(harmonic, harmonic_target, n))
@@ -109,8 +138,25 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         edges = unique_edges(faces)
         mean_edge = float(np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1).mean())
         self.capsules = self._capsules(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
-        self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n)
+        diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
+        self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n,
+                                            WORLD_SPACING * max(diagonal, mean_edge))
         self._graph = None
+
+    def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
+        """`value` of shape (B, *shape) (or `shape` with one world) as rows world after world, (B shape[0], ...)."""
+        value = np.asarray(value, dtype=np.float64)
+        if self.worlds == 1 and value.shape == shape:
+            value = value[None]
+        if value.shape != (self.worlds, *shape):
+            raise ValueError(f"{name} must have shape {(self.worlds, *shape)} (one row per world); got {value.shape}")
+        return value.reshape(self.worlds * shape[0], *shape[1:])
+
+    def _tile_ids(self, ids: np.ndarray, n: int) -> np.ndarray:
+        """Vertex ids of one world (any shape) as those of every world, world after world along the first axis."""
+        ids = np.asarray(ids, dtype=np.int64)
+        offsets = (np.arange(self.worlds) * n).reshape(-1, *([1] * ids.ndim))
+        return (ids[None] + offsets).reshape(self.worlds * len(ids), *ids.shape[1:])
 
     def _array(self, data: np.ndarray, dtype) -> wp.array:
         np_dtype = np.int32 if dtype in (int, wp.vec3i) else np.float32
@@ -129,33 +175,37 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             sub.max_speed = s.max_speed
             sub.f0, sub.f1 = index / s.substeps, (index + 1) / s.substeps
             sub.index = index
+            sub.world_vertices = self.world_vertices
             sub.flags = self.flags
             substeps.append(sub)
         return substeps
 
     def _pin_drive(self, pinned: np.ndarray, x0: np.ndarray, n: int) -> kernels.PinDrive:
-        """Each pinned vertex's slot, its targets starting where the vertex starts (one dummy slot without pins)."""
+        """Each pinned vertex's slot (world w's pins take slots w P .. w P + P - 1), its targets starting where the
+        vertex starts (one dummy slot without pins)."""
         pins = kernels.PinDrive()
-        slot = np.full(n, -1, dtype=np.int32)
-        slot[pinned] = np.arange(len(pinned), dtype=np.int32)
+        slot = np.full(self.worlds * n, -1, dtype=np.int32)
+        every_pin = self._tile_ids(pinned, n)
+        slot[every_pin] = np.arange(len(every_pin), dtype=np.int32)
         pins.slot = self._array(slot, int)
-        start = x0[pinned] if len(pinned) else np.zeros((1, 3))
+        start = x0[every_pin] if len(pinned) else np.zeros((1, 3))
         pins.start, pins.end = self._array(start, wp.vec3), self._array(start, wp.vec3)
         return pins
 
     def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
                               n: int) -> tuple[kernels.DistanceConstraints, int]:
-        """The cloth's constraints listed per vertex, and how many there are."""
+        """The cloth's constraints listed per vertex (every world's, world after world), and how many one world has."""
         s = self.settings
         con = cloth_constraints(rest_vertices, faces, s)
-        offsets, neighbor, constraint = vertex_incidence(con.pairs, n)
-        count = np.diff(offsets)
+        offsets, neighbor, constraint = vertex_incidence(self._tile_ids(con.pairs, n), self.worlds * n)
+        count = np.diff(offsets)[:n]
         arr = self._array
         dc = kernels.DistanceConstraints()
         dc.offsets, dc.neighbor, dc.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
-        dc.rest_min, dc.rest_max = arr(con.rest_min, float), arr(con.rest_max, float)
-        dc.alpha_tilde = arr(con.compliance / (h * h), float)
-        dc.scale = arr(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]), float)
+        tile = lambda per_constraint: arr(np.tile(per_constraint, self.worlds), float)  # noqa: E731
+        dc.rest_min, dc.rest_max = tile(con.rest_min), tile(con.rest_max)
+        dc.alpha_tilde = tile(con.compliance / (h * h))
+        dc.scale = tile(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]))
         return dc, len(con.pairs)
 
     def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
@@ -182,9 +232,10 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         hp.mass_basis = wp.array(harmonic.mass_basis.astype(np.float32), dtype=float, device=self.device)
         hp.correction_basis_t = wp.array(np.ascontiguousarray(harmonic.correction_basis.T, dtype=np.float32),
                                          dtype=float, device=self.device)
-        hp.partial = wp.zeros((n_chunks, n_modes), dtype=wp.vec3, device=self.device)
-        hp.residual = wp.zeros(n_modes, dtype=wp.vec3, device=self.device)
-        target = np.zeros((n_modes, 3)) if target is None else target
+        hp.partial = wp.zeros((self.worlds, n_chunks, n_modes), dtype=wp.vec3, device=self.device)
+        hp.residual = wp.zeros((self.worlds, n_modes), dtype=wp.vec3, device=self.device)
+        target = np.zeros((self.worlds, n_modes, 3)) if target is None else target
+        target = self._per_world(target, (n_modes, 3), "harmonic_target").reshape(self.worlds, n_modes, 3)
         hp.target_start, hp.target_end = self._array(target, wp.vec3), self._array(target, wp.vec3)
         return hp
 
@@ -193,8 +244,9 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         capsule loops are empty)."""
         s = self.settings
         capsules = collision.Capsules()
-        capsules.near = self._array(np.zeros(n), int)
-        capsules.push = self._array(np.zeros(n), float)
+        capsules.near = self._array(np.zeros(self.worlds * n), int)
+        capsules.push = self._array(np.zeros(self.worlds * n), float)
+        capsules.per_world = 0
         if not s.body_collision:
             if ends is not None or radii is not None:
                 raise ValueError("capsules were given but settings.body_collision is off")
@@ -203,80 +255,97 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             raise ValueError("body_collision needs capsules (N, 2, 3) and capsule_radii (N, 2) at frame 0")
         ends = np.asarray(ends, dtype=np.float64)
         radii = np.asarray(radii, dtype=np.float64)
-        if ends.ndim != 3 or ends.shape[1:] != (2, 3) or radii.shape != ends.shape[:2]:
-            raise ValueError(f"capsules must be (N, 2, 3) and capsule_radii (N, 2); got {ends.shape} and "
-                             f"{radii.shape}")
-        if not 1 <= len(ends) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
-            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(ends)}")
+        if ends.ndim == 3 and self.worlds == 1:
+            ends = ends[None]
+        if ends.ndim != 4 or ends.shape[0] != self.worlds or ends.shape[2:] != (2, 3) or radii.shape != ends.shape[1:3]:
+            raise ValueError(f"capsules must be (B, N, 2, 3) with B = {self.worlds} worlds and capsule_radii (N, 2); "
+                             f"got {ends.shape} and {radii.shape}")
+        ends = ends.reshape(-1, 2, 3)
+        if not 1 <= len(radii) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
+            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(radii)}")
         length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+        radii = np.tile(radii, (self.worlds, 1))
         if (radii <= 0).any() or (length <= np.abs(radii[:, 0] - radii[:, 1])).any():
             raise ValueError("capsule radii must be positive and each segment longer than the difference of its "
                              "end radii")
         capsules.start = self._array(ends, wp.vec3)
         capsules.end = self._array(ends, wp.vec3)
         capsules.radius = self._array(radii, float)
+        capsules.per_world = len(radii) // self.worlds
         capsules.thickness = s.collision_thickness
         capsules.reach = reach
         capsules.friction = s.friction
         return capsules
 
-    def _self_contacts(self, faces: np.ndarray, reach: float, n: int) -> collision.SelfContacts:
-        """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only).
+    def _self_contacts(self, faces: np.ndarray, reach: float, n: int, spacing: float) -> collision.SelfContacts:
+        """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only), every world's.
 
         The triangle BVH is built once over the initial boxes with the same (SAH) builder on every device, so CPU
-        and CUDA traverse identical trees; each substep only refits it."""
+        and CUDA traverse identical trees; each substep only refits it. Worlds share it, their boxes `spacing`
+        apart on a lattice (collision.world_offset)."""
         s = self.settings
+        total = self.worlds * n
         sc = collision.SelfContacts()
-        sc.vertex_count = self._array(np.zeros(n), int)
+        sc.vertex_count = self._array(np.zeros(total), int)
         if not s.self_collision:  # no lists and no triangles around any vertex: the iterations find no contact
-            sc.face_offsets = self._array(np.zeros(n + 1), int)
+            sc.face_offsets = self._array(np.zeros(total + 1), int)
             return sc
-        arr = self._array
-        sc.faces = arr(faces, wp.vec3i)
-        face_ids = np.repeat(np.arange(len(faces)), 3)
-        order = np.argsort(faces.ravel(), kind="stable")
-        sc.face_offsets = arr(np.concatenate([[0], np.cumsum(np.bincount(faces.ravel(), minlength=n))]), int)
-        sc.vertex_faces = arr(face_ids[order], int)
-        edge_offsets, neighbors, _ = vertex_incidence(unique_edges(faces), n)
+        edge_offsets, _, _ = vertex_incidence(unique_edges(faces), n)
         if np.diff(edge_offsets).max() > collision.MAX_VALENCE:
             raise ValueError(f"self-collision handles vertices of up to {collision.MAX_VALENCE} neighbours; this "
                              f"mesh has one with {np.diff(edge_offsets).max()}")
+        arr = self._array
+        every_face = self._tile_ids(faces, n)
+        n_faces = len(every_face)
+        sc.faces = arr(every_face, wp.vec3i)
+        face_ids = np.repeat(np.arange(n_faces), 3)
+        order = np.argsort(every_face.ravel(), kind="stable")
+        sc.face_offsets = arr(np.concatenate([[0], np.cumsum(np.bincount(every_face.ravel(), minlength=total))]),
+                              int)
+        sc.vertex_faces = arr(face_ids[order], int)
+        edge_offsets, neighbors, _ = vertex_incidence(self._tile_ids(unique_edges(faces), n), total)
         sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
-        sc.face_lower = arr(np.zeros((len(faces), 3)), wp.vec3)
-        sc.face_upper = arr(np.zeros((len(faces), 3)), wp.vec3)
-        sc.vertex_contacts = arr(np.zeros((n, collision.VERTEX_LIST)), int)
-        sc.face_contacts = arr(np.zeros((len(faces), collision.FACE_LIST)), int)
-        sc.face_count = arr(np.zeros(len(faces)), int)
+        sc.face_lower = arr(np.zeros((n_faces, 3)), wp.vec3)
+        sc.face_upper = arr(np.zeros((n_faces, 3)), wp.vec3)
+        sc.vertex_contacts = arr(np.zeros((total, collision.VERTEX_LIST)), int)
+        sc.face_contacts = arr(np.zeros((n_faces, collision.FACE_LIST)), int)
+        sc.face_count = arr(np.zeros(n_faces), int)
         sc.thickness = s.self_thickness
         sc.reach = reach
+        sc.world_vertices, sc.world_faces = n, len(faces)
+        sc.lattice = math.ceil(self.worlds ** (1 / 3) - 1e-9)
+        sc.spacing = spacing
         x = self.state.positions
-        wp.launch(collision.contact_bounds, dim=len(faces), device=self.device, inputs=[x, x, sc])
+        wp.launch(collision.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
         self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
         sc.face_bvh = self._face_bvh.id
         return sc
 
     def step(self, state: ClothState, inputs: FrameInputs = FrameInputs()) -> None:
         """Advance `state` (which must be `self.state`) one frame. Raises UnstableSimulation naming the first bad
-        substep."""
+        world and substep."""
         if state is not self.state:
             raise ValueError("a ClothSolver steps the state it made (solver.state); a second trajectory needs a "
                              "second solver")
-        capsules = inputs.capsules
         if self.settings.body_collision:
-            if capsules is None or np.shape(capsules) != tuple(self.capsules.end.shape) + (3,):
-                raise ValueError(f"body_collision needs the capsules at the end of the frame, shape "
-                                 f"{tuple(self.capsules.end.shape) + (3,)}; got "
-                                 f"{None if capsules is None else np.shape(capsules)}")
+            if inputs.capsules is None:
+                raise ValueError("body_collision needs the capsules at the end of the frame")
+            per_world = self.capsules.per_world
+            capsules = self._per_world(inputs.capsules, (per_world, 2, 3), "capsules")
             self.capsules.start.assign(self.capsules.end)
-            self.capsules.end.assign(np.asarray(capsules, dtype=np.float32))
-        elif capsules is not None:
+            self.capsules.end.assign(capsules.astype(np.float32))
+        elif inputs.capsules is not None:
             raise ValueError("capsules were given but settings.body_collision is off")
         if self.n_pins:
+            targets = self._per_world(inputs.pin_targets, (self.n_pins, 3), "pin_targets")
             self.pins.start.assign(self.pins.end)
-            self.pins.end.assign(np.asarray(inputs.pin_targets, dtype=np.float32))
+            self.pins.end.assign(targets.astype(np.float32))
         if self.harmonic_projection is not None:
-            self.harmonic_projection.target_start.assign(self.harmonic_projection.target_end)
-            self.harmonic_projection.target_end.assign(np.asarray(inputs.harmonic_target, dtype=np.float32))
+            hp = self.harmonic_projection
+            n_modes = hp.target_end.shape[1]
+            targets = self._per_world(inputs.harmonic_target, (n_modes, 3), "harmonic_target")
+            hp.target_start.assign(hp.target_end)
+            hp.target_end.assign(targets.reshape(self.worlds, n_modes, 3).astype(np.float32))
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
@@ -289,11 +358,13 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         else:
             self._launch_frame()
         flags = self.flags.numpy()
-        if flags[-1]:
-            warnings.warn("self-contact lists overflowed; the extra contacts of this frame were dropped",
-                          RuntimeWarning, stacklevel=2)
-        if flags[:-1].any():
-            raise UnstableSimulation(f"substep {int(np.argmax(flags[:-1]))}")
+        if flags[:, -1].any():
+            warnings.warn(f"self-contact lists overflowed in world(s) {np.flatnonzero(flags[:, -1]).tolist()}; the "
+                          "extra contacts of this frame were dropped", RuntimeWarning, stacklevel=2)
+        blown = flags[:, :-1]
+        if blown.any():
+            world = int(np.flatnonzero(blown.any(axis=1))[0])
+            raise UnstableSimulation(world, int(np.argmax(blown[world])))
 
     def _launch_frame(self) -> None:
         s = self.settings
@@ -334,7 +405,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
 
     def _launch_projection(self, x: wp.array, fraction: float) -> None:
         hp = self.harmonic_projection
-        n_chunks, n_modes = hp.partial.shape
-        wp.launch(kernels.harmonic_partial_sums, dim=(n_chunks, n_modes), device=self.device, inputs=[x, hp])
-        wp.launch(kernels.harmonic_residual, dim=n_modes, device=self.device, inputs=[hp, fraction])
+        worlds, n_chunks, n_modes = hp.partial.shape
+        wp.launch(kernels.harmonic_partial_sums, dim=(worlds, n_chunks, n_modes), device=self.device, inputs=[x, hp])
+        wp.launch(kernels.harmonic_residual, dim=(worlds, n_modes), device=self.device, inputs=[hp, fraction])
         wp.launch(kernels.harmonic_project, dim=x.shape[0], device=self.device, inputs=[hp, x])

@@ -127,3 +127,61 @@ def test_missing_input_file(tmp_path):
     run = stage("pipeline.simulate", "low", str(settings), str(tmp_path / "nope.h5"), str(tmp_path / "o.h5"))
     assert run.returncode == 2 and "nope.h5: input file does not exist" in run.stderr
     assert not (tmp_path / "o.h5").exists()
+
+
+def tiny_garment(scene: str, frames: int) -> dict:
+    """A garment scene's CPU-profile settings shrunk to a coarse mesh, a short settle and a cheap solver."""
+    settings = resolve_scene(CONFIG, scene, "cpu")
+    mannequin = dict(settings["drivers"]["mannequin"], settle_frames=1, blend_frames=2)
+    settings.update(frames=frames, mesh=dict(settings["mesh"], max_edge=0.25),
+                    solver=dict(settings["solver"], substeps=2, iterations=5),
+                    drivers=dict(settings["drivers"], mannequin=mannequin),
+                    high_res=dict(settings["high_res"], subdivision_levels=1))
+    return settings
+
+
+def test_a_batch_of_sequences_writes_what_each_run_alone_writes(tmp_path):
+    """Two training sequences of a coarse garment (different motion programs, body and self collision) and the
+    held-out walk, stepped as one batch by the stage, against each stepped alone: the same positions, bit for
+    bit (the solver's worlds are independent and sum in the same order)."""
+    write_settings(tiny_garment("pants", 6), tmp_path / "settings.json")
+    names = ("train_000", "train_001", "held_out_000")
+    for name in names:
+        run = stage("pipeline.scene", str(tmp_path / "settings.json"), str(tmp_path / f"{name}.h5"), "--sequence", name)
+        assert run.returncode == 0, run.stderr
+    run = stage("pipeline.subdivide", str(tmp_path / "train_000.h5"), str(tmp_path / "subdiv.h5"), "--quiet")
+    assert run.returncode == 0, run.stderr
+    both = {}
+    for mode, groups in (("batch", [names]), ("alone", [(n,) for n in names])):
+        for group in groups:
+            low = [str(tmp_path / p) for n in group for p in (f"{n}.h5", f"{mode}_{n}_low.h5")]
+            high = [str(tmp_path / p) for n in group
+                    for p in (f"{n}.h5", "subdiv.h5", f"{mode}_{n}_low.h5", f"{mode}_{n}_high.h5")]
+            for level, files in (("low", low), ("high", high)):
+                run = stage("pipeline.simulate", level, str(tmp_path / "settings.json"), *files, "--quiet")
+                assert run.returncode == 0, run.stderr
+        for n in names:
+            for level in ("low", "high"):
+                with h5py.File(tmp_path / f"{mode}_{n}_{level}.h5") as f:
+                    both[mode, n, level] = f["positions"][()], f.attrs["batch"]
+    for n in names:
+        for level in ("low", "high"):
+            np.testing.assert_array_equal(both["batch", n, level][0], both["alone", n, level][0])
+            assert (both["batch", n, level][1], both["alone", n, level][1]) == (3, 1)
+    assert np.abs(both["batch", "train_000", "high"][0] - both["batch", "train_001", "high"][0]).max() > 1e-3
+
+
+def test_a_batch_refuses_sequences_of_another_garment(tmp_path):
+    for scene, name in (("pants", "train_000"), ("skirt", "train_000")):
+        write_settings(tiny_garment(scene, 3), tmp_path / f"{scene}.json")
+        run = stage("pipeline.scene", str(tmp_path / f"{scene}.json"), str(tmp_path / f"{scene}.h5"), "--sequence",
+                    name)
+        assert run.returncode == 0, run.stderr
+    run = stage("pipeline.simulate", "low", str(tmp_path / "pants.json"), str(tmp_path / "pants.h5"),
+                str(tmp_path / "a.h5"), str(tmp_path / "skirt.h5"), str(tmp_path / "b.h5"), "--quiet")
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines() == [f"error: {tmp_path / 'skirt.h5'}: not the same mesh as "
+                                               f"{tmp_path / 'pants.h5'}: a batch steps sequences of one garment"]
+    assert not (tmp_path / "a.h5").exists() and not (tmp_path / "b.h5").exists()
+    run = stage("pipeline.simulate", "low", str(tmp_path / "pants.json"), str(tmp_path / "pants.h5"), "--quiet")
+    assert run.returncode == 2 and "groups of SCENE OUT" in run.stderr

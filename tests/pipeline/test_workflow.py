@@ -106,11 +106,12 @@ def test_bad_config_key_stops_the_workflow_with_its_name(workdir, tmp_path):
 TINY_FRAMES = 24
 
 
-def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, **mannequin) -> Path:
-    """A config file shrinking pants to seconds: `sequences` training sequences of TINY_FRAMES frames."""
+def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, shard=1, **mannequin) -> Path:
+    """A config file shrinking pants to seconds: `sequences` training sequences of TINY_FRAMES frames, simulated
+    `shard` at a time."""
     config = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
     config["profiles"]["cpu"]["scenes"]["pants"] = {
-        "frames": TINY_FRAMES, "sequences": sequences, "mesh": {"max_edge": 0.25},
+        "frames": TINY_FRAMES, "sequences": sequences, "shard": shard, "mesh": {"max_edge": 0.25},
         "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5, **mannequin}},
         "solver": {"substeps": 2, "iterations": 10}, "high_res": {"subdivision_levels": 1},
         "training": {"epochs": 1},
@@ -129,10 +130,12 @@ def planned_counts(run) -> dict[str, int]:
 def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_made_ones(workdir, tmp_path):
     """pants on the moving mannequin, shrunk to seconds: two training sequences and the held-out walk, each
     simulated with body and self collision, gathered in the torso frame; renders with the body. The default
-    `make run` is the same chain at full CPU-profile size. A third sequence then costs its own jobs and the
-    learning stages, nothing else."""
-    run = snakemake(workdir, "results/pants/", "--configfile", str(tiny_pants(tmp_path)))
+    `make run` is the same chain at full CPU-profile size (one job per sequence; here the two training
+    sequences are one batch job, `shard: 2`). A third sequence then costs its own jobs and the learning stages,
+    nothing else."""
+    run = snakemake(workdir, "results/pants/", "--configfile", str(tiny_pants(tmp_path, shard=2)))
     assert run.returncode == 0, tail(run)
+    assert "rule simulate_high_batch_pants_000:" in run.stderr and "rule simulate_high:" not in run.stderr
     out = workdir / "results" / "pants"
     assert sorted(p.name for p in (out / "sequences").iterdir()) == ["held_out_000", "train_000", "train_001"]
     with h5py.File(out / "dataset.h5") as f:
@@ -144,6 +147,7 @@ def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_m
         assert np.count_nonzero(sequence == 0) == TINY_FRAMES and "capsules/a" in f
     with h5py.File(out / "sequences/train_001/sim_low.h5") as f, \
             h5py.File(out / "sequences/train_001/scene.h5") as s:
+        assert f.attrs["batch"] == 2
         x = f["positions"][()]
         assert np.isfinite(x).all()
         np.testing.assert_allclose(x[:, s["pins/ids"][()]], s["pins/targets"][()], atol=1e-5)
@@ -154,10 +158,12 @@ def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_m
     page = (out / "report.html").read_text()
     assert page.count('<video src="data:video/mp4;base64,') == 2 and "Held-out motion (walk)" in page
 
-    more = snakemake(workdir, "-n", "results/pants/", "--configfile", str(tiny_pants(tmp_path, "more.yaml", 3)))
+    more = snakemake(workdir, "-n", "results/pants/", "--configfile",
+                     str(tiny_pants(tmp_path, "more.yaml", 3, shard=2)))
     assert more.returncode == 0, tail(more)
-    assert planned_counts(more) == {"sequence": 1, "simulate_low": 1, "simulate_high": 1, "dataset": 1, "train": 1,
-                                    "evaluate": 1, "results/pants/": 1, "total": 7}
+    assert planned_counts(more) == {"sequence": 1, "simulate_low_batch_pants_001": 1,
+                                    "simulate_high_batch_pants_001": 1, "dataset": 1, "train": 1, "evaluate": 1,
+                                    "results/pants/": 1, "total": 7}
     assert "seq=train_002" in more.stdout
 
 

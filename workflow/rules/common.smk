@@ -6,7 +6,7 @@ import sys
 
 from pipeline.config import resolve_scene, shared_settings
 from pipeline.errors import PipelineError
-from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names
+from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names, sequence_shards
 
 # Resolving every scene now turns a bad or missing key into one error before any job starts.
 SETTINGS = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
@@ -45,6 +45,12 @@ def benchmark_of(rule_name, per_sequence=False):
 def gpus_on_device(wildcards):
     """One GPU for a job that runs on the scene's device when that device is CUDA, none otherwise."""
     return int(SETTINGS[wildcards.scene]["device"].startswith("cuda"))
+
+
+def batch_rule_name(stage, scene, shard):
+    """The name of the rule that runs `stage` on shard `shard` of a sharded scene: a Python identifier (the
+    scene's other characters become _), one per scene and shard."""
+    return f"{stage}_batch_{re.sub(r'[^A-Za-z0-9_]', '_', scene)}_{shard:03d}"
 
 
 def bvh_files(wildcards):

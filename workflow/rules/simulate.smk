@@ -1,10 +1,16 @@
 # The XPBD runs of each sequence on the scene's device: low-res, then high-res held to it by the harmonic
-# constraint. Sequences are independent jobs: Snakemake runs as many side by side as cores (or GPUs) allow.
+# constraint. A scene with `shard: 1` (the CPU profile) has one job per sequence, run side by side on the cores;
+# a scene with a larger shard has one job per shard of sequences (scenes.sequences.sequence_shards), which steps
+# them together as one batch of solver worlds: on a GPU a batch costs about what one sequence does.
+
+# The scenes whose sequences are simulated one job each (a pattern that matches nothing when there are none).
+UNSHARDED = "|".join(re.escape(s) for s, settings in SETTINGS.items() if settings["shard"] == 1) or "(?!)"
 
 
 rule simulate_low:
     input: settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5"
     output: f"{SEQ}/sim_low.h5"
+    wildcard_constraints: scene=UNSHARDED
     log: log_of("simulate_low", per_sequence=True)
     benchmark: benchmark_of("simulate_low", per_sequence=True)
     threads: 1
@@ -17,6 +23,7 @@ rule simulate_high:
         settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
         sim_low=f"{SEQ}/sim_low.h5",
     output: f"{SEQ}/sim_high.h5"
+    wildcard_constraints: scene=UNSHARDED
     log: log_of("simulate_high", per_sequence=True)
     benchmark: benchmark_of("simulate_high", per_sequence=True)
     threads: 1
@@ -24,3 +31,38 @@ rule simulate_high:
     shell:
         "{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} {input.sim_low:q} "
         "{output:q} 2>&1 | tee {log:q}"
+
+
+# Sharded scenes: a rule per shard (a rule's outputs are fixed by its wildcards, and a shard's are a list of
+# sequences), named simulate_low_batch_<scene>_<k> and simulate_high_batch_<scene>_<k>; logs and benchmarks per
+# shard. Every path is a literal made here, so nothing from the config reaches the shell but quoted paths.
+for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if SETTINGS[s]["shard"] > 1):
+    for _k, _names in enumerate(_shards):
+        _out, _seqs = f"results/{_scene}", [f"results/{_scene}/sequences/{n}" for n in _names]
+        _gpu = int(SETTINGS[_scene]["device"].startswith("cuda"))
+
+        rule:
+            name: batch_rule_name("simulate_low", _scene, _k)
+            input: settings=f"{_out}/settings.json", scenes=[f"{s}/scene.h5" for s in _seqs]
+            output: [f"{s}/sim_low.h5" for s in _seqs]
+            params: files=[p for s in _seqs for p in (f"{s}/scene.h5", f"{s}/sim_low.h5")]
+            log: f"{_out}/logs/shard_{_k:03d}/simulate_low.log"
+            benchmark: f"{_out}/benchmarks/shard_{_k:03d}/simulate_low.tsv"
+            threads: 1
+            resources: mem_mb=4000 + 500 * len(_seqs), gpu=_gpu
+            shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} 2>&1 | tee {log:q}"
+
+        rule:
+            name: batch_rule_name("simulate_high", _scene, _k)
+            input:
+                settings=f"{_out}/settings.json", subdiv=f"{_out}/subdiv.h5",
+                scenes=[f"{s}/scene.h5" for s in _seqs], sim_low=[f"{s}/sim_low.h5" for s in _seqs],
+            output: [f"{s}/sim_high.h5" for s in _seqs]
+            params:
+                files=[p for s in _seqs
+                       for p in (f"{s}/scene.h5", f"{_out}/subdiv.h5", f"{s}/sim_low.h5", f"{s}/sim_high.h5")]
+            log: f"{_out}/logs/shard_{_k:03d}/simulate_high.log"
+            benchmark: f"{_out}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
+            threads: 1
+            resources: mem_mb=8000 + 2000 * len(_seqs), gpu=_gpu
+            shell: "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} 2>&1 | tee {log:q}"
