@@ -8,7 +8,7 @@ graph), cloth-frames/s = B * 1000 / ms, and the ratio to B = 1 in the same run. 
 time goes, per kernel, at the largest B (CUDA only; launched without the graph, so each kernel is timed on its
 own). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
-      [--warmup 3] [--substeps 8] [--iterations 75] [--profile] [--out table.md]
+      [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every iteration|substep] [--profile] [--out table.md]
 """
 from __future__ import annotations
 
@@ -104,13 +104,14 @@ def main():
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--substeps", type=int, default=8)
     parser.add_argument("--iterations", type=int, default=75)
+    parser.add_argument("--harmonic-every", default="iteration", choices=("iteration", "substep"))
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
     levels, pins, targets, capsules, radii = pants(max(batches) + args.warmup + args.frames + 2)
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
-                              self_collision=True)
+                              self_collision=True, harmonic_every=args.harmonic_every)
     rows = ["| level | V | B | ms per batch frame | cloth-frames/s | x B=1 |", "|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
@@ -131,7 +132,8 @@ def main():
                              *kernel_profile(solver, harmonic_target, targets, capsules)]
             del solver
     table = "\n".join(rows + profiles)
-    print(f"\n{args.device}, {args.substeps} substeps x {args.iterations} iterations, body + self collision, median "
+    print(f"\n{args.device}, {args.substeps} substeps x {args.iterations} iterations, body + self collision, harmonic "
+          f"projection every {args.harmonic_every} (high), median "
           f"of {args.frames} frames after {args.warmup} warm-up frames\n{table}")
     if args.out:
         Path(args.out).write_text(table + "\n")

@@ -40,7 +40,8 @@ def solver_settings(settings: dict) -> SolverSettings:
     physics = settings["physics"]
     try:
         return SolverSettings(**solver, bending=physics["bending"], body_collision=physics["body_collision"],
-                              self_collision=physics["self_collision"])
+                              self_collision=physics["self_collision"],
+                              harmonic_every=settings["high_res"]["harmonic_every"])
     except ValueError as err:
         raise PipelineError(f"scene '{settings['scene']}': {err}") from None
 

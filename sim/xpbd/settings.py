@@ -26,10 +26,16 @@ class SolverSettings:
     collision_thickness: float = 0.005   # least distance of the cloth from every capsule surface
     friction: float = 0.3                # Coulomb coefficient against the (moving) body
     self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
+    harmonic_every: str = "iteration"    # project onto the harmonic constraint after every "iteration" or once a
+                                         # "substep" (after its last iteration): 1/iterations of the cost
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
-        not_finite = [name for name, value in vars(self).items() if not np.all(np.isfinite(value))]
+        if self.harmonic_every not in ("iteration", "substep"):
+            raise ValueError(f"solver setting 'harmonic_every' must be 'iteration' or 'substep', got "
+                             f"{self.harmonic_every!r}")
+        not_finite = [name for name, value in vars(self).items()
+                      if not isinstance(value, str) and not np.all(np.isfinite(value))]
         if not_finite:
             raise ValueError(f"solver setting '{not_finite[0]}' is not finite: {getattr(self, not_finite[0])}")
         checks = {

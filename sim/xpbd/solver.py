@@ -378,6 +378,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
                 wp.launch(kernels.predict_positions, dim=n, device=dev, inputs=[sub, self.pins])
             if s.self_collision:
                 self._launch_broad_phase(sub)
+            every_iteration = s.harmonic_every == "iteration"
             for sweep in self._sweeps:
                 if collide:
                     wp.launch(collision.solve_with_collisions, dim=n, device=dev,
@@ -385,7 +386,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
                 else:
                     wp.launch(kernels.solve_distance_constraints, dim=n, device=dev,
                               inputs=[sub, self.constraints, sweep])
-                if self.harmonic_projection is not None:
+                if self.harmonic_projection is not None and (every_iteration or sweep is self._sweeps[-1]):
                     self._launch_projection(sweep.x_out, sub.f1)
             solved = self._sweeps[-1].x_out
             if collide:
