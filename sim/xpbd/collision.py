@@ -30,10 +30,7 @@ DETECT_SLACK = 0.25         # candidate pairs: barycentric coordinates of the pr
 SOLVE_SLACK = 0.05          # active contacts: down to -SOLVE_SLACK, which closes the gaps above convex ridges
 FINAL_PASSES = 3            # passes over all capsules at the end of a substep
 WATCHED = 3                 # capsules a vertex may watch in the iterations (a byte each in one int32)
-VERTEX_LIST = 32            # capacity of a vertex's list of the triangles it touches
-FACE_LIST = 32              # capacity of a triangle's list of the vertices touching it
 MAX_VALENCE = 16            # mesh neighbours of a vertex, at most, with self-collision on
-vertex_list = wp.types.vector(length=VERTEX_LIST, dtype=int)
 neighbor_list = wp.types.vector(length=MAX_VALENCE, dtype=int)
 
 
@@ -74,9 +71,10 @@ class SelfContacts:
     face_lower: wp.array(dtype=wp.vec3)    # box where points may project into the triangle in the substep
     face_upper: wp.array(dtype=wp.vec3)
     face_bvh: wp.uint64
-    vertex_contacts: wp.array2d(dtype=int)  # (V, VERTEX_LIST)
+    vertex_contacts: wp.array2d(dtype=int)  # (V, capacity): a vertex's list of the triangles it touches
+    previous: wp.array2d(dtype=int)         # (V, capacity): scratch, a vertex's list of the previous substep
     vertex_count: wp.array(dtype=int)
-    face_contacts: wp.array2d(dtype=int)    # (F, FACE_LIST)
+    face_contacts: wp.array2d(dtype=int)    # (F, capacity): a triangle's list of the vertices touching it
     face_count: wp.array(dtype=int)
     thickness: float
     reach: float                       # pairs within this distance at the prediction become candidates
@@ -457,18 +455,17 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
     on the wrong side of the plane is pushed back rather than through. Each list is sorted by triangle, so the
     lists are deterministic and independent of the tree. A full list drops the rest and raises the world's
-    flags[w, overflow_flag]. Pinned
-    vertices list nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
+    flags[w, overflow_flag] (the solver then grows the lists and steps the frame again). Pinned vertices list
+    nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
     predictions, x_prev the substep's start positions."""
     i = wp.tid()
     x = sub.x
     x_prev = sub.x_prev
     count = int(0)
     if sub.inv_mass[i] > 0.0:
-        old = vertex_list()
         n_old = sc.vertex_count[i]
         for a in range(n_old):
-            old[a] = sc.vertex_contacts[i, a]
+            sc.previous[i, a] = sc.vertex_contacts[i, a]
         neighbors = neighbor_list()
         first = sc.edge_offsets[i]
         n_neighbors = sc.edge_offsets[i + 1] - first
@@ -481,12 +478,12 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
             side = contact_side(i, neighbors, n_neighbors, t, x, x_prev, sc)
             if side != 0:
                 for a in range(n_old):
-                    if wp.abs(old[a]) == t + 1:
-                        side = wp.sign(old[a])
-                slot = FACE_LIST
-                if count < VERTEX_LIST:
+                    if wp.abs(sc.previous[i, a]) == t + 1:
+                        side = wp.sign(sc.previous[i, a])
+                slot = sc.face_contacts.shape[1]
+                if count < sc.vertex_contacts.shape[1]:
                     slot = wp.atomic_add(sc.face_count, t, 1)
-                if slot < FACE_LIST:
+                if slot < sc.face_contacts.shape[1]:
                     sc.vertex_contacts[i, count] = side * (t + 1)
                     sc.face_contacts[t, slot] = side * (i + 1)
                     count += 1
@@ -516,7 +513,7 @@ def sort_face_lists(sc: SelfContacts):
     """Sort each triangle's list by vertex, so that the iterations sum the corrections in an order that does not
     depend on which thread took which slot."""
     t = wp.tid()
-    n = wp.min(sc.face_count[t], FACE_LIST)
+    n = wp.min(sc.face_count[t], sc.face_contacts.shape[1])
     sc.face_count[t] = n
     sort_list(sc.face_contacts, t, n)
 

@@ -76,6 +76,12 @@ class UnstableSimulation(RuntimeError):
 # far enough that no two worlds' cloths meet unless one strays several garment sizes from the others.
 WORLD_SPACING = 8.0
 
+# Self-contact lists start with room for this many entries per vertex and per triangle; a frame that fills one is
+# stepped again from its start with twice the room, up to MAX_CONTACT_CAPACITY (then contacts are dropped, with a
+# warning).
+CONTACT_CAPACITY = 32
+MAX_CONTACT_CAPACITY = 512
+
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
 # watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
@@ -100,7 +106,8 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
                  pinned: np.ndarray, initial_positions: np.ndarray | None = None,
                  harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
-                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1):
+                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1,
+                 contact_capacity: int = CONTACT_CAPACITY):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         self.settings = settings
@@ -140,7 +147,10 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self.capsules = self._capsules(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
         self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n,
-                                            WORLD_SPACING * max(diagonal, mean_edge))
+                                            WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
+        # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
+        self._frame_start = None if not s.self_collision else ClothState(
+            arr(x0, wp.vec3), arr(np.zeros((worlds * n, 3)), wp.vec3), worlds)
         self._graph = None
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -277,7 +287,8 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         capsules.friction = s.friction
         return capsules
 
-    def _self_contacts(self, faces: np.ndarray, reach: float, n: int, spacing: float) -> collision.SelfContacts:
+    def _self_contacts(self, faces: np.ndarray, reach: float, n: int, spacing: float,
+                       capacity: int) -> collision.SelfContacts:
         """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only), every world's.
 
         The triangle BVH is built once over the initial boxes with the same (SAH) builder on every device, so CPU
@@ -307,8 +318,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
         sc.face_lower = arr(np.zeros((n_faces, 3)), wp.vec3)
         sc.face_upper = arr(np.zeros((n_faces, 3)), wp.vec3)
-        sc.vertex_contacts = arr(np.zeros((total, collision.VERTEX_LIST)), int)
-        sc.face_contacts = arr(np.zeros((n_faces, collision.FACE_LIST)), int)
+        self._size_contact_lists(sc, capacity, np.zeros((total, 0)))
         sc.face_count = arr(np.zeros(n_faces), int)
         sc.thickness = s.self_thickness
         sc.reach = reach
@@ -320,6 +330,32 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
         sc.face_bvh = self._face_bvh.id
         return sc
+
+    def _size_contact_lists(self, sc: collision.SelfContacts, capacity: int, vertex_lists: np.ndarray) -> None:
+        """(Re)allocate the contact lists with `capacity` entries, the vertices' lists starting as `vertex_lists`
+        (the previous substep's, whose sides the next search keeps)."""
+        arr = self._array
+        lists = np.zeros((len(vertex_lists), capacity))
+        lists[:, :vertex_lists.shape[1]] = vertex_lists
+        sc.vertex_contacts, sc.previous = arr(lists, int), arr(lists, int)
+        sc.face_contacts = arr(np.zeros((sc.faces.shape[0], capacity)), int)
+        self._saved_lists = arr(lists, int)
+        self._saved_count = arr(np.zeros(len(vertex_lists)), int)
+
+    def _grow_contact_lists(self) -> bool:
+        """After a frame that overflowed: double the lists' capacity and put the state back at the frame's start,
+        so the frame can be stepped again; False at MAX_CONTACT_CAPACITY."""
+        sc = self.contacts
+        capacity = 2 * sc.vertex_contacts.shape[1]
+        if capacity > MAX_CONTACT_CAPACITY:
+            return False
+        saved_count = self._saved_count.numpy()
+        self._size_contact_lists(sc, capacity, self._saved_lists.numpy())
+        sc.vertex_count.assign(saved_count)
+        wp.copy(self.state.positions, self._frame_start.positions)
+        wp.copy(self.state.velocities, self._frame_start.velocities)
+        self._graph = None   # the graph holds the old lists
+        return True
 
     def step(self, state: ClothState, inputs: FrameInputs = FrameInputs()) -> None:
         """Advance `state` (which must be `self.state`) one frame. Raises UnstableSimulation naming the first bad
@@ -346,6 +382,20 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             targets = self._per_world(inputs.harmonic_target, (n_modes, 3), "harmonic_target")
             hp.target_start.assign(hp.target_end)
             hp.target_end.assign(targets.reshape(self.worlds, n_modes, 3).astype(np.float32))
+        flags = self._run_frame()
+        while flags[:, -1].any() and self._grow_contact_lists():
+            flags = self._run_frame()
+        if flags[:, -1].any():
+            warnings.warn(f"self-contact lists overflowed at their largest capacity ({MAX_CONTACT_CAPACITY}) in "
+                          f"world(s) {np.flatnonzero(flags[:, -1]).tolist()}; the extra contacts of this frame were "
+                          "dropped", RuntimeWarning, stacklevel=2)
+        blown = flags[:, :-1]
+        if blown.any():
+            world = int(np.flatnonzero(blown.any(axis=1))[0])
+            raise UnstableSimulation(world, int(np.argmax(blown[world])))
+
+    def _run_frame(self) -> np.ndarray:
+        """Launch one frame (replaying its graph on CUDA); the flags it raised, (B, substeps + 1)."""
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
@@ -357,17 +407,16 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             wp.capture_launch(self._graph)
         else:
             self._launch_frame()
-        flags = self.flags.numpy()
-        if flags[:, -1].any():
-            warnings.warn(f"self-contact lists overflowed in world(s) {np.flatnonzero(flags[:, -1]).tolist()}; the "
-                          "extra contacts of this frame were dropped", RuntimeWarning, stacklevel=2)
-        blown = flags[:, :-1]
-        if blown.any():
-            world = int(np.flatnonzero(blown.any(axis=1))[0])
-            raise UnstableSimulation(world, int(np.argmax(blown[world])))
+        return self.flags.numpy()
 
     def _launch_frame(self) -> None:
         s = self.settings
+        if s.self_collision:
+            for saved, live in ((self._frame_start.positions, self.state.positions),
+                                (self._frame_start.velocities, self.state.velocities),
+                                (self._saved_lists, self.contacts.vertex_contacts),
+                                (self._saved_count, self.contacts.vertex_count)):
+                wp.copy(saved, live)
         n = self.state.positions.shape[0]
         dev = self.device
         collide = s.body_collision or s.self_collision

@@ -1,5 +1,7 @@
 """Body contact (capsules) and self-contact in the XPBD solver, checked against independent distance computations
 (scenes.capsules.capsule_signed_distance, a brute-force point-triangle distance here) and analytic cases."""
+import warnings
+
 import numpy as np
 import pytest
 import warp as wp
@@ -317,3 +319,30 @@ def test_collision_inputs_are_checked():
     for field, value in [("collision_thickness", 0.0), ("friction", -0.1), ("self_thickness", -1.0)]:
         with pytest.raises(ValueError, match=field):
             SolverSettings(**{field: value})
+
+
+@pytest.mark.parametrize("worlds", [1, 2])
+def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
+    """Issue 12 item 4: no contact is dropped. Lists with room for 2 entries overflow on the draped sheets; the
+    solver doubles them and steps the frame again from its start, so the run ends exactly where one with room to
+    spare does, without a warning."""
+    vertices, faces, _, _, _ = stacked_sheets()
+    radii = np.array([[0.08, 0.06]])
+
+    def capsules(frame):
+        one = np.array([[[-0.3, 0.9 + 0.002 * frame, 0.0], [0.3, 0.9, 0.01 * frame]]])
+        return np.broadcast_to(one, (worlds, 1, 2, 3))
+
+    settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
+    runs = {}
+    for capacity in (2, 64):
+        solver = ClothSolver(vertices, faces, settings, "cpu", np.zeros(0, int), capsules=capsules(0),
+                             capsule_radii=radii, worlds=worlds, contact_capacity=capacity)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")   # an overflow that was not absorbed would warn
+            for frame in range(1, 31):
+                solver.step(solver.state, FrameInputs(capsules=capsules(frame)))
+        runs[capacity] = solver.state.read_positions(), solver.contacts.vertex_contacts.shape[1]
+        assert solver.contacts.vertex_count.numpy().max() <= runs[capacity][1]
+    assert runs[2][1] > 2 and runs[64][1] == 64          # the small lists grew; the large ones never had to
+    np.testing.assert_array_equal(runs[2][0], runs[64][0])
