@@ -26,6 +26,7 @@ include: "workflow/rules/scene.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learning.smk"
 include: "workflow/rules/study.smk"
+include: "workflow/rules/applications.smk"
 
 if config["default_scene"] not in SETTINGS:
     raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "

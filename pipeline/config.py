@@ -197,6 +197,15 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
             fail(f"study.variants.{variant}: input 'body' needs a mannequin (mesh.generator 'garment')")
         if inputs["input_frame"] == "local" and "normal" in inputs["inputs"]:
             fail(f"study.variants.{variant}: input 'normal' is (0, 0, 1) everywhere with input_frame local")
+    for name, application in settings["applications"].items():
+        merged = deep_merge({key: settings[key] for key in ("network", "operators")},
+                            {key: application[key] for key in ("network", "operators") if key in application})
+        if "U" != merged["network"]["arch"].strip()[:1]:
+            fail(f"applications.{name}.network.arch '{merged['network']['arch']}': the network of an "
+                 f"application is a decoder, written with U tokens")
+        if merged["network"]["conv"] not in merged["operators"]["conv"]:
+            fail(f"applications.{name}: network.conv '{merged['network']['conv']}' is not among its operators.conv "
+                 f"{merged['operators']['conv']}")
     if not garment and settings["sequences"] != 1:
         fail(f"sequences {settings['sequences']}: a grid scene has one sequence (its rod's motion)")
     if settings["dataset"]["split"] == "held_out":
@@ -220,13 +229,22 @@ def _names(entries: list) -> str:
 
 
 # Read by the workflow only, never by a stage: kept out of settings.json, so that changing them reruns no stage
-# of the scene (more sequences add jobs; the study's grid adds study jobs).
-WORKFLOW_ONLY = ("sequences", "shard", "study")
+# of the scene (more sequences add jobs; the study's grid adds study jobs; an application's settings go into its
+# own settings.json, `application_settings`).
+WORKFLOW_ONLY = ("sequences", "shard", "study", "applications")
 
 
 def shared_settings(settings: dict) -> dict:
     """What settings.json holds: the resolved settings without what only the workflow reads (WORKFLOW_ONLY)."""
     return {key: value for key, value in settings.items() if key not in WORKFLOW_ONLY}
+
+
+def application_settings(settings: dict, name: str) -> dict:
+    """What results/<scene>/<name>/settings.json holds for application `name` (pose, pca): the scene's
+    settings.json with `applications.<name>` (less its PCA component counts, which name folders) merged over
+    it, so that its stages read their flags from it as the upsampling's read the scene's."""
+    overlay = {key: value for key, value in settings["applications"][name].items() if key != "components"}
+    return deep_merge(shared_settings(settings), overlay)
 
 
 def write_settings(settings: dict, path: str | os.PathLike) -> None:

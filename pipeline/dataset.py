@@ -1,8 +1,9 @@
-"""Stage `dataset`: the cloth-upsampling learning problem of paper Table 2 over a scene's sequences, with a seeded
-train/test split of the training sequences and the held-out sequences as a third split.
+"""Stage `dataset`: one learning problem of paper Table 2 (a task, pipeline/tasks) over a scene's sequences, with a
+seeded train/test split of the training sequences and the held-out sequences as a third split.
 
     python -m pipeline.dataset SUBDIV.h5 OUT.h5 SEQUENCE [SEQUENCE ...] [--settings SETTINGS.json]
-                               [--frame world|torso] [--test-fraction 0.1] [--seed 0] [--quiet]
+                               [--frame world|torso] [--test-fraction 0.1] [--seed 0]
+                               [--task upsampling|pose|pca] [--components K] [--quiet]
 
 A SEQUENCE is a folder holding one sequence's sim_low.h5 and sim_high.h5 and, where there is one, its scene.h5
 (results/<scene>/sequences/<name>/, so `results/pants/sequences/*` gathers a scene). Its frames follow those of
@@ -10,9 +11,11 @@ the sequences before it, in the order given; the frames before its first clip (t
 `motion/clip` 0, at rest and alike in every sequence) are kept in the first training sequence only. A folder
 without scene.h5 is a training sequence named after the folder, all of whose frames are kept.
 
-Input and predictor: the Loop-subdivided low-res positions S x_low; target: the displacement x_high - S x_low;
-all in the reference frame (`world`, or `torso` using each scene.h5's `torso_transforms`). Because every row of
-S sums to one, S commutes with the rigid change of frame. The test frames are a seeded random share of the
+The task (default `upsampling`) says what the input and the predictor are; the target is always the displacement
+x_high - predictor, all in the reference frame (`world`, or `torso` using each scene.h5's `torso_transforms`).
+upsampling: input and predictor are the Loop-subdivided low-res positions S x_low (every row of S sums to one, so
+S commutes with the rigid change of frame); pose: the mannequin's 208 pose scalars over linear blend skinning;
+pca: K (--components) PCA coefficients of the high-res run over its PCA reconstruction. The test frames are a seeded random share of the
 training sequences' frames; every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split
 that measures generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
 state, capsules, pose, torso transforms) under scene.h5's names, and every frame the direction of gravity (and the
@@ -33,11 +36,13 @@ import numpy as np
 from geometry.rigid import apply_rigid_inverse
 from pipeline import cli
 from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
-from pipeline.artifacts.h5 import check_same_mesh
+from pipeline.artifacts.h5 import check_same_mesh, source_mesh_of
 from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
 from pipeline.errors import PipelineError
+from pipeline.tasks import TASKS, task_of
+from pipeline.tasks.task import DatasetRequest, FrameMaker, SequenceRun
 from scenes.sequences import HELD_OUT, TRAIN
 
 SCENE, SIM_LOW, SIM_HIGH = "scene.h5", "sim_low.h5", "sim_high.h5"
@@ -124,11 +129,11 @@ def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_
         frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time)
 
 
-def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-                    physics: RunPhysics) -> SequenceFrames:
-    """A sequence's kept frames of the learning problem, with gravity (`physics`, world frame) and the body's
-    capsules in the reference frame; raises PipelineError naming the file that does not fit the others (the
-    subdivision, and the low-res faces of the first sequence)."""
+def read_run(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+             physics: RunPhysics) -> SequenceRun:
+    """A sequence's kept frames in the reference frame, with gravity (`physics`, world frame) and the body's
+    capsules; raises PipelineError naming the file that does not fit the others (the subdivision, and the
+    low-res faces of the first sequence)."""
     low_path, high_path = source.folder / SIM_LOW, source.folder / SIM_HIGH
     low_run, high_run = read_trajectory(low_path), read_trajectory(high_path)
     low, high = low_run.positions[source.first:], high_run.positions[source.first:]
@@ -145,6 +150,7 @@ def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces:
     mannequin = read_mannequin_frames(source.scene, source.first) if source.scene is not None else None
     capsules = None if mannequin is None else (mannequin.per_frame[CAPSULE_A], mannequin.per_frame[CAPSULE_B])
     gravity = np.repeat(physics.gravity[None] / np.linalg.norm(physics.gravity), len(low), axis=0)
+    transforms = None
     if frame == "torso":
         if source.scene is None:
             raise PipelineError(f"{source.folder}: --frame torso needs the sequence's {SCENE} (torso_transforms)")
@@ -154,22 +160,24 @@ def sequence_frames(source: SequenceSource, subdivision: Subdivision, low_faces:
         gravity = np.einsum("fji,fj->fi", transforms[:, :3, :3], gravity)      # R^T g: a direction turns only
         if capsules is not None:
             capsules = tuple(apply_rigid_inverse(transforms[:, None], ends) for ends in capsules)
-    subdivided = np.stack([S @ x for x in low])
-    return SequenceFrames(subdivided.astype(np.float32), (high - subdivided).astype(np.float32),
-                          low.astype(np.float32), gravity.astype(np.float32), mannequin,
-                          None if capsules is None else tuple(ends.astype(np.float32) for ends in capsules))
+    return SequenceRun(source.scene or source.folder, low, high, transforms, gravity, mannequin, capsules)
 
 
-def _all_frames(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-                physics: RunPhysics) -> Iterator[SequenceFrames]:
-    """Each sequence's frames in turn, read when the writer asks for them; all with a mannequin or none."""
+def _all_runs(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+              physics: RunPhysics) -> Iterator[SequenceRun]:
+    """Each sequence's run in turn, read when asked for; all with a mannequin or none."""
     with_body = None
     for source in sources:
-        part = sequence_frames(source, subdivision, low_faces, frame, physics)
-        if with_body is not None and (part.mannequin is not None) != with_body:
-            raise PipelineError(f"{source.scene or source.folder}: some sequences have a mannequin and some not")
-        with_body = part.mannequin is not None
-        yield part
+        run = read_run(source, subdivision, low_faces, frame, physics)
+        if with_body is not None and (run.mannequin is not None) != with_body:
+            raise PipelineError(f"{run.where}: some sequences have a mannequin and some not")
+        with_body = run.mannequin is not None
+        yield run
+
+
+def _all_frames(runs: Iterator[SequenceRun], make_frames: FrameMaker) -> Iterator[SequenceFrames]:
+    for run in runs:
+        yield make_frames(run)
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
@@ -187,10 +195,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--test-fraction", type=float, default=0.1,
                         help="share of the training sequences' frames held out as test (paper: 0.1)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
+    parser.add_argument("--task", choices=list(TASKS), default="upsampling",
+                        help="the learning problem: its input and predictor (pipeline/tasks)")
+    parser.add_argument("--components", type=int, help="PCA components (task pca)")
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
+    if (args.components is not None) != (args.task == "pca") or (args.components is not None and args.components < 1):
+        raise PipelineError("--components K >= 1 goes with --task pca, and only with it")
+    task = task_of(args.task, "--task")
     subdivision = read_subdivision(args.subdiv)
     sources = find_sequences(args.sequences)
     for source in sources:      # equal vertex counts are not enough: the runs must be of the mesh S subdivides
@@ -200,11 +214,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     physics = shared_physics(sources)
     layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed,
                             physics.dt)
-    config = {name: getattr(args, name) for name in ("subdiv", "sequences", "frame", "test_fraction", "seed")}
-    write_dataset(args.out, config, layout, _all_frames(sources, subdivision, low_faces, args.frame, physics))
+    def runs() -> Iterator[SequenceRun]:
+        return _all_runs(sources, subdivision, low_faces, args.frame, physics)
+
+    task_layout, make_frames = task.prepare(DatasetRequest(layout, subdivision, runs, sources[0].scene,
+                                                           args.components))
+    layout = dataclasses.replace(layout, task=task_layout)
+    # The upsampling records what it always did; another task adds its name and settings.
+    names = ("subdiv", "sequences", "frame", "test_fraction", "seed")
+    config = {name: getattr(args, name) for name in names + (() if task_layout is None else ("task", "components"))}
+    write_dataset(args.out, config, layout, _all_frames(runs(), make_frames), source_mesh_of(args.subdiv))
     if not args.quiet:
         split = layout.split
-        print(f"dataset: {len(layout.sequence)} frames of {len(sources)} sequence(s) ({len(split.train)} train, "
+        print(f"dataset ({args.task}): {len(layout.sequence)} frames of {len(sources)} sequence(s) "
+              f"({len(split.train)} train, "
               f"{len(split.test)} test, {len(split.held_out)} held out) of {len(layout.rest_vertices)} vertices, "
               f"{args.frame} frame -> {args.out}")
 

@@ -1,4 +1,4 @@
-"""Stage `evaluate`: errors, timing, pictures, videos, reports and exported meshes of a trained upsampling network.
+"""Stage `evaluate`: errors, timing, pictures, videos, reports and exported meshes of a trained network of any task.
 
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--settings SETTINGS.json]
         [--html REPORT.html] [--train-log TRAIN.h5] [--scene SCENE.h5] [--renders DIR] [--videos DIR]
@@ -6,7 +6,9 @@
         [--device cpu] [--threads N] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
-frames, for the network and for its predictor alone (Loop subdivision, no network), so the network's gain shows.
+frames, for the network and for its predictor alone (no network), so the network's gain shows. The dataset's task
+(pipeline/tasks) says what the predictor is: Loop subdivision (upsampling), linear blend skinning (pose), the PCA
+reconstruction (pca); for a decoder task the first panel of a picture is the predictor instead of the low-res run.
 Pictures (default: `renders/` beside REPORT.md): stills of test and held-out frames, low-res input | ground truth
 | network output | error maps, and plots of the per-frame error over time and, with --train-log, of the training
 curve. Videos (default: `videos/`): the held-out motion and a stretch of a training sequence around its test
@@ -37,17 +39,20 @@ from tqdm import tqdm
 
 from geometry.rigid import apply_rigid_inverse
 from model.features import FrameStore
+from model.inference import FastRegressor, captured_frames
 from model.losses import LossWeights
 from model.training import split_errors
 from pipeline import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset, read_low_res
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
-from pipeline.artifacts.h5 import atomic_write
+from pipeline.artifacts.h5 import atomic_write, check_same_mesh
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.errors import PipelineError
-from pipeline.torch_setup import configure_torch, frames_on
+from pipeline.tasks import frames_of, task_of
+from pipeline.tasks.task import Task
+from pipeline.torch_setup import configure_torch
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
 from viz.comparison import Comparison, FrameMeshes, comparison_image, fit_comparison
@@ -70,12 +75,59 @@ def infer_all(model, mesh, store: FrameStore, batch_size: int = 8) -> torch.Tens
         return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])
 
 
-def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> np.ndarray:
-    """Milliseconds per frame (batch of one: its input features and the network) for each frame of `ids`,
-    after warm-up runs; synchronised on CUDA."""
+class InferenceTimes(np.ndarray):
+    """ms of each timed frame on the deployment path (the array: eval.h5's inference_ms), carrying for the report
+    the eager network's ms on the same frames (`eager`) and the deployment path in words (`path`)."""
+
+    eager: np.ndarray
+    path: str
+
+
+def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> InferenceTimes:
+    """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
+    of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
+    fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
+    on the same frames, eager PyTorch."""
+    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
+    fast = FastRegressor(model, mesh).to(ids.device)
+    path = "model.inference fast path, fp32, inference_mode"
+    deployed = fast
+    if ids.is_cuda:
+        try:
+            deployed = captured_frames(fast, store.batch(ids[:1]))
+            path = "model.inference fast path, fp32, replayed as one CUDA graph"
+        except RuntimeError as err:       # a feature's kernel that cannot be captured: time it launched
+            path += f", launched kernel by kernel (no CUDA graph: {str(err).splitlines()[0]})"
+
+    def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
+        times, outputs = [], []
+        with grad_mode():
+            for i in range(-WARMUP_RUNS, len(ids)):
+                frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
+                sync()
+                start = time.perf_counter()
+                output = run(frame)
+                sync()
+                if i >= 0:
+                    times.append((time.perf_counter() - start) * 1e3)
+                    outputs.append(output.clone())
+        return np.asarray(times), torch.cat(outputs)
+
+    eager_ms, expected = per_frame(lambda frame: model(frame, mesh), torch.no_grad)
+    deployed_ms, got = per_frame(deployed, torch.inference_mode)
+    difference = float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
+    times = deployed_ms.view(InferenceTimes)
+    times.eager, times.path = eager_ms, f"{path}; within {difference:.0e} of the eager output"
+    return times
+
+
+def time_decoder(model, mesh, store, ids: torch.Tensor) -> InferenceTimes:
+    """time_inference for a decoder task (model.inference's fast path covers the encoder-decoder only): eager
+    PyTorch under inference_mode, batch of one (the input vector given), after warm-up runs; synchronised on
+    CUDA."""
     sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
     times = []
-    with torch.no_grad():
+    with torch.inference_mode():
         for i in range(-WARMUP_RUNS, len(ids)):
             frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
             sync()
@@ -84,7 +136,9 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> np.ndar
             sync()
             if i >= 0:
                 times.append((time.perf_counter() - start) * 1e3)
-    return np.asarray(times)
+    measured = np.asarray(times).view(InferenceTimes)
+    measured.eager, measured.path = measured, "eager PyTorch, fp32, inference_mode"
+    return measured
 
 
 def per_frame_errors(displacement_error: np.ndarray) -> dict[str, np.ndarray]:
@@ -236,13 +290,22 @@ def main(argv: Sequence[str] | None = None) -> None:
     device = configure_torch(args.device, 0, args.threads)
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     data = load_dataset(args.dataset)
+    check_same_mesh(args.operators, args.dataset)   # operators of a moved copy of the mesh have the same faces
+    task = task_of(data.task, args.dataset)
     model, mesh, state = load_model(args.model, args.operators, str(device))
-    if not np.array_equal(model.features.faces.cpu().numpy(), data.faces):
+    if state["spec"]["arch"].strip()[:1] != task.letter:
+        raise PipelineError(f"{args.model}: not a network of task '{task.name}' (the task of {args.dataset})")
+    if task.letter == "D":
+        same_mesh = np.array_equal(model.features.faces.cpu().numpy(), data.faces)
+        low_positions, low_faces = read_low_res(args.dataset)
+    else:         # the operators' level 0 is the mesh the decoder writes (load_model checked they are its own)
+        same_mesh = mesh.vertex_counts[0] == data.targets.shape[1]
+        low_positions, low_faces = data.predictor, data.faces      # the first panel shows the predictor
+    if not same_mesh:
         raise PipelineError(f"{args.dataset}: its mesh is not the one the model in {args.model} was trained on")
-    low_positions, low_faces = read_low_res(args.dataset)
     train_log = read_train_log(args.train_log) if args.train_log else None
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
-    frames = frames_on(data, device)
+    frames = frames_of(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
     predict = {"network": lambda inputs: model(inputs, mesh),
                "predictor": lambda inputs: torch.zeros_like(inputs.positions)}
@@ -252,10 +315,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     displacement = infer_all(model, mesh, frames.store).cpu().numpy()
     steps.update()
     timed = pick_frames(data.test, args.timing_frames)
-    times = time_inference(model, mesh, frames.store, torch.as_tensor(timed, device=device))
+    timer = time_inference if task.letter == "D" else time_decoder
+    times = timer(model, mesh, frames.store, torch.as_tensor(timed, device=device))
     steps.update()
-    truth = data.inputs + data.targets
-    predicted = data.inputs + displacement
+    truth = data.predictor + data.targets
+    predicted = data.predictor + displacement
     per_frame = {"network": per_frame_errors(displacement - data.targets), "predictor": per_frame_errors(-data.targets)}
     # With an unseen motion, half the stills show it.
     n_held = args.render_frames // 2 if len(data.held_out) else 0
@@ -265,10 +329,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     bodies = body_meshes(args.scene, shown, data.frame, len(data.inputs))
     comparison = None if len(shown) == 0 else fit_comparison(
         [low_positions[shown]], [truth[shown]], low_faces, data.faces,
-        [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.inputs, predicted)])
+        [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.predictor, predicted)],
+        input_label=task.input_label, predictor_label=task.predictor_label)
 
     def frame_meshes(frame: int) -> FrameMeshes:
-        return FrameMeshes(low_positions[frame], data.inputs[frame], truth[frame], predicted[frame],
+        return FrameMeshes(low_positions[frame], data.predictor[frame], truth[frame], predicted[frame],
                            bodies.get(int(frame)))
 
     def frame_title(frame: int) -> str:
@@ -281,13 +346,13 @@ def main(argv: Sequence[str] | None = None) -> None:
             image = comparison_image(comparison, frame_meshes(frame), frame_title(frame))
             pictures.append(staged["renders"] / f"frame_{frame:04d}.png")
             pictures[-1].write_bytes(png_bytes(image))
-        plots = _write_plots(staged["renders"], per_frame, data, train_log) if args.render_frames else {}
+        plots = _write_plots(staged["renders"], per_frame, data, train_log, task) if args.render_frames else {}
         steps.update()
         videos = [(_write_video(staged["videos"] / name, comparison, clip_frames, fps, frame_meshes, frame_title),
                    caption) for name, clip_frames, fps, caption in clips]
         steps.update()
         exports = _write_exports(staged["export"], args.export_frames, stills[:1], frame_meshes, low_faces,
-                                 data.faces, predicted)
+                                 data.faces, predicted, task)
 
         def final(path: Path) -> Path:
             role = next(role for role, folder in staged.items() if path.is_relative_to(folder))
@@ -300,7 +365,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             ("eval.h5: errors, per-frame errors, predicted positions, inference times",
              os.path.relpath(args.eval, report_dir))]
         sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
-                                    pictures, plots, videos, files)
+                                    pictures, plots, videos, files, task)
         title = f"Evaluation of {args.model}"
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
@@ -330,7 +395,7 @@ def _write_video(stem: Path, comparison: Comparison, frames: np.ndarray, fps: fl
 
 def _write_exports(folder: Path, export_frames: int, glb_frames: np.ndarray,
                    frame_meshes: Callable[[int], FrameMeshes], low_faces: np.ndarray, faces: np.ndarray,
-                   predicted: np.ndarray) -> list[tuple[str, Path]]:
+                   predicted: np.ndarray, task: Task) -> list[tuple[str, Path]]:
     """The first `export_frames` (0: all) predicted frames as OBJ, and each of `glb_frames` as a GLB comparison;
     (label, path) of each."""
     n_export = len(predicted) if export_frames <= 0 else min(export_frames, len(predicted))
@@ -340,15 +405,17 @@ def _write_exports(folder: Path, export_frames: int, glb_frames: np.ndarray,
         meshes = frame_meshes(frame)
         error = np.linalg.norm(meshes.predicted - meshes.truth, axis=1)
         path = write_glb(folder / f"comparison_frame_{frame:04d}.glb",
-                         [("low_res_input", meshes.low, low_faces, None), ("ground_truth", meshes.truth, faces, None),
+                         [(task.input_label.replace(" ", "_").replace("-", "_"), meshes.low, low_faces, None),
+                          ("ground_truth", meshes.truth, faces, None),
                           ("network_output", meshes.predicted, faces, value_colors(error, float(error.max())))])
         exports.append((f"{path.name}: input, truth and error-coloured prediction side by side (any glTF viewer)",
                         path))
     return exports
 
 
-def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: TrainLog | None) -> dict[str, Path]:
-    """The per-frame L1 of the network and of Loop subdivision over the test and held-out frames, and the
+def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: TrainLog | None,
+                 task: Task) -> dict[str, Path]:
+    """The per-frame L1 of the network and of its predictor alone over the test and held-out frames, and the
     training curve (with a train log), as PNGs in `folder`; by name."""
     starts = np.flatnonzero(np.diff(data.sequence, prepend=-1) != 0)
     held_clips = iter(data.held_out_clips.split(","))
@@ -358,7 +425,8 @@ def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: T
         per_frame["network"]["l1"] / PAPER_UNIT, per_frame["predictor"]["l1"] / PAPER_UNIT,
         {name: ids for name, ids in data.splits().items() if name != "train"},
         list(zip(starts.tolist(), labels)), error_label="L1 (x 1e-3 scene units)",
-        title="Per-frame error: network and Loop subdivision alone")}
+        title=f"Per-frame error: network and {task.predictor_label} alone",
+        predictor_label=f"{task.predictor_label} alone")}
     if train_log is not None:
         figures["training_curve"] = training_curve(train_log.train_total, train_log.test_total,
                                                    title="Training curve (loss = eq. 7, weighted total)")
@@ -371,7 +439,7 @@ def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: T
 
 def _report_sections(args, state, data: LearningData, errors, times, device: str, n_low: int,
                      train_log: TrainLog | None, pictures: list[Path], plots: dict[str, Path],
-                     videos: list[tuple[Path, str]], files: list[tuple[str, str]]) -> list[Section]:
+                     videos: list[tuple[Path, str]], files: list[tuple[str, str]], task: Task) -> list[Section]:
     """The report's contents, as pieces both report.md and report.html show."""
     spec, training = state["spec"], state["training"]
     scaled = lambda who, split, term: errors[who][split][term] / PAPER_UNIT  # noqa: E731
@@ -379,12 +447,13 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     header = ["", *[f"{SPLIT_NAMES[s]} {t}" for s in splits for t in ("L1", "L2")], "test Ln"]
     rows = [[label, *[f"{scaled(who, s, t):.3f}" for s in splits for t in ("l1", "l2")],
              f"{errors[who]['test']['normal']:.4f}"]
-            for who, label in (("network", "network"), ("predictor", "Loop subdivision alone (predictor)"))]
+            for who, label in (("network", "network"), ("predictor", f"{task.predictor_label} alone (predictor)"))]
     gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in splits for t in ("l1", "l2")]
     rows.append(["gain (predictor / network)", *[f"{g:.2f}x" for g in gains], ""])
+    rows += task.extra_error_rows(errors, splits)
     held_note = ("Held-out: every frame of the motion clip(s) `{}`, never seen in training (the generalisation "
                  "test); test: a random share of the frames of the trained motions.\n\n".format(data.held_out_clips)
-                 if "held_out" in splits else "")
+                 if "held_out" in splits else "") + task.error_note(data)
     loss = training["loss_weights"]
     training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
                      ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
@@ -393,49 +462,45 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     if train_log is not None:
         training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
                           ["last epoch's test loss", float(train_log.test_total[-1])]]
-    features = state["features"]      # model.feature_regressor.FeatureSpec as saved
-    axes = {"local": f"each vertex's local frame (tangent: {features['frame_tangent']})",
-            "dataset": "the dataset's axes"}
     input_rows = [["dataset", args.dataset],
                   ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())],
-                  ["vertices", f"{n_low} low-res -> {data.inputs.shape[1]} high-res"],
-                  ["positions in", f"the {data.frame} frame"],
-                  ["network inputs (model.features)", ", ".join(features["inputs"])],
-                  ["input vectors in", axes[features["input_frame"]]],
-                  ["displacement predicted in", axes[features["output_frame"]]]]
+                  *task.input_rows(data, state, n_low)]
     error_pieces = [Table(header, rows), Paragraphs(
         held_note + "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
         "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).")]
     if "error_over_time" in plots:
         error_pieces.append(Picture(plots["error_over_time"], "L1 of each test and held-out frame, for the network "
-                                    "and for Loop subdivision alone; dashed lines: where a sequence starts."))
+                                    f"and for {task.predictor_label} alone; dashed lines: where a sequence "
+                                    f"starts."))
     training_pieces: list = [Table(["", "value"], training_rows)]
+    shown_input = task.input_label[:1].upper() + task.input_label[1:]
     if "training_curve" in plots:
         training_pieces.append(Picture(plots["training_curve"], "Loss per epoch, train and test (log scale)."))
     sections = [
         Section("Network", [Paragraphs(
-            f"{state['arch_expanded']} (encoder-decoder), conv {spec['conv']}, {spec['pool']} pooling, width "
+            f"{state['arch_expanded']} ({'encoder-decoder' if task.letter == 'D' else 'decoder'}), conv "
+            f"{spec['conv']}, {spec['pool']} pooling, width "
             f"{spec['width']:g}: **{state['parameter_count']:,} learnable parameters**.")]),
         Section("Errors (x 1e-3 scene units, as paper Table 3)", error_pieces),
     ]
     if videos:
         sections.append(Section("Videos", [Paragraphs(
-            "Low-res input | high-res ground truth | network output | |error| of the network, through one camera "
+            f"{shown_input} | high-res ground truth | network output | |error| of the network, through one camera "
             "and on one colour scale for every frame, the stills' too (saturating at the 99th percentile of the "
             "errors of every frame shown).")] + [Video(path, caption) for path, caption in videos]))
     if pictures:
         sections.append(Section("Renders", [Paragraphs(
-            "Test (and held-out) frames: low-res input | high-res ground truth | network output | |error| of Loop "
-            "subdivision alone | |error| of the network (one colour scale, saturating at the 99th percentile of "
-            "the errors of every frame shown).")] + [Picture(path, path.stem) for path in pictures]))
+            f"Test (and held-out) frames: {task.input_label} | high-res ground truth | network output | |error| of "
+            f"{task.predictor_label} alone | |error| of the network (one colour scale, saturating at the 99th "
+            "percentile of the errors of every frame shown).")] + [Picture(path, path.stem) for path in pictures]))
     sections += [
         Section("Inputs", [Table(["", "value"], input_rows)]),
         Section("Training", training_pieces),
         Section("Inference time", [Paragraphs(
-            f"Median **{np.median(times):.2f} ms per frame** on {device} (input features and network, one frame "
-            f"per call, {len(times)} test frame(s) timed after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, "
-            f"max {times.max():.2f} ms). Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop "
-            "subdivision): 2.2-26.6 ms for 4k-15k vertices.")]),
+            f"Median **{np.median(times):.2f} ms per frame** on {device} on the deployment path ({times.path}; "
+            f"{task.timed}, one frame per call, {len(times)} test frame(s) timed "
+            f"after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, max {times.max():.2f} ms); eager PyTorch on "
+            f"the same frames: median {np.median(times.eager):.2f} ms. {task.timing_reference}")]),
         Section("Files", [Links(files)]),
     ]
     return sections

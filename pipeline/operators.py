@@ -4,8 +4,10 @@
                                             [--levels 10] [--quadric-threshold 0.01] [--quiet]
 
 MESH is an OBJ/PLY/OFF/STL file or a pipeline HDF5 artifact holding `vertices` and `faces` (root, `rest/` or
-`levels/0/`). The layout of OUT.h5 is documented in docs/artifacts.md (section "operators.h5"). With --settings
-(a scene's resolved settings.json), `operators.conv` and `operators.levels` are the defaults of --conv and --levels.
+`levels/0/`); OUT.h5 carries on such an artifact's `source_mesh` (the low-res rest mesh it derives from), so that
+`train` can tell operators of another mesh from the dataset's. The layout of OUT.h5 is documented in
+docs/artifacts.md (section "operators.h5"). With --settings (a scene's resolved settings.json), `operators.conv`
+and `operators.levels` are the defaults of --conv and --levels.
 """
 from __future__ import annotations
 
@@ -14,8 +16,11 @@ import math
 import sys
 from typing import Any, Sequence
 
+import h5py
+
 from meshops import Level, build_operators, parse_conv_kinds
 from meshops.levels import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
+from pipeline.artifacts.h5 import source_mesh_of
 from pipeline.artifacts.operators import write_operators
 from pipeline.cli import add_quiet, parse_with_settings, run
 from pipeline.errors import PipelineError
@@ -54,7 +59,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     levels = build_operators(vertices, faces, conv, args.levels, args.quadric_threshold,
                              progress=None if args.quiet else _report)
     config = {"mesh": args.mesh, "conv": conv, "levels": args.levels, "quadric_threshold": args.quadric_threshold}
-    write_operators(args.out, levels, config)
+    write_operators(args.out, levels, config, source_mesh_of(args.mesh) if h5py.is_hdf5(args.mesh) else None)
 
 
 def _parse_conv(text: str) -> list[str]:

@@ -1,4 +1,4 @@
-"""Stage `train`: fit the upsampling network to a dataset on a mesh's operators → model.pt + train.h5.
+"""Stage `train`: fit a task's network to a dataset on a mesh's operators → model.pt + train.h5.
 
     python -m pipeline.train DATASET.h5 OPERATORS.h5 MODEL.pt TRAIN.h5 [--settings SETTINGS.json]
         --arch "D62 D124 D248 D D248 D_3 D248" [--conv RC13] [--pool avg] [--width 1.0]
@@ -10,7 +10,9 @@
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
 are complete. A file at the checkpoint path that is not a checkpoint is refused, not overwritten, and so is a
-checkpoint path equal to any other input or output. The network sees the per-vertex features named by --inputs
+checkpoint path equal to any other input or output. The dataset's task (pipeline/tasks) picks the network: the
+upsampling's encoder-decoder (D tokens) or a decoder (U tokens, e.g. 'U208 U U208 U U208 U U208 U104 U52 U3') from
+the pose or PCA task's input vector onto the coarsest level its tokens reach. The encoder-decoder sees the per-vertex features named by --inputs
 (model.features: the paper's absolute positions, or velocity, body, laplacian, gravity... relative to the body and
 the local surface), optionally in each vertex's local frame, and may answer in local frames too. model.pt holds
 the state dict and everything needed to rebuild the network and its inputs and to recognise the operators it was
@@ -30,19 +32,22 @@ from typing import Any, Sequence
 import torch
 from tqdm import tqdm
 
-from model.architecture import ArchitectureError
+from model.architecture import ArchitectureError, parse_architecture
 from model.feature_regressor import FRAMES, FeatureRegressor, FeatureSpec
 from model.features import FEATURE_CHANNELS, TANGENTS
 from model.losses import LossWeights
-from model.networks import NetworkSpec, build_network
+from model.mesh_hierarchy import MeshHierarchy
+from model.networks import MeshNetwork, NetworkSpec, build_network
+from model.tasks import VectorRegressor, VectorSpec
 from model.training import CheckpointError, TrainSettings, fit
 from pipeline import cli
-from pipeline.artifacts.dataset import load_dataset
+from pipeline.artifacts.dataset import LearningData, load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.errors import PipelineError
-from pipeline.torch_setup import configure_torch, frames_on
+from pipeline.tasks import frames_of, task_of
+from pipeline.torch_setup import configure_torch
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
@@ -99,24 +104,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     except ValueError as err:
         raise PipelineError(f"--inputs/--input-frame/--frame-tangent: {err}") from None
     data = load_dataset(args.dataset)
-    if "body" in features.inputs and data.context.capsule_a.shape[1] == 0:
-        raise PipelineError(f"{args.dataset}: input 'body' needs the mannequin's capsules; this scene has no body")
-    spec = NetworkSpec(args.arch, args.conv, args.pool, args.width, features.channels, data.targets.shape[2])
-    if spec.letter != "D":
-        raise PipelineError(f"--arch '{args.arch}': the upsampling network is an encoder-decoder, written with "
-                            f"D tokens (e.g. 'D62 D124 D248 D D248 D_3 D248')")
-    try:
-        net = build_network(spec)
-    except ArchitectureError as err:
-        raise PipelineError(f"--arch/--conv/--pool/--width: {err}") from None
-    mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces)
-    try:
-        net.check_mesh(mesh)
-    except ValueError as err:
-        raise PipelineError(f"{args.operators}: {err}") from None
-    frames = frames_on(data, device)
+    task = task_of(data.task, args.dataset)
+    if task.letter == "D":       # per-vertex features of S x_low
+        if "body" in features.inputs and data.context.capsule_a.shape[1] == 0:
+            raise PipelineError(f"{args.dataset}: input 'body' needs the mannequin's capsules; this scene has no "
+                                f"body")
+        spec, net, mesh = _network(args, NetworkSpec(args.arch, args.conv, args.pool, args.width, features.channels,
+                                                     data.targets.shape[2]), data)
+        model = FeatureRegressor(net, features, data.faces, data.rest_vertices)
+    else:                        # one vector per frame
+        spec, net, mesh = _network(args, NetworkSpec(args.arch, args.conv, args.pool, args.width,
+                                                     data.inputs.shape[1], data.targets.shape[2]), data)
+        model = VectorRegressor(net, VectorSpec((task.name,)))
+    frames = frames_of(data, device)
     train_ids = torch.as_tensor(data.train, device=device)
-    model = FeatureRegressor(net, features, data.faces, data.rest_vertices).to(device)
+    model = model.to(device)
     model.normalise(frames.store, train_ids, frames.targets[train_ids])
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
@@ -133,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             bar.set_postfix_str(f"epoch {epoch + 1}/{args.epochs} loss {loss:.3e}")
 
         identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec),
-                    "features": dataclasses.asdict(features)}
+                    "features": dataclasses.asdict(model.spec)}
         try:
             history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
                           settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
@@ -153,6 +155,31 @@ def main(argv: Sequence[str] | None = None) -> None:
         Path(args.model).unlink(missing_ok=True)      # the two outputs come as a pair, or not at all
         raise
     checkpoint.unlink(missing_ok=True)
+
+
+def _network(args, spec: NetworkSpec, data: LearningData) -> tuple[NetworkSpec, MeshNetwork, MeshHierarchy]:
+    """The network of the dataset's task as `spec` describes it (a decoder onto the vertices of the coarsest
+    level its tokens reach), its complete spec, and the operators' levels it runs on."""
+    letter = task_of(data.task, args.dataset).letter
+    if spec.letter != letter:
+        kind = ("an encoder-decoder, written with D tokens (e.g. 'D62 D124 D248 D D248 D_3 D248')" if letter == "D"
+                else "a decoder, written with U tokens (e.g. 'U208 U U208 U U208 U U208 U104 U52 U3')")
+        raise PipelineError(f"--arch '{args.arch}': the network of task '{data.task}' is {kind}")
+    try:
+        if letter == "U":       # its fully connected layer maps onto the coarsest level: the mesh comes first
+            n_levels = parse_architecture(spec.arch, "U").n_pooling + 1
+            mesh = load_hierarchy(args.operators, args.conv, n_levels, data.faces, args.dataset)
+            spec = dataclasses.replace(spec, coarse_vertices=mesh.vertex_counts[-1])
+        net = build_network(spec)
+    except ArchitectureError as err:
+        raise PipelineError(f"--arch/--conv/--pool/--width: {err}") from None
+    if letter == "D":
+        mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces, args.dataset)
+    try:
+        net.check_mesh(mesh)
+    except ValueError as err:
+        raise PipelineError(f"{args.operators}: {err}") from None
+    return spec, net, mesh
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ def training_curve(train_loss: np.ndarray, test_loss: np.ndarray | None = None,
 
 def error_over_time(network: np.ndarray, predictor: np.ndarray, splits: Mapping[str, np.ndarray],
                     sequence_starts: Sequence[tuple[int, str]] = (), error_label: str = "error",
-                    title: str = "Per-frame error") -> Figure:
+                    title: str = "Per-frame error", predictor_label: str = "Loop subdivision alone") -> Figure:
     """One row per split (name -> frame ids, e.g. test and held-out): the error of the network and of Loop
     subdivision alone (`network`, `predictor`: (F,) per frame of the whole sequence) against the frame number.
     `sequence_starts` ((first frame, name), e.g. each motion clip) are drawn as labelled dashed lines and break
@@ -76,7 +76,7 @@ def error_over_time(network: np.ndarray, predictor: np.ndarray, splits: Mapping[
     for ax, (name, frames) in zip(axes, rows):
         if frames.min() < 0 or frames.max() >= len(network):
             raise ValueError(f"split {name!r} has frames outside 0..{len(network) - 1}")
-        for values, label, color in ((predictor, "Loop subdivision alone", PREDICTOR_COLOR),
+        for values, label, color in ((predictor, predictor_label, PREDICTOR_COLOR),
                                      (network, "network", NETWORK_COLOR)):
             x, y = _broken_at(frames, values[frames], [start for start, _ in starts])
             ax.plot(x, y, color=color, lw=1.6, label=label, marker="." if len(frames) < 200 else None)

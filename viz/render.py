@@ -5,14 +5,16 @@ turns towards +x) and `View.elevation` degrees above the horizontal. `fit_view` 
 the body (a panel's `backdrop`) never widens the frame: the picture cuts it at the garment's bounds plus a margin,
 and body faces nearer to the camera than the garment's nearest point (plus the margin) are left out, so that a
 hand passing in front cannot hide the cloth; behind the garment the body is kept whole. Fit one view to every
-frame of a sequence and pass it to each render, and an animation keeps a still camera.
+frame of a sequence and pass it to each render, and an animation keeps a still camera. A flat cloth (a sheet, a
+flag) is never seen edge-on: the camera turns until it sees the cloth's plane at FLAT_VIEW_ANGLE or more.
 
 Visibility is exact per pixel (viz/raster.py's z-buffer, supersampled for smooth edges), so the body (muted warm
 grey, outlined) shows inside the cloth's outline only where it truly is in front of the cloth: the cloth's far side
 behind a limb, or cloth that has gone into the body (penetration), never a depth-sorting artefact. Lights are
-fixed to the camera (a key light from the upper left, a weak fill from the right, a faint highlight) and normals
-are interpolated per pixel, so folds read at any azimuth; a dark line marks every depth jump (silhouettes, folds
-overlapping, cloth against body). Coloured panels (`Panel.values`) share one labelled colour bar from 0 to vmax.
+fixed to the camera (a key light from the upper left, a weak fill from the right, a faint highlight) and shading is
+two-sided (the side the camera sees is lit), with normals interpolated per pixel, so folds read at any azimuth; a
+dark line marks every depth jump (silhouettes, folds overlapping, cloth against body) but not a smooth surface
+seen at a grazing angle. Coloured panels (`Panel.values`) share one labelled colour bar from 0 to vmax.
 
 Layout: every panel has the same size, `panel_height` inches tall and as wide as the view's aspect asks, so the
 figure is mostly cloth: titles take a thin strip above the panels and the colour bar a narrow one at the right.
@@ -39,11 +41,14 @@ BODY_RGB = np.array([0.76, 0.72, 0.67])
 BACKGROUND_RGB = np.array([1.0, 1.0, 1.0])
 ERROR_CMAP = "inferno"
 OUTLINE_SHADE = 0.3            # colour factor on the pixels either side of a depth jump
-OUTLINE_JUMP = 4.0             # a depth step larger than this many pixel widths between neighbours is a jump
+OUTLINE_JUMP = 4.0             # a depth step this many pixel widths beyond the surface's slope is a jump
 # Lights in camera coordinates (right, up, towards the viewer), as weights: ambient, key (upper left), fill (right).
 KEY_LIGHT = np.array([-0.45, 0.6, 0.66]) / np.linalg.norm([-0.45, 0.6, 0.66])
 FILL_LIGHT = np.array([0.7, 0.0, 0.71]) / np.linalg.norm([0.7, 0.0, 0.71])
 AMBIENT, KEY, FILL, HIGHLIGHT, HIGHLIGHT_POWER = 0.22, 0.62, 0.2, 0.12, 24.0
+# A cloth whose thinnest principal spread is at most FLAT_SPREAD of its widest is flat, and is seen at least
+# FLAT_VIEW_ANGLE degrees off its plane (fit_view).
+FLAT_SPREAD, FLAT_VIEW_ANGLE = 0.25, 45.0
 # Layout, in inches.
 TITLE_STRIP, SUPTITLE_STRIP, GAP, COLORBAR_STRIP, COLORBAR_WIDTH = 0.32, 0.36, 0.12, 1.05, 0.16
 PANEL_EDGE = "0.8"             # a thin frame keeps neighbouring panels apart where the body reaches the edge
@@ -82,16 +87,46 @@ def camera_axes(elevation: float, azimuth: float) -> np.ndarray:
 
 
 def fit_view(garment_points: Sequence[np.ndarray], elevation: float = 12.0, azimuth: float = 30.0,
-             margin: float = 0.04) -> View:
+             margin: float = 0.04, flat_angle: float = FLAT_VIEW_ANGLE) -> View:
     """The tightest view showing every garment point given (arrays (..., 3): one frame, or all frames of a
-    sequence for a camera that stays still), plus `margin` times the garment's size on every side."""
+    sequence for a camera that stays still), plus `margin` times the garment's size on every side.
+
+    A flat cloth (a sheet, a flag) that the camera would see less than `flat_angle` degrees off its plane is seen
+    from that angle instead (see `facing_flat_cloth`); any other garment is seen from `elevation`, `azimuth`."""
     points = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in garment_points])
     if len(points) == 0 or not np.isfinite(points).all():
         raise ValueError("fit_view needs finite garment points")
+    elevation, azimuth = facing_flat_cloth(points, elevation, azimuth, flat_angle)
     pad = margin * max(float(np.max(np.ptp(points, axis=0))), 1e-9)
     seen = points @ camera_axes(elevation, azimuth).T
     (u0, v0, _), (u1, v1, nearest) = seen.min(axis=0) - pad, seen.max(axis=0) + pad
     return View(elevation, azimuth, (float(u0), float(u1), float(v0), float(v1)), float(nearest))
+
+
+def facing_flat_cloth(points: np.ndarray, elevation: float, azimuth: float,
+                      flat_angle: float) -> tuple[float, float]:
+    """The camera's (elevation, azimuth), turned as little as possible so that it sees a flat cloth at least
+    `flat_angle` degrees off the cloth's plane, from the side it already sees; unchanged for a cloth it already
+    sees that well and for any garment that is not flat.
+
+    Seen nearly edge-on a sheet is a sliver: a panel up to three times as wide as tall (the aspect's cap), the
+    cloth a thin strip across it. Flat means that the points' thinnest principal spread is at most FLAT_SPREAD
+    of their widest: a garment around a body (pants: about 0.4) keeps the scene's camera.
+    """
+    centred = points - points.mean(axis=0)
+    variances, directions = np.linalg.eigh(centred.T @ centred)                  # ascending
+    if variances[2] <= 0 or variances[0] > FLAT_SPREAD ** 2 * variances[2]:
+        return elevation, azimuth
+    normal, towards = directions[:, 0], camera_axes(elevation, azimuth)[2]
+    if towards @ normal < 0:
+        normal = -normal                                                          # the side the camera sees
+    if towards @ normal >= np.sin(np.radians(flat_angle)):
+        return elevation, azimuth
+    in_plane = towards - (towards @ normal) * normal
+    angle = np.radians(flat_angle)
+    turned = np.cos(angle) * in_plane / np.linalg.norm(in_plane) + np.sin(angle) * normal
+    elevation = np.degrees(np.arcsin(np.clip(turned[1], -1.0, 1.0)))
+    return float(elevation), float(np.degrees(np.arctan2(turned[0], turned[2])))
 
 
 def value_colors(values: np.ndarray, vmax: float, cmap: str = ERROR_CMAP) -> np.ndarray:
@@ -166,19 +201,30 @@ def _interpolate(per_vertex: np.ndarray, triangles: np.ndarray, triangle_ids: np
 
 
 def _depth_jumps(surface: np.ndarray, depth: np.ndarray, jump: float) -> np.ndarray:
-    """(H, W) bool: pixels next to a neighbour (right or below) on another surface (cloth, body, nothing) or more
-    than `jump` nearer or farther; both pixels of a pair are marked, for a line that survives downsampling."""
+    """(H, W) bool: pixels next to a neighbour (right or below) on another surface (cloth, body, nothing), and
+    pixels where the depth along a row or column steps by more than `jump` beyond what the surface's own slope
+    explains (its second difference: a sheet seen at a grazing angle changes depth by many pixel widths per pixel,
+    but evenly, and is no outline). Both pixels of a step are marked, for a line that survives downsampling."""
     marked = np.zeros(surface.shape, dtype=bool)
     for axis in (0, 1):
-        ahead = [slice(None), slice(None)]
-        behind = [slice(None), slice(None)]
-        ahead[axis], behind[axis] = slice(1, None), slice(None, -1)
-        a, b = tuple(ahead), tuple(behind)
-        with np.errstate(invalid="ignore"):                         # -inf - -inf between two empty pixels
-            step = (surface[a] != surface[b]) | ((surface[a] >= 0) & (np.abs(depth[a] - depth[b]) > jump))
-        marked[a] |= step
-        marked[b] |= step
+        ahead, behind = _along(axis, 1, None), _along(axis, None, -1)
+        changed = surface[ahead] != surface[behind]
+        marked[ahead] |= changed
+        marked[behind] |= changed
+        before, centre, after = _along(axis, None, -2), _along(axis, 1, -1), _along(axis, 2, None)
+        one_surface = ((surface[centre] >= 0) & (surface[before] == surface[centre])
+                       & (surface[after] == surface[centre]))
+        with np.errstate(invalid="ignore"):                         # -inf where a pixel is empty
+            bend = np.abs(depth[after] - 2 * depth[centre] + depth[before])
+        marked[centre] |= one_surface & (bend > jump)
     return marked
+
+
+def _along(axis: int, start: int | None, stop: int | None) -> tuple[slice, slice]:
+    """The index of an image's rows (axis 0) or columns (axis 1) start:stop, all of the other axis."""
+    cut = [slice(None), slice(None)]
+    cut[axis] = slice(start, stop)
+    return tuple(cut)
 
 
 def panels_image(panels: Sequence[Panel], view: View | None = None, vmax: float | None = None,

@@ -1,6 +1,12 @@
-"""dataset.h5, written by the `dataset` stage: the cloth-upsampling learning problem (paper Table 2) over the
-frames of a scene's sequences, which sequence each frame comes from, the mannequin of each frame (garment scenes),
-and the train/test/held-out split (docs/artifacts.md, section "dataset.h5"); read back by `train` and `evaluate`.
+"""dataset.h5, written by the `dataset` stage: one learning problem of paper Table 2 (cloth upsampling; or a
+decoder task: pose to cloth, PCA details recovery) over the frames of a scene's sequences, which sequence each
+frame comes from, the mannequin of each frame (garment scenes), and the train/test/held-out split
+(docs/artifacts.md, section "dataset.h5"); read back by `train` and `evaluate`.
+
+Every task stores per frame its `input`, its `predictor` and the `target` displacement from the predictor. In
+the upsampling the input is the predictor (S x_low, a hard link) and the low-res run is kept for the renders; a
+decoder task's input is one vector per frame, its predictor its own positions. A file without attr `task` is an
+upsampling dataset (as every dataset made before the other tasks).
 
 The writer takes the sequences one at a time, so the stage holds one sequence in memory, not the whole dataset.
 """
@@ -14,12 +20,15 @@ from typing import Any, Iterable, Mapping
 import numpy as np
 
 from model.features import previous_frames
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read, read_indices
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_indices
 from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames
 from pipeline.errors import PipelineError
 
 STAGE = "dataset"
 INPUT, TARGET, PREDICTOR = "input", "target", "predictor"
+TASK, UPSAMPLING = "task", "upsampling"          # root attr naming the task; absent: the upsampling
+# PCA details recovery: the basis the inputs are coefficients of (pipeline/tasks/pca.py).
+PCA_MEAN, PCA_COMPONENTS, PCA_SINGULAR_VALUES = "pca/mean", "pca/components", "pca/singular_values"
 FACES, REST_VERTICES, LOW_POSITIONS, LOW_FACES = "faces", "rest_vertices", "low/positions", "low/faces"
 SEQUENCE, SEQUENCE_FRAME = "sequence", "sequence_frame"
 SEQUENCE_NAMES, SEQUENCE_ROLES, SEQUENCE_CLIPS = "sequences/names", "sequences/role", "sequences/clips"
@@ -43,6 +52,30 @@ class Split:
 
 
 @dataclasses.dataclass(frozen=True)
+class PcaBasis:
+    """A PCA of high-res positions (reference frame): x ≈ mean + sum_k c_k components[k], components orthonormal
+    as (V * 3)-vectors."""
+
+    mean: np.ndarray               # (V, 3)
+    components: np.ndarray         # (K, V, 3)
+    singular_values: np.ndarray    # (K,) of the centred frames it was fitted to
+    explained: float               # share of those frames' variance the K components hold
+    fitted_frames: int             # training frames it was fitted to
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskLayout:
+    """What a decoder task's dataset holds besides the frames (None in DatasetLayout: the upsampling)."""
+
+    name: str                      # pose or pca (pipeline/tasks)
+    input_size: int                # scalars of the input vector per frame
+    problem: str                   # attr `problem`: what is learned, in words
+    input_meaning: str
+    predictor_meaning: str
+    pca: PcaBasis | None = None
+
+
+@dataclasses.dataclass(frozen=True)
 class DatasetLayout:
     """What the dataset holds, known before any sequence's frames are read: meshes, where each frame comes from,
     the split, and how the positions were made."""
@@ -61,34 +94,50 @@ class DatasetLayout:
     seed: int                    # of the split
     test_fraction: float
     frame_time: float            # seconds between consecutive frames of a sequence
+    task: TaskLayout | None = None   # a decoder task; None: the upsampling
 
 
 @dataclasses.dataclass(frozen=True)
 class SequenceFrames:
     """One sequence's frames of the dataset, in its reference frame, and its mannequin as scene.h5 stores it."""
 
-    inputs: np.ndarray           # (n, V_high, 3) Loop-subdivided low-res positions S x_low
-    targets: np.ndarray          # (n, V_high, 3) displacements x_high - S x_low
-    low_positions: np.ndarray    # (n, V_low, 3)
+    inputs: np.ndarray           # (n, V_high, 3) S x_low (upsampling), or (n, N) a decoder task's input vectors
+    targets: np.ndarray          # (n, V_high, 3) displacements x_high - predictor
+    low_positions: np.ndarray | None    # (n, V_low, 3) the upsampling's low-res run; None for a decoder task
     gravity: np.ndarray          # (n, 3) unit direction of gravity in the reference frame
     mannequin: MannequinFrames | None   # garment scenes (pipeline.artifacts.scene.read_mannequin_frames)
     capsules: tuple[np.ndarray, np.ndarray] | None   # garment scenes: end points a, b (n, P, 3) in the reference frame
+    predictor: np.ndarray | None = None   # (n, V_high, 3) a decoder task's predictor; None: the inputs are it
 
 
 def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: DatasetLayout,
-                  sequences: Iterable[SequenceFrames]) -> None:
-    """Write the dataset, filling the frames of `sequences` (in layout order, read one at a time) in turn."""
-    n_frames, n_vertices = len(layout.sequence), len(layout.rest_vertices)
+                  sequences: Iterable[SequenceFrames], source_mesh: str | None) -> None:
+    """Write the dataset, filling the frames of `sequences` (in layout order, read one at a time) in turn;
+    `source_mesh` is the fingerprint of the low-res rest mesh it derives from (None: unknown, no attr)."""
+    n_frames, n_vertices, task = len(layout.sequence), len(layout.rest_vertices), layout.task
     with atomic_h5(path, STAGE, config) as f:
-        inputs = f.create_dataset(INPUT, (n_frames, n_vertices, 3), np.float32)
+        if source_mesh is not None:
+            f.attrs[SOURCE_MESH] = source_mesh
+        input_shape = (n_vertices, 3) if task is None else (task.input_size,)
+        inputs = f.create_dataset(INPUT, (n_frames, *input_shape), np.float32)
         targets = f.create_dataset(TARGET, (n_frames, n_vertices, 3), np.float32)
-        low = f.create_dataset(LOW_POSITIONS, (n_frames, layout.n_low_vertices, 3), np.float32)
+        if task is None:
+            low = f.create_dataset(LOW_POSITIONS, (n_frames, layout.n_low_vertices, 3), np.float32)
         gravity = f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
-        f[PREDICTOR] = f[INPUT]          # a hard link: Table 2's predictor is the input itself
+        if task is None:
+            f[PREDICTOR] = f[INPUT]          # a hard link: Table 2's predictor is the input itself
+        else:
+            predictor = f.create_dataset(PREDICTOR, (n_frames, n_vertices, 3), np.float32)
         start = 0
         for part in sequences:
             rows = slice(start, start + len(part.inputs))
-            inputs[rows], targets[rows], low[rows] = part.inputs, part.targets, part.low_positions
+            if (part.predictor is None) != (task is None) or (part.low_positions is None) != (task is not None):
+                raise PipelineError(f"{path}: a sequence's frames do not fit the dataset's task")
+            inputs[rows], targets[rows] = part.inputs, part.targets
+            if task is None:
+                low[rows] = part.low_positions
+            else:
+                predictor[rows] = part.predictor
             gravity[rows] = part.gravity
             if part.mannequin is not None:
                 _write_mannequin(f, part.mannequin, rows, n_frames)
@@ -102,7 +151,8 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             raise PipelineError(f"{path}: the sequences gave {start} frames, the layout says {n_frames}")
         f.create_dataset(FACES, data=layout.faces.astype(np.int32))
         f.create_dataset(REST_VERTICES, data=layout.rest_vertices.astype(np.float64))
-        f.create_dataset(LOW_FACES, data=layout.low_faces.astype(np.int32))
+        if task is None:
+            f.create_dataset(LOW_FACES, data=layout.low_faces.astype(np.int32))
         f.create_dataset(SEQUENCE, data=layout.sequence.astype(np.int32))
         f.create_dataset(SEQUENCE_FRAME, data=layout.sequence_frame.astype(np.int64))
         for name, values in ((SEQUENCE_NAMES, layout.names), (SEQUENCE_ROLES, layout.roles),
@@ -112,7 +162,8 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
         for name, ids in ((SPLIT_TRAIN, split.train), (SPLIT_TEST, split.test), (SPLIT_HELD_OUT, split.held_out)):
             f.create_dataset(name, data=np.asarray(ids, dtype=np.int64))
         f[SPLIT].attrs.update(meaning=SPLIT_MEANING, held_out_clips=",".join(split.held_out_clips))
-        f.attrs.update(problem="cloth upsampling (paper Table 2)", frame=layout.frame, n_frames=n_frames,
+        f.attrs.update(problem="cloth upsampling (paper Table 2)" if task is None else task.problem,
+                       frame=layout.frame, n_frames=n_frames,
                        n_vertices=n_vertices, n_sequences=len(layout.names), split_seed=layout.seed,
                        test_fraction=layout.test_fraction, frame_time=layout.frame_time)
         f[CONTEXT_GRAVITY].attrs["meaning"] = "unit direction of gravity per frame, in the reference frame"
@@ -120,10 +171,29 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             for name in (CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B):
                 f[name].attrs["meaning"] = (f"the body capsules' end points per frame (F, P, 3) in the reference "
                                             f"frame; radii in {CAPSULE_RADIUS_A}, {CAPSULE_RADIUS_B}")
-        f[INPUT].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
-        f[TARGET].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
+        if task is None:
+            f[INPUT].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
+            f[TARGET].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
+        else:
+            _write_task(f, task)
         f[SEQUENCE].attrs["meaning"] = ("index into sequences/names of each frame's sequence; frame f - 1 is the "
                                         "frame before f in time when both have the same sequence id")
+
+
+def _write_task(f, task: TaskLayout) -> None:
+    """A decoder task's attrs and, for PCA, its basis."""
+    f.attrs[TASK] = task.name
+    f[INPUT].attrs["meaning"] = task.input_meaning
+    f[PREDICTOR].attrs["meaning"] = task.predictor_meaning
+    f[TARGET].attrs["meaning"] = "displacement x_high - predictor, per frame (F, V_high, 3)"
+    if task.pca is not None:
+        pca = task.pca
+        for name, data in ((PCA_MEAN, pca.mean), (PCA_COMPONENTS, pca.components),
+                           (PCA_SINGULAR_VALUES, pca.singular_values)):
+            f.create_dataset(name, data=np.asarray(data, dtype=np.float64))
+        f["pca"].attrs.update(explained=pca.explained, fitted_frames=pca.fitted_frames,
+                              meaning="x ~ mean + sum_k input[k] components[k], components orthonormal as "
+                                      "(V * 3)-vectors, fitted to the training frames of the high-res run")
 
 
 def _write_mannequin(f, mannequin: MannequinFrames, rows: slice, n_frames: int) -> None:
@@ -153,11 +223,11 @@ class FrameContext:
 
 @dataclasses.dataclass(frozen=True)
 class LearningData:
-    """The dataset artifact's arrays: inputs (= predictor) and target displacements, faces, split, and what
+    """The dataset artifact's arrays: inputs, predictor and target displacements, faces, split, and what
     the network's features are made from."""
 
-    inputs: np.ndarray
-    targets: np.ndarray
+    inputs: np.ndarray         # (F, V, 3) S x_low (upsampling) or (F, N) a decoder task's input vectors
+    targets: np.ndarray        # (F, V, 3) x_high - predictor
     faces: np.ndarray
     rest_vertices: np.ndarray   # (V, 3) the subdivided rest mesh
     train: np.ndarray
@@ -169,6 +239,13 @@ class LearningData:
     context: FrameContext
     frame: str = "world"   # reference frame of the positions
     held_out_clips: str = ""   # comma-separated motion clips of `held_out`
+    task: str = UPSAMPLING     # which learning problem (pipeline/tasks)
+    predictor: np.ndarray | None = None   # (F, V, 3); None given: the inputs (the upsampling's S x_low)
+    pca: PcaBasis | None = None   # the PCA task's basis
+
+    def __post_init__(self):
+        if self.predictor is None:
+            object.__setattr__(self, "predictor", self.inputs)
 
     def splits(self) -> dict[str, np.ndarray]:
         """The non-empty splits by name."""
@@ -179,11 +256,20 @@ class LearningData:
 def load_dataset(path: str | os.PathLike) -> LearningData:
     with open_artifact(path) as f:
         inputs, targets = read(f, INPUT, np.float32), read(f, TARGET, np.float32)
-        if inputs.shape != targets.shape or inputs.ndim != 3:
-            raise PipelineError(f"{path}: '{INPUT}' {inputs.shape} and '{TARGET}' {targets.shape} must both be "
-                                f"(F, V, 3)")
+        task = str(f.attrs.get(TASK, UPSAMPLING))
+        if task == UPSAMPLING:
+            predictor = None
+            if inputs.shape != targets.shape or inputs.ndim != 3 or inputs.shape[2] != 3:
+                raise PipelineError(f"{path}: '{INPUT}' {inputs.shape} and '{TARGET}' {targets.shape} must both "
+                                    f"be (F, V, 3)")
+        else:
+            predictor = read(f, PREDICTOR, np.float32)
+            if targets.ndim != 3 or targets.shape[2] != 3 or predictor.shape != targets.shape \
+                    or inputs.shape[:1] != targets.shape[:1] or inputs.ndim != 2:
+                raise PipelineError(f"{path}: task '{task}': '{PREDICTOR}' {predictor.shape} and '{TARGET}' "
+                                    f"{targets.shape} must both be (F, V, 3) and '{INPUT}' {inputs.shape} (F, N)")
         n_frames = len(inputs)
-        faces = read_indices(f, FACES, inputs.shape[1], shape=(None, 3))
+        faces = read_indices(f, FACES, targets.shape[1], shape=(None, 3))
         train, test = (read_indices(f, name, n_frames, shape=(None,)) for name in (SPLIT_TRAIN, SPLIT_TEST))
         held_out = read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))
         # A dataset without sequence ids (made by hand) is one sequence.
@@ -192,9 +278,10 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
         frame = str(f.attrs.get("frame", "world"))
         held_out_clips = str(f[SPLIT].attrs.get("held_out_clips", ""))
         rest_vertices = read(f, REST_VERTICES, np.float64)
-        if rest_vertices.shape != inputs.shape[1:]:
-            raise PipelineError(f"{path}: '{REST_VERTICES}' {rest_vertices.shape} must be {inputs.shape[1:]}")
+        if rest_vertices.shape != targets.shape[1:]:
+            raise PipelineError(f"{path}: '{REST_VERTICES}' {rest_vertices.shape} must be {targets.shape[1:]}")
         context = _read_context(f, n_frames)
+        pca = _read_pca(f, inputs.shape[1], targets.shape[1]) if PCA_MEAN in f else None
     try:
         previous = previous_frames(sequence)
     except ValueError as err:
@@ -208,8 +295,24 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
     digest.update(train.tobytes())
     for array in (context.gravity, context.capsule_a, context.capsule_b, context.radius_a, context.radius_b):
         digest.update(array.tobytes())
+    if predictor is not None:      # a decoder task (an upsampling dataset's digest is as it always was)
+        digest.update(task.encode())
+        digest.update(predictor.tobytes())
     return LearningData(inputs, targets, faces, rest_vertices, train, test, digest.hexdigest(), held_out, sequence,
-                        previous, context, frame, held_out_clips)
+                        previous, context, frame, held_out_clips, task, predictor, pca)
+
+
+def _read_pca(f, n_components: int, n_vertices: int) -> PcaBasis:
+    mean, components = read(f, PCA_MEAN, np.float64), read(f, PCA_COMPONENTS, np.float64)
+    singular_values = read(f, PCA_SINGULAR_VALUES, np.float64)
+    if mean.shape != (n_vertices, 3) or components.shape != (n_components, n_vertices, 3) \
+            or singular_values.shape != (n_components,):
+        raise PipelineError(f"{f.filename}: '{PCA_MEAN}' {mean.shape}, '{PCA_COMPONENTS}' {components.shape} and "
+                            f"'{PCA_SINGULAR_VALUES}' {singular_values.shape} must be ({n_vertices}, 3), "
+                            f"({n_components}, {n_vertices}, 3) and ({n_components},)")
+    attrs = f["pca"].attrs
+    return PcaBasis(mean, components, singular_values, float(attrs.get("explained", np.nan)),
+                    int(attrs.get("fitted_frames", 0)))
 
 
 def _read_context(f, n_frames: int) -> FrameContext:

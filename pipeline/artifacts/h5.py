@@ -224,13 +224,14 @@ def check_same_mesh(path: str | os.PathLike, other: str | os.PathLike, other_fin
     gives a high-res run, or a dataset, of nonsense. An artifact without the attr (made by hand, as test fixtures
     are) is not checked: it can only be compared where both sides have a fingerprint.
     """
-    fingerprint = _source_mesh_of(path)
-    other_fingerprint = other_fingerprint or _source_mesh_of(other)
+    fingerprint = source_mesh_of(path)
+    other_fingerprint = other_fingerprint or source_mesh_of(other)
     if fingerprint is not None and other_fingerprint is not None and fingerprint != other_fingerprint:
         raise PipelineError(f"{path}: made from another mesh than {other}")
 
 
-def _source_mesh_of(path: str | os.PathLike) -> str | None:
+def source_mesh_of(path: str | os.PathLike) -> str | None:
+    """The `source_mesh` attr of an artifact (None without one), for an artifact made from it to carry on."""
     with open_artifact(path) as f:
         value = f.attrs.get(SOURCE_MESH)
     return None if value is None else str(value)

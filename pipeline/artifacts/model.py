@@ -16,6 +16,7 @@ import torch
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import NetworkSpec, build_network
+from model.tasks import VectorRegressor, VectorSpec
 from model.training import CHECKPOINT_FORMAT
 from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
@@ -24,7 +25,7 @@ from pipeline.errors import PipelineError
 MODEL_FORMAT = "trimesh-cnn/model-2"     # 1: absolute positions only, no feature spec
 
 
-def save_model(path: Path, model: FeatureRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
+def save_model(path: Path, model: FeatureRegressor | VectorRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
                extra: Mapping[str, Any]) -> None:
     state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
              "state_dict": model.state_dict(),
@@ -34,8 +35,10 @@ def save_model(path: Path, model: FeatureRegressor, spec: NetworkSpec, mesh: Mes
 
 
 def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
-               device: str) -> tuple[FeatureRegressor, MeshHierarchy, dict]:
-    """A trained model and the hierarchy it runs on, after checking the operators are those it was trained on."""
+               device: str) -> tuple[FeatureRegressor | VectorRegressor, MeshHierarchy, dict]:
+    """A trained model and the hierarchy it runs on, after checking the operators are those it was trained on.
+    An encoder-decoder (D tokens) reads per-vertex features (FeatureRegressor), a decoder (U tokens) one vector
+    per frame (model.tasks.VectorRegressor)."""
     if not Path(path).is_file():
         raise PipelineError(f"{path}: model file does not exist")
     try:
@@ -46,10 +49,14 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
         raise PipelineError(f"{path}: not a model written by pipeline.train (format {MODEL_FORMAT})")
     try:
         _check_plain(state, _PLAIN_FIELDS)
-        spec, features = NetworkSpec(**state["spec"]), FeatureSpec(**state["features"])
-        weights = state["state_dict"]
-        faces, rest = weights["features.faces"].numpy(), weights["features.rest"].numpy()
-        trained = state["operators"]
+        spec, weights, trained = NetworkSpec(**state["spec"]), state["state_dict"], state["operators"]
+        if spec.letter == "U":
+            _check_plain(state["spec"], {"coarse_vertices": int}, "spec.")
+            vector = VectorSpec(**state["features"])
+        else:
+            _check_plain(state["features"], _FEATURE_FIELDS, "features.")
+            features = FeatureSpec(**state["features"])
+            faces, rest = weights["features.faces"].numpy(), weights["features.rest"].numpy()
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise PipelineError(f"{path}: damaged model file ({type(err).__name__}: {err})") from None
     mesh = load_hierarchy(operators_path, spec.conv, len(trained["vertex_counts"]))
@@ -59,8 +66,12 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
     if mesh.fingerprint() != trained["fingerprint"]:
         raise PipelineError(f"{operators_path}: same vertex counts but different operator tables than the ones "
                             f"the model in {path} was trained on")
+    if spec.letter == "U" and spec.coarse_vertices not in mesh.vertex_counts:     # before a huge layer is built
+        raise PipelineError(f"{path}: a decoder onto {spec.coarse_vertices} coarse vertices, but no level of "
+                            f"{operators_path} has that many")
     try:
-        model = FeatureRegressor(build_network(spec), features, faces, rest)
+        net = build_network(spec)
+        model = VectorRegressor(net, vector) if spec.letter == "U" else FeatureRegressor(net, features, faces, rest)
         model.load_state_dict(weights)
     except (ValueError, RuntimeError, IndexError) as err:
         # A failed load_state_dict's message spans lines; its type says enough.
@@ -73,12 +84,15 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
 _NUMBER = (int, float)
 _PLAIN_FIELDS = {
     "spec": {"arch": str, "conv": str, "pool": str, "width": _NUMBER, "in_channels": int, "out_channels": int},
-    "features": {"inputs": (list, tuple), "input_frame": str, "output_frame": str, "frame_tangent": str},
+    "features": {"inputs": (list, tuple)},
     "arch_expanded": str, "parameter_count": int, "state_dict": dict,
     "operators": {"fingerprint": str, "vertex_counts": (list, tuple)},
     "training": {"epochs": int, "batch_size": int, "lr": _NUMBER, "seed": int, "device": str,
                  "loss_weights": {"l1": _NUMBER, "l2": _NUMBER, "normal": _NUMBER}},
 }
+
+# An encoder-decoder's "features" (model.feature_regressor.FeatureSpec); a decoder's hold `inputs` only.
+_FEATURE_FIELDS = {"inputs": (list, tuple), "input_frame": str, "output_frame": str, "frame_tangent": str}
 
 
 def _check_plain(values: dict, fields: dict, where: str = "") -> None:

@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 
 from meshops import Level, parse_conv_kind
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read_indices
+from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, check_same_mesh, open_artifact, read_indices
 from pipeline.errors import PipelineError
 
 if TYPE_CHECKING:
@@ -21,8 +21,13 @@ INDEX_CONVENTION = ("conv tables: vertex id + 1, 0 = the zero-padding slot; pool
                     "geodesic_sources: plain 0-based vertex ids")
 
 
-def write_operators(path: str | os.PathLike, levels: list[Level], config: Mapping[str, Any]) -> None:
+def write_operators(path: str | os.PathLike, levels: list[Level], config: Mapping[str, Any],
+                    source_mesh: str | None) -> None:
+    """Write the levels of a mesh derived from the low-res rest mesh whose `mesh_fingerprint` is `source_mesh`
+    (None for a mesh of unknown origin, an OBJ file: the artifact then carries no attr to compare)."""
     with atomic_h5(path, STAGE, config) as f:
+        if source_mesh is not None:
+            f.attrs[SOURCE_MESH] = source_mesh
         f.attrs["n_levels"] = len(levels)
         f.attrs["conv"] = json.dumps(list(levels[0].conv))
         f.attrs["index_convention"] = INDEX_CONVENTION
@@ -49,13 +54,16 @@ def write_operators(path: str | os.PathLike, levels: list[Level], config: Mappin
                 group.attrs["largest_quadric_error"] = level.coarsening.largest_error
 
 
-def load_hierarchy(path: str | os.PathLike, conv: str, n_levels: int,
-                   faces: np.ndarray | None = None) -> MeshHierarchy:
-    """Levels 0..n_levels-1 of an operators artifact with the `conv` tables; with `faces`, check that level 0
-    is that mesh."""
+def load_hierarchy(path: str | os.PathLike, conv: str, n_levels: int, faces: np.ndarray | None = None,
+                   dataset: str | os.PathLike | None = None) -> MeshHierarchy:
+    """Levels 0..n_levels-1 of an operators artifact with the `conv` tables; with `faces` (those of the artifact
+    `dataset`), check that level 0 is that mesh: the same faces and, where both artifacts record one, the same
+    `source_mesh` (the operators of a moved copy of the mesh have its faces, but tables of other geometry)."""
     # Imported here, not at the top: torch takes seconds to load, and the stage that writes this file needs none.
     from model.mesh_hierarchy import mesh_hierarchy
 
+    if dataset is not None:
+        check_same_mesh(path, dataset)
     with open_artifact(path) as f:
         if "levels" not in f:
             raise PipelineError(f"{path}: no 'levels' group (not an operators file)")

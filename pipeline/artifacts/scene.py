@@ -284,6 +284,22 @@ def read_body(path: str | os.PathLike) -> tuple[Skeleton, BodyState] | None:
     return skeleton, state
 
 
+def read_skinning(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rest mesh's skinning: influences (V, K) int64 part indices and weights (V, K) float64 (rows summing
+    to 1), checked against the rest mesh and the skeleton; None for a scene without a mannequin."""
+    with open_artifact(path) as f:
+        if SKINNING_WEIGHTS not in f:
+            return None
+        n_vertices, n_parts = len(read(f, REST_VERTICES)), len(read(f, f"{BODY}/{SKELETON_NAMES}"))
+        weights = read(f, SKINNING_WEIGHTS, np.float64)
+        influences = read_indices(f, SKINNING_INFLUENCES, n_parts, shape=weights.shape)
+    if weights.ndim != 2 or len(weights) != n_vertices or np.any(weights < 0) \
+            or not np.allclose(weights.sum(axis=1), 1.0, atol=1e-4):
+        raise PipelineError(f"{path}: '{SKINNING_WEIGHTS}' must be ({n_vertices}, K), non-negative, rows summing "
+                            f"to 1")
+    return influences, weights
+
+
 def _skeleton_from_h5(f: h5py.File) -> Skeleton:
     """The skeleton stored in scene.h5's `body` group; a joint's parent is another joint, or -1 for the root."""
     group = f[BODY]

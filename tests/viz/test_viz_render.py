@@ -6,8 +6,8 @@ import matplotlib.image
 import numpy as np
 
 from geometry.shapes import cube_sphere, grid_patch
-from viz.render import (BODY_RGB, CLOTH_RGB, KEY_LIGHT, Panel, camera_axes, fit_view, panels_image, render_panels,
-                        shading, value_colors)
+from viz.render import (BODY_RGB, CLOTH_RGB, FLAT_VIEW_ANGLE, KEY_LIGHT, Panel, camera_axes, fit_view, panels_image,
+                        render_panels, shading, value_colors)
 
 DPI, PANEL_HEIGHT = 40, 4.0                      # small pictures for speed; panel height in pixels: 160
 
@@ -112,6 +112,50 @@ def test_a_view_fitted_to_all_frames_holds_the_camera_still():
     scale = PANEL_HEIGHT * DPI / (view.window[3] - view.window[2])     # pixels per scene unit
     right = camera_axes(view.elevation, view.azimuth)[0]
     assert abs(shift - 0.6 * right[0] * scale) <= 2                     # one camera: the tube moves across it
+
+
+def sheet(normal_axis: int, n: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """A flat unit square through the origin whose normal is the scene axis `normal_axis` (1: horizontal)."""
+    square, faces = grid_patch(n, n)
+    square = square - [0.5, 0.5, 0.0]
+    return np.roll(square, normal_axis - 2, axis=1), faces
+
+
+def test_a_flat_cloth_seen_nearly_edge_on_is_seen_off_its_plane_from_the_side_the_camera_saw():
+    """The default camera (12 degrees above the horizon, 30 degrees round) sees a horizontal sheet 12 degrees off
+    its plane and one in the yz plane 29 degrees off: each turns to FLAT_VIEW_ANGLE, towards the same side; a
+    flag in the xy plane (58 degrees off) and a tube (not flat) keep the camera."""
+    least = np.sin(np.radians(FLAT_VIEW_ANGLE))
+    for normal_axis in (1, 0):
+        vertices, _ = sheet(normal_axis)
+        view = fit_view([vertices])
+        towards = camera_axes(view.elevation, view.azimuth)[2]
+        before = camera_axes(12.0, 30.0)[2]
+        assert np.isclose(towards[normal_axis], least) and before[normal_axis] > 0         # the same side
+        kept = np.delete(towards, normal_axis) / np.linalg.norm(np.delete(towards, normal_axis))
+        assert np.allclose(kept, np.delete(before, normal_axis) / np.linalg.norm(np.delete(before, normal_axis)))
+    assert np.isclose(fit_view([sheet(1)[0]]).elevation, FLAT_VIEW_ANGLE)                 # from above, as before
+    u0, u1, v0, v1 = fit_view([sheet(1)[0]]).window
+    assert (u1 - u0) / (v1 - v0) < 1.0 / least + 0.01             # no sliver: at most 1 / sin of the angle
+    for unchanged in (sheet(2)[0], tube()[0]):
+        view = fit_view([unchanged])
+        assert (view.elevation, view.azimuth) == (12.0, 30.0)
+
+
+def test_a_flat_cloth_at_a_grazing_angle_is_shaded_evenly_without_outlines_inside():
+    """Seen 8 degrees off its plane (the camera kept), a flat sheet's pixels all have its normal's shade: its
+    depth changes by about seven pixel widths per pixel, evenly, which is no depth jump (it once darkened every
+    pixel as an outline)."""
+    vertices, faces = sheet(1, n=24)
+    view = fit_view([vertices], elevation=8.0, azimuth=0.0, flat_angle=0.0)
+    image = panels_image([Panel("", vertices, faces)], view, panel_height=PANEL_HEIGHT, dpi=DPI).astype(float) / 255
+    normal = camera_axes(8.0, 0.0) @ [0.0, 1.0, 0.0]
+    diffuse, highlight = shading(normal[None])
+    expected = np.clip(CLOTH_RGB * diffuse[0] + highlight[0], 0, 1)
+    mask = cloth_mask((image * 255).round())
+    assert mask.sum() > 500
+    near = (np.abs(image[mask] - expected).max(axis=1) < 0.03).mean()
+    assert near > 0.9                                              # all but the anti-aliased rim
 
 
 def test_shading_is_two_sided_and_brightest_towards_the_key_light():

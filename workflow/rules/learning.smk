@@ -62,3 +62,19 @@ rule evaluate:
         "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
         "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+
+
+# On request only (`snakemake results/<scene>/deploy`), not part of `results/<scene>/`: the trained model as a
+# self-contained upsampler that runs with torch and numpy alone (deploy/README.md).
+rule export_model:
+    input:
+        settings=f"{OUT}/settings.json", model=f"{OUT}/model.pt", operators=f"{OUT}/operators.h5",
+        subdiv=f"{OUT}/subdiv.h5",
+    output: directory(f"{OUT}/deploy")
+    log: log_of("export_model")
+    benchmark: benchmark_of("export_model")
+    threads: 1
+    resources: mem_mb=4000
+    shell:
+        "{PY:q} -m pipeline.export_model {input.model:q} {input.operators:q} {input.subdiv:q} {output:q} "
+        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"

@@ -1,0 +1,175 @@
+"""A trained upsampler as a self-contained exported program: what a tool needs to upsample frames without the
+project's code.
+
+`export_upsampler` traces model.inference.FastUpsampler (Loop subdivision as a padded-stencil gather, the input
+features, the reordered network with its normalisations folded in, the un-permutation) with `torch.export`, batch
+size and capsule count left dynamic, and returns the files of an export folder (docs/artifacts.md, "Exported
+upsampler"): the program (`torch.export.save`, written without example inputs so that loading it unpickles
+nothing: deploy/runner.py refuses any program that would), a JSON manifest naming the program's inputs, the low-
+and high-res faces, and a copy of deploy/runner.py. Before returning, the loaded-back program is run against the
+eager fp32 network on a sample batch; a difference beyond EXPORT_TOLERANCE is an error, not a file.
+"""
+from __future__ import annotations
+
+import copy
+import io
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+
+from geometry.loop_subdivision import loop_subdivide
+from model.feature_regressor import FeatureRegressor
+from model.features import FrameBatch
+from model.inference import FastRegressor, FastUpsampler, needed_inputs
+from model.mesh_hierarchy import MeshHierarchy
+from deploy.runner import FORMAT, HIGH_FACES, LOW_FACES, PROGRAM
+
+MANIFEST, RUNNER = "upsampler.json", "runner.py"
+EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER)      # what an export folder holds
+# Largest |exported - eager| displacement over the largest |eager| displacement of the export check (fp32; the
+# two differ by summation order only: ~1e-6 in the tests, but 1.9e-4 for an untrained RC13 with body inputs at 15k
+# vertices in bench/infer.py, where instance norms of near-constant random features amplify rounding).
+EXPORT_TOLERANCE = 1e-3
+# name -> (shape, meaning) of every input a program may take (model.inference.UPSAMPLER_INPUTS, deploy.runner.INPUTS);
+# its manifest lists those it does take, in order.
+INPUTS = {
+    "low_positions": ("(B, V_low, 3)", "low-res positions of B frames, in the reference frame of the training "
+                                       "data (world or torso, as the dataset was)"),
+    "low_previous": ("(B, V_low, 3)", "low-res positions one frame earlier (the frame itself at a sequence's "
+                                      "first frame: zero velocity)"),
+    "low_before_previous": ("(B, V_low, 3)", "low-res positions two frames earlier, by the same rule"),
+    "capsule_a": ("(B, P, 3)", "end point a of each body capsule, same frame"),
+    "capsule_b": ("(B, P, 3)", "end point b of each body capsule, same frame"),
+    "radius_a": ("(P,)", "each capsule's radius at end a"),
+    "radius_b": ("(P,)", "each capsule's radius at end b"),
+    "gravity": ("(B, 3)", "unit direction of gravity, same frame"),
+    "frame_time": ("()", "seconds between consecutive frames (float32 scalar)"),
+}
+
+
+def coarse_faces(subdivision: sp.spmatrix, high_faces: np.ndarray, high_rest: np.ndarray) -> np.ndarray:
+    """The low-res faces whose Loop subdivision (geometry.loop_subdivision: every face split into four in place,
+    corners first) is `subdivision` with `high_faces`; ValueError if there are none."""
+    n_low, faces, levels = subdivision.shape[1], np.asarray(high_faces, dtype=np.int64), 0
+    while len(faces) and faces.max() >= n_low and len(faces) % 4 == 0:
+        quads = faces.reshape(-1, 4, 3)
+        faces, levels = np.stack([quads[:, 0, 0], quads[:, 1, 1], quads[:, 2, 2]], axis=1), levels + 1
+    try:
+        again, again_faces = loop_subdivide(high_rest[:n_low], faces, levels)
+    except ValueError as err:
+        raise ValueError(f"the high-res mesh is not a Loop subdivision of a low-res mesh ({err})") from None
+    if not np.array_equal(again_faces, high_faces) or abs(again - sp.csr_matrix(subdivision)).max() > 1e-12:
+        raise ValueError("the subdivision matrix is not the Loop subdivision of the low-res mesh under its faces")
+    return faces
+
+
+def sample_inputs(names: tuple[str, ...], low_rest: np.ndarray, batch: int = 2, capsules: int = 2,
+                  frame_time: float = 1 / 60, seed: int = 0) -> dict[str, torch.Tensor]:
+    """Plausible values of the program inputs `names`: the rest mesh moved a little, capsules near it."""
+    generator = torch.Generator().manual_seed(seed)
+    normal = lambda *shape: torch.randn(*shape, generator=generator)  # noqa: E731
+    low = torch.as_tensor(low_rest, dtype=torch.float32)
+    extent = float((low.max(0).values - low.min(0).values).max())
+    near = lambda *shape: low.mean(0) + 0.3 * extent * normal(*shape)  # noqa: E731
+    values = {"low_positions": low + 0.02 * extent * normal(batch, *low.shape)}
+    values["low_previous"] = values["low_positions"] + 0.005 * extent * normal(batch, *low.shape)
+    values["low_before_previous"] = values["low_previous"] + 0.005 * extent * normal(batch, *low.shape)
+    values.update(capsule_a=near(batch, capsules, 3), capsule_b=near(batch, capsules, 3),
+                  radius_a=0.05 * extent * (1 + torch.rand(capsules, generator=generator)),
+                  radius_b=0.05 * extent * (1 + torch.rand(capsules, generator=generator)),
+                  gravity=torch.tensor([0.0, -1.0, 0.0]).expand(batch, 3).clone(),
+                  frame_time=torch.tensor(frame_time, dtype=torch.float32))
+    return {name: values[name] for name in names}
+
+
+def eager_displacement(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp.spmatrix,
+                       inputs: Mapping[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """S x_low (B, V_high, 3) and the eager fp32 network's displacement (a model on the CPU) for program inputs:
+    the reference an exported program is checked against."""
+    def smooth(name: str) -> torch.Tensor | None:
+        low = inputs.get(name)
+        return None if low is None else torch.as_tensor(np.stack([subdivision @ x for x in low.double().numpy()]),
+                                                         dtype=torch.float32)
+    positions = smooth("low_positions")
+    frame = FrameBatch(positions, smooth("low_previous"), smooth("low_before_previous"), inputs.get("capsule_a"),
+                       inputs.get("capsule_b"), inputs.get("radius_a"), inputs.get("radius_b"),
+                       inputs.get("gravity"), inputs.get("frame_time"))
+    with torch.no_grad():
+        return positions, model(frame, mesh.to("cpu"))
+
+
+def export_upsampler(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp.spmatrix,
+                     high_faces: np.ndarray, frame_time: float | None = None,
+                     provenance: Mapping[str, Any] | None = None) -> dict[str, bytes]:
+    """The files of an export folder (name -> contents) of a trained model on its hierarchy and subdivision.
+
+    `frame_time` (seconds between the training frames) is the manifest's default for the program's `frame_time`
+    input; a model with velocity or acceleration inputs needs it. `provenance` (plain values) goes into the
+    manifest. ValueError for a network or mesh that cannot be exported, or an export that does not reproduce
+    the eager network."""
+    if not isinstance(model, FeatureRegressor):
+        raise ValueError(f"only an encoder-decoder on per-vertex features can be exported, not a "
+                         f"{type(model).__name__}")
+    names = needed_inputs(model)
+    if "frame_time" in names and frame_time is None:
+        raise ValueError(f"the model's inputs ({', '.join(model.spec.inputs)}) need the frame time of its "
+                         f"training data")
+    model = copy.deepcopy(model).cpu().eval()          # traced on the CPU; the caller's model stays where it is
+    high_rest = model.features.rest.numpy().astype(np.float64)
+    low_faces = coarse_faces(subdivision, high_faces, high_rest)
+    upsampler = FastUpsampler(FastRegressor(model, mesh), subdivision).eval()
+    batch, capsules = torch.export.Dim("batch", min=1), torch.export.Dim("capsules", min=1)
+    dims = {"capsule_a": {0: batch, 1: capsules}, "capsule_b": {0: batch, 1: capsules},
+            "radius_a": {0: capsules}, "radius_b": {0: capsules}, "frame_time": None}
+    example = sample_inputs(names, high_rest[:subdivision.shape[1]], frame_time=frame_time or 1 / 60)
+    with torch.no_grad():
+        program = torch.export.export(upsampler, (), example,
+                                      dynamic_shapes={name: dims.get(name, {0: batch}) for name in names})
+    program.example_inputs = None        # saved, they would be unpickled at load
+    buffer = io.BytesIO()
+    torch.export.save(program, buffer)
+    difference = _check_against_eager(buffer.getvalue(), model, mesh, subdivision, names, high_rest, frame_time)
+    manifest = {
+        "format": FORMAT, "program": PROGRAM, "torch": torch.__version__,
+        "inputs": [{"name": name, "shape": INPUTS[name][0], "meaning": INPUTS[name][1]} for name in names],
+        "output": {"shape": "(B, V_high, 3)", "meaning": "high-res positions, same frame as the inputs"},
+        "n_low_vertices": int(subdivision.shape[1]), "n_high_vertices": int(subdivision.shape[0]),
+        "low_faces": LOW_FACES, "high_faces": HIGH_FACES,
+        "frame_time": frame_time if "frame_time" in names else None,
+        "features": {"inputs": list(model.spec.inputs), "input_frame": model.spec.input_frame,
+                     "output_frame": model.spec.output_frame, "frame_tangent": model.spec.frame_tangent},
+        "export_check": {"max_difference_vs_eager": difference, "tolerance": EXPORT_TOLERANCE,
+                         "meaning": "largest |exported - eager fp32| displacement over the largest |eager| one, "
+                                    "on a sample batch at export"},
+        "provenance": dict(provenance or {}),
+    }
+    return {PROGRAM: buffer.getvalue(), MANIFEST: (json.dumps(manifest, indent=1) + "\n").encode(),
+            LOW_FACES: _npy(low_faces.astype(np.int32)), HIGH_FACES: _npy(np.asarray(high_faces, dtype=np.int32)),
+            RUNNER: (Path(__file__).parent / RUNNER).read_bytes()}
+
+
+def _check_against_eager(program_bytes: bytes, model: FeatureRegressor, mesh: MeshHierarchy,
+                         subdivision: sp.spmatrix, names: tuple[str, ...], high_rest: np.ndarray,
+                         frame_time: float | None) -> float:
+    """The loaded-back program against the eager network on a sample batch of another size than the traced one:
+    the relative difference, ValueError beyond EXPORT_TOLERANCE."""
+    inputs = sample_inputs(names, high_rest[:subdivision.shape[1]], batch=3, capsules=3,
+                           frame_time=frame_time or 1 / 60, seed=1)
+    smooth, expected = eager_displacement(model, mesh, subdivision, inputs)
+    with torch.no_grad():
+        got = torch.export.load(io.BytesIO(program_bytes)).module()(**inputs) - smooth
+    difference = float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
+    if not difference <= EXPORT_TOLERANCE:
+        raise ValueError(f"the exported program differs from the eager network by {difference:.2e} of its "
+                         f"largest displacement (tolerance {EXPORT_TOLERANCE:g})")
+    return difference
+
+
+def _npy(array: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    return buffer.getvalue()

@@ -1,0 +1,37 @@
+"""The learning problems of paper Table 2 as tasks of the shared learning stages: `upsampling` (Loop-subdivided
+low-res run → high-res), `pose` (the mannequin's 208 pose scalars → cloth, over linear blend skinning) and `pca`
+(K PCA coefficients of the high-res run → its details, over the PCA reconstruction). docs/architecture.md,
+"Applications", says where each lives."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from model.tasks import VectorStore
+from model.training import Frames
+from pipeline.artifacts.dataset import LearningData
+from pipeline.errors import PipelineError
+from pipeline.tasks.pca import PcaTask
+from pipeline.tasks.pose import PoseTask
+from pipeline.tasks.task import Task
+from pipeline.tasks.upsampling import UpsamplingTask
+from pipeline.torch_setup import frames_on
+
+TASKS: dict[str, Task] = {task.name: task for task in (UpsamplingTask(), PoseTask(), PcaTask())}
+
+
+def task_of(name: str, where: str) -> Task:
+    """The task named `name` (as dataset.h5 or --task gives it); an error naming `where` otherwise."""
+    if name not in TASKS:
+        raise PipelineError(f"{where}: unknown task '{name}' (known: {', '.join(TASKS)})")
+    return TASKS[name]
+
+
+def frames_of(data: LearningData, device: torch.device | str) -> Frames:
+    """Every frame of a dataset on `device` as its task's network reads them: per-vertex features of S x_low
+    (pipeline.torch_setup.frames_on) or one input vector per frame, each with the predictor it adds to."""
+    if task_of(data.task, "dataset").letter == "D":
+        return frames_on(data, device)
+    store = VectorStore(torch.as_tensor(data.predictor, device=device), torch.as_tensor(data.inputs, device=device))
+    return Frames(store, torch.as_tensor(data.targets, device=device),
+                  torch.as_tensor(data.faces.astype(np.int64), device=device))

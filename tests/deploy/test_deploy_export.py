@@ -1,0 +1,294 @@
+"""The exported upsampler end to end: a model.pt of the trained format (random weights, non-trivial
+normalisation, body- and velocity-relative inputs in local frames) on operators built by the operators stage,
+exported by the export_model stage, then upsampled by the export's own runner.py in an interpreter that cannot
+import the project, against the eager network; plus the runner's file formats and its refusal of programs that
+would unpickle."""
+from __future__ import annotations
+
+import ast
+import io
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from deploy import export, runner
+from deploy.export import EXPORT_TOLERANCE, INPUTS, coarse_faces, eager_displacement
+from geometry.loop_subdivision import loop_subdivide
+from model.feature_regressor import FeatureRegressor, FeatureSpec
+from model.inference import UPSAMPLER_INPUTS
+from model.networks import NetworkSpec, build_network
+from pipeline import cli, export_model, operators
+from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.artifacts.model import load_model, save_model
+from pipeline.artifacts.operators import load_hierarchy
+from pipeline.artifacts.subdiv import read_subdivision
+
+SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
+NETWORK = NetworkSpec("D8 D16 D D16", "RC7", "max", in_channels=SPEC.channels)
+TRAINING = {"epochs": 1, "batch_size": 1, "lr": 1e-3, "seed": 0, "device": "cpu",
+            "loss_weights": {"l1": 1.0, "l2": 0.0, "normal": 0.0}}
+FRAME_TIME = 0.05
+REPO = Path(__file__).resolve().parents[2]
+PROJECT_PACKAGES = ("geometry", "scenes", "sim", "meshops", "model", "viz", "pipeline", "deploy")
+
+
+def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n square in the xy plane, CCW faces seen from +z."""
+    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    vertices = np.stack([c.ravel() / (n - 1) - 0.5, 1.0 - r.ravel() / (n - 1), np.zeros(n * n)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, d, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
+
+
+def _write_model(folder: Path, spec: FeatureSpec, network: NetworkSpec, name: str) -> Path:
+    torch.manual_seed(0)
+    net = build_network(network)
+    mesh = load_hierarchy(folder / "operators.h5", network.conv, net.n_levels)
+    model = FeatureRegressor(net, spec, np.load(folder / "faces.npy"),
+                             np.load(folder / "rest.npy"), torch.randn(spec.channels),
+                             torch.rand(spec.channels) + 0.5, 0.02)
+    save_model(folder / name, model, network, mesh, {"training": TRAINING})
+    return folder / name
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("deploy")
+    low, low_faces = _grid(4)
+    subdivision, faces = loop_subdivide(low, low_faces, 2)
+    with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
+        write_csr(out, "S", subdivision)
+        out["vertices"] = subdivision @ low
+        out["faces"] = faces.astype(np.int32)
+    np.save(folder / "low.npy", low)
+    np.save(folder / "low_faces.npy", low_faces)
+    np.save(folder / "faces.npy", faces)
+    np.save(folder / "rest.npy", subdivision @ low)
+    cli.run(operators.main, [str(folder / "subdiv.h5"), str(folder / "operators.h5"), "--conv", "RC7", "--levels",
+                             "3", "--quiet"])
+    _write_model(folder, SPEC, NETWORK, "model.pt")
+    cli.run(export_model.main, [str(folder / name) for name in ("model.pt", "operators.h5", "subdiv.h5", "export")]
+            + ["--frame-time", str(FRAME_TIME), "--quiet"])
+    return folder
+
+
+def _sequence(work: Path, n_frames: int = 3) -> np.ndarray:
+    """Low-res frames of a sheet waving a little."""
+    low = np.load(work / "low.npy")
+    t = np.arange(n_frames)[:, None]
+    frames = np.repeat(low[None], n_frames, axis=0)
+    frames[:, :, 2] = 0.1 * np.sin(3 * low[:, 0] + 0.5 * t) * (1 - low[:, 1])
+    return frames.astype(np.float32)
+
+
+def _capsules(n_frames: int) -> dict[str, np.ndarray]:
+    a = np.array([[0.0, 0.5, -0.3], [0.2, 0.2, -0.2]], dtype=np.float32)
+    drift = 0.02 * np.arange(n_frames, dtype=np.float32)[:, None, None]
+    return {"a": a + drift, "b": a + [0.0, -0.4, 0.0] + drift, "radius_a": np.array([0.2, 0.1], np.float32),
+            "radius_b": np.array([0.15, 0.1], np.float32)}
+
+
+def _expected(work: Path, frames: np.ndarray, body: dict, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """S x_low and the eager model's displacement of each frame of a sequence."""
+    model, mesh, _ = load_model(work / "model.pt", work / "operators.h5", "cpu")
+    subdivision = read_subdivision(work / "subdiv.h5").S
+    index = np.arange(len(frames))
+    tensor = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
+    inputs = {"low_positions": tensor(frames), "low_previous": tensor(frames[np.maximum(index - 1, 0)]),
+              "capsule_a": tensor(body["a"]), "capsule_b": tensor(body["b"]), "radius_a": tensor(body["radius_a"]),
+              "radius_b": tensor(body["radius_b"]), "gravity": tensor(gravity), "frame_time": torch.tensor(FRAME_TIME)}
+    smooth, displacement = eager_displacement(model, mesh, subdivision, inputs)
+    return smooth.numpy(), displacement.numpy()
+
+
+def test_manifest_names_the_inputs_the_model_needs(work):
+    manifest = json.loads((work / "export" / "upsampler.json").read_text())
+    assert [item["name"] for item in manifest["inputs"]] == ["low_positions", "low_previous", "capsule_a",
+                                                             "capsule_b", "radius_a", "radius_b", "gravity",
+                                                             "frame_time"]
+    assert manifest["frame_time"] == FRAME_TIME and manifest["n_low_vertices"] == 16
+    assert manifest["export_check"]["max_difference_vs_eager"] <= EXPORT_TOLERANCE
+    assert np.array_equal(np.load(work / "export" / "low_faces.npy"), np.load(work / "low_faces.npy"))
+    assert list(INPUTS) == list(UPSAMPLER_INPUTS) == list(runner.INPUTS)
+
+
+def test_runner_without_the_project_upsamples_like_the_eager_network(work, tmp_path):
+    """The export's runner.py, run from outside the repository by an interpreter that sees torch and numpy's
+    site-packages but not the project (no .pth files: the editable install is one), gives S x_low + the eager
+    displacement of every frame."""
+    frames = _sequence(work)
+    body = _capsules(len(frames))
+    np.save(tmp_path / "frames.npy", frames)
+    np.savez(tmp_path / "body.npz", **body)
+    site = str(Path(torch.__file__).parents[1])
+    script = f"""
+import runpy, sys
+sys.path.append({site!r})     # torch and numpy, without the .pth files that put the project on the path
+for name in {PROJECT_PACKAGES!r}:
+    try:
+        __import__(name)
+    except ModuleNotFoundError:
+        continue
+    sys.exit(f"project package {{name}} is importable")
+sys.argv = ["runner.py", {str(work / "export")!r}, "frames.npy", "--out", "high.npy", "--capsules", "body.npz",
+            "--gravity", "0,-2,0", "--threads", "1"]
+runpy.run_path({str(work / "export" / "runner.py")!r}, run_name="__main__")
+leaked = sorted({{m.split(".")[0] for m in sys.modules}} & set({PROJECT_PACKAGES!r}))
+sys.exit(f"the runner imported {{leaked}}" if leaked else 0)
+"""
+    env = {**os.environ, "PYTHONPATH": ""}
+    done = subprocess.run([sys.executable, "-S", "-c", script], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr + done.stdout
+    assert not tmp_path.resolve().is_relative_to(REPO)
+    smooth, displacement = _expected(work, frames, body, np.tile([0.0, -1.0, 0.0], (len(frames), 1)))
+    high = np.load(tmp_path / "high.npy")
+    assert high.shape == smooth.shape
+    assert np.abs(high - smooth - displacement).max() <= EXPORT_TOLERANCE * np.abs(displacement).max()
+    assert np.abs(displacement).max() > 1e-3          # the network is not silent
+
+
+def test_obj_frames_in_and_out_match_the_npy_path(work, tmp_path):
+    frames = _sequence(work, 2)
+    body = _capsules(2)
+    np.savez(tmp_path / "body.npz", **body)
+    low_faces = np.load(work / "low_faces.npy")
+    for i, frame in enumerate(frames):
+        runner.write_obj(tmp_path / f"low_{i}.obj", frame, low_faces[:, [1, 2, 0]])   # corners rotated: same faces
+    np.save(tmp_path / "frames.npy", frames)
+    common = [str(work / "export"), "--capsules", str(tmp_path / "body.npz")]
+    runner.main([*common[:1], str(tmp_path / "low_0.obj"), str(tmp_path / "low_1.obj"), "--out",
+                 str(tmp_path / "high.obj"), *common[1:]])
+    runner.main([*common[:1], str(tmp_path / "frames.npy"), "--out", str(tmp_path / "high.npy"), "--batch", "1",
+                 *common[1:]])
+    expected = np.load(tmp_path / "high.npy")
+    for i in range(2):
+        vertices, faces = runner.read_obj(tmp_path / f"high_{i:04d}.obj")
+        np.testing.assert_allclose(vertices, expected[i], atol=1e-6)
+        assert np.array_equal(faces, np.load(work / "faces.npy"))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--out", "x.npy"], "give --capsules"),
+    (["--out", "x.txt"], "must end in .npy or .obj"),
+    (["--out", "x.npy", "--capsules", "body.npz", "--gravity", "1,2"], "expected finite values of shape"),
+])
+def test_runner_errors_are_one_line(work, tmp_path, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    np.save("frames.npy", _sequence(work, 1))
+    np.savez("body.npz", **_capsules(1))
+    with pytest.raises(runner.RunnerError, match=message):
+        runner.main([str(work / "export"), "frames.npy", *args])
+
+
+def test_runner_refuses_a_wrong_obj_mesh(work, tmp_path):
+    low_faces = np.load(work / "low_faces.npy")
+    runner.write_obj(tmp_path / "low.obj", _sequence(work, 1)[0], low_faces[:, [0, 2, 1]])    # flipped
+    with pytest.raises(runner.RunnerError, match="not those of the mesh"):
+        runner.read_frames([tmp_path / "low.obj"], low_faces, 16)
+
+
+def _rewritten(source: Path, target: Path, change) -> Path:
+    """A copy of a .pt2 archive with `change(name, bytes) -> bytes` applied to every entry."""
+    with zipfile.ZipFile(source) as old, zipfile.ZipFile(target, "w") as new:
+        for name in old.namelist():
+            new.writestr(name, change(name, old.read(name)))
+    return target
+
+
+def test_runner_refuses_programs_that_would_unpickle(work, tmp_path):
+    program = work / "export" / "upsampler.pt2"
+    runner.check_no_pickle(program)                                       # the export itself passes
+
+    def pickled_weight(name: str, data: bytes) -> bytes:
+        if not name.endswith("model_weights_config.json"):
+            return data
+        config = json.loads(data)
+        next(iter(config["config"].values()))["use_pickle"] = True
+        return json.dumps(config).encode()
+
+    with pytest.raises(runner.RunnerError, match="would be unpickled"):
+        runner.check_no_pickle(_rewritten(program, tmp_path / "a.pt2", pickled_weight))
+    buffer = io.BytesIO()
+    torch.save({"anything": 1}, buffer)
+    samples = _rewritten(program, tmp_path / "b.pt2",
+                         lambda name, data: buffer.getvalue() if "sample_inputs" in name else data)
+    with pytest.raises(runner.RunnerError, match="example inputs"):
+        runner.check_no_pickle(samples)
+    with zipfile.ZipFile(_rewritten(program, tmp_path / "c.pt2", lambda name, data: data), "a") as archive:
+        archive.writestr("upsampler/data/aotinductor/model/model.so", b"\x7fELF")
+    with pytest.raises(runner.RunnerError, match="unexpected entry"):
+        runner.check_no_pickle(tmp_path / "c.pt2")
+    (tmp_path / "d.pt2").write_bytes(b"not a zip")
+    with pytest.raises(runner.RunnerError, match="not a torch.export program"):
+        runner.check_no_pickle(tmp_path / "d.pt2")
+
+
+def test_runner_imports_only_torch_numpy_and_the_standard_library():
+    tree = ast.parse((REPO / "deploy" / "runner.py").read_text())
+    roots = {alias.name.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.Import)
+             for alias in node.names}
+    roots |= {node.module.split(".")[0] for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert roots - set(sys.stdlib_module_names) == {"numpy", "torch"}
+
+
+def test_positions_only_model_takes_positions_only_and_a_failed_check_writes_nothing(work, tmp_path, monkeypatch,
+                                                                                     capsys):
+    spec = FeatureSpec()
+    _write_model(work, spec, NetworkSpec("D8 D D8", "RC7", "avg"), "positions.pt")
+    arguments = [str(work / "positions.pt"), str(work / "operators.h5"), str(work / "subdiv.h5")]
+    cli.run(export_model.main, [*arguments, str(tmp_path / "export"), "--quiet"])
+    manifest = json.loads((tmp_path / "export" / "upsampler.json").read_text())
+    assert [item["name"] for item in manifest["inputs"]] == ["low_positions"] and manifest["frame_time"] is None
+    monkeypatch.setattr(export, "EXPORT_TOLERANCE", -1.0)             # any difference is now too large
+    with pytest.raises(SystemExit):
+        cli.run(export_model.main, [*arguments, str(tmp_path / "refused"), "--quiet"])
+    assert "differs from the eager network" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
+
+
+def test_export_stage_errors(work, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.run(export_model.main, [str(work / "model.pt"), str(work / "operators.h5"), str(work / "subdiv.h5"),
+                                    str(tmp_path / "out"), "--quiet"])
+    assert exit_info.value.code == 2
+    assert "need the frame time" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_coarse_faces_undo_the_subdivision():
+    low, low_faces = _grid(3)
+    subdivision, faces = loop_subdivide(low, low_faces, 2)
+    assert np.array_equal(coarse_faces(subdivision, faces, subdivision @ low), low_faces)
+    other = subdivision.copy()
+    other.data[0] += 0.1                                                # another matrix of the same pattern
+    with pytest.raises(ValueError, match="not the Loop subdivision"):
+        coarse_faces(other, faces, subdivision @ low)
+    with pytest.raises(ValueError, match="not a Loop subdivision"):
+        coarse_faces(subdivision, faces[::-1], subdivision @ low)
+
+
+def test_workflow_exports_on_request_only(tmp_path):
+    """`results/<scene>/deploy` plans the export_model rule with paths and flags only; `results/<scene>/` (what
+    `make run` builds) does not."""
+    def dry_run(target: str) -> str:
+        done = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--cores", "1", "--snakefile",
+                               str(REPO / "Snakefile"), "--directory", str(tmp_path), "-n", "-p", target],
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        return done.stdout
+    planned = dry_run("results/patch/deploy")
+    shell = next(line for line in planned.splitlines() if "-m pipeline.export_model" in line)
+    words = shell.split(" -m pipeline.export_model ", 1)[1].split()
+    assert words == ["results/patch/model.pt", "results/patch/operators.h5", "results/patch/subdiv.h5",
+                     "results/patch/deploy", "--settings", "results/patch/settings.json", "--quiet", "2>&1", "|",
+                     "tee", "results/patch/logs/export_model.log"]
+    assert "rule export_model" not in dry_run("results/patch/")
