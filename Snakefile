@@ -27,6 +27,7 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learning.smk"
 include: "workflow/rules/study.smk"
 include: "workflow/rules/applications.smk"
+include: "workflow/rules/tradeoff.smk"
 
 if config["default_scene"] not in SETTINGS:
     raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "

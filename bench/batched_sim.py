@@ -1,8 +1,10 @@
 """Batched simulation throughput: cloth-frames per second against the number of worlds B stepped together.
 
 Pants worn by the mannequin, low-res (~3.7k vertices) and one Loop level finer (~14.5k), body + self collision,
-the paper's 8 substeps x 75 iterations; world w plays the dance shifted by w frames (each its own body motion and
-pins), and the high-res rows also hold every world to a harmonic target (V/40 modes, as the simulate stage does).
+the paper's 8 substeps x 75 iterations; world w plays motion kind w mod 4 (dance, karate, random, walk) with seed
+w, fading in from the rest pose over 10 frames (each world its own body motion and pins, all starting where the
+garment was made, as a sequence of the stage does); the high-res rows hold every world to its own low-res run
+(stepped first) by the harmonic constraint (V/40 modes), as the simulate stage does.
 Per B: median ms per batch frame over measured frames after warm-up (the first frames compile and capture the
 graph), cloth-frames/s = B * 1000 / ms, and the ratio to B = 1 in the same run. `--profile` adds where one frame's
 time goes, per kernel, at the largest B (CUDA only; launched without the graph, so each kernel is timed on its
@@ -33,38 +35,61 @@ from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constrai
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
 
-def pants(n_frames: int):
-    """Both levels of the pants, the attachment pins, per frame their targets and the capsules of the dance."""
+KINDS = ("dance", "karate", "random", "walk")
+
+
+def pants(n_frames: int, worlds: int):
+    """Both levels of the pants, the attachment pins and, per world and frame, their targets (W, F, P, 3) and the
+    capsules (W, F, N, 2, 3) of the world's motion."""
     skel = default_skeleton()
     garment = make_garment("pants", skel, max_edge=MAX_EDGE)
     S, high_faces = loop_subdivide(garment.vertices, garment.faces, levels=1)
-    state = body_state(skel, make_motion("dance", n_frames, settle_frames=0, blend_frames=10))
-    a, b, ra, rb = capsules_world(skel, state.transforms)
     ids = garment.attachment  # the coarse vertices keep their ids after Loop subdivision
-    targets = linear_blend_skinning(garment.vertices[ids], garment.attachment_part[:, None], np.ones((len(ids), 1)),
-                                    rest_transforms(skel), state.transforms)
+    targets, capsules = [], []
+    for w in range(worlds):
+        motion = make_motion(KINDS[w % len(KINDS)], n_frames, seed=w, settle_frames=0, blend_frames=10)
+        state = body_state(skel, motion)
+        a, b, ra, rb = capsules_world(skel, state.transforms)
+        targets.append(linear_blend_skinning(garment.vertices[ids], garment.attachment_part[:, None],
+                                             np.ones((len(ids), 1)), rest_transforms(skel), state.transforms))
+        capsules.append(np.stack([a, b], axis=2))
     levels = {"low": (garment.vertices, garment.faces), "high": (S @ garment.vertices, high_faces)}
-    return levels, ids, targets, np.stack([a, b], axis=2), np.stack([ra[0], rb[0]], axis=1)
+    return levels, ids, np.stack(targets), np.stack(capsules), np.stack([ra[0], rb[0]], axis=1)
 
 
 def harmonics(vertices, faces, pins):
-    """The harmonic constraint of a high-res run (V/40 modes) and the target that holds the rest shape."""
+    """The harmonic constraint of a high-res run (V/40 modes)."""
     basis, _, mass = harmonic_basis(vertices, faces, harmonic_count(len(vertices)))
-    return harmonic_constraint(basis, mass, pins), (mass[:, None] * basis).T @ vertices
+    return harmonic_constraint(basis, mass, pins)
 
 
-def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, harmonic):
-    extra = {}
-    if harmonic is not None:
-        constraint, target = harmonic
-        extra = dict(harmonic=constraint, harmonic_target=np.broadcast_to(target, (worlds, *target.shape)))
-    return ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[:worlds], capsule_radii=radii,
-                       worlds=worlds, **extra), extra.get("harmonic_target")
+def harmonic_targets(constraint, S, x_low):
+    """B^T M S x_low (F, B, K, 3) of low-res positions (F, B, V_low, 3)."""
+    f, b, v, _ = x_low.shape
+    subdivided = (S @ x_low.transpose(2, 0, 1, 3).reshape(v, -1)).reshape(-1, f, b, 3).transpose(1, 2, 0, 3)
+    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, subdivided)
 
 
-def frame_inputs(f, worlds, targets, capsules, harmonic_target):
-    shifted = np.arange(worlds) + f   # world w is w frames ahead in the dance
-    return FrameInputs(pin_targets=targets[shifted], capsules=capsules[shifted], harmonic_target=harmonic_target)
+def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n_frames):
+    """(F, B, V_low, 3) positions of the worlds' low-res runs, frame 0 the rest state."""
+    solver = ClothSolver(*low, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
+                         worlds=worlds)
+    frames = [solver.state.read_world_positions().astype(np.float64)]
+    for f in range(1, n_frames):
+        solver.step(solver.state, frame_inputs(f, worlds, targets, capsules, None))
+        frames.append(solver.state.read_world_positions().astype(np.float64))
+    return np.stack(frames)
+
+
+def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start):
+    extra = {} if constraint is None else dict(harmonic=constraint, harmonic_target=goals[0], initial_positions=start)
+    return ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
+                       worlds=worlds, **extra)
+
+
+def frame_inputs(f, worlds, targets, capsules, goals):
+    return FrameInputs(pin_targets=targets[:worlds, f], capsules=capsules[:worlds, f],
+                       harmonic_target=None if goals is None else goals[f])
 
 
 def time_batch(solver, harmonic_target, targets, capsules, frames, warmup) -> float:
@@ -109,19 +134,27 @@ def main():
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
-    levels, pins, targets, capsules, radii = pants(max(batches) + args.warmup + args.frames + 2)
+    n_frames = args.warmup + args.frames + 2
+    levels, pins, targets, capsules, radii = pants(n_frames, max(batches))
+    S, _ = loop_subdivide(*levels["low"], levels=1)
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
     rows = ["| level | V | B | ms per batch frame | cloth-frames/s | x B=1 |", "|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
         vertices, faces = levels[level]
-        harmonic = harmonics(vertices, faces, pins) if level == "high" else None
+        constraint = harmonics(vertices, faces, pins) if level == "high" else None
         base = None
         for worlds in batches:
-            solver, harmonic_target = make_solver(vertices, faces, settings, args.device, pins, capsules, radii,
-                                                  worlds, harmonic)
-            ms = time_batch(solver, harmonic_target, targets, capsules, args.frames, args.warmup)
+            goals = start = None
+            if constraint is not None:
+                x_low = low_res_run(levels["low"], settings, args.device, pins, targets, capsules, radii, worlds,
+                                    n_frames)
+                goals = harmonic_targets(constraint, S, x_low)
+                start = np.stack([S @ x for x in x_low[0]])
+            solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds, constraint,
+                                 goals, start)
+            ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
             rate = worlds * 1e3 / ms
             base = base or rate
             rows.append(f"| {level} | {len(vertices)} | {worlds} | {ms:.2f} | {rate:.0f} | {rate / base:.1f} |")
@@ -129,7 +162,7 @@ def main():
             if args.profile and worlds == batches[-1]:
                 profiles += [f"\n{level}, B = {worlds}: one frame's kernels (eager launches)",
                              "| kernel | launches | ms | share |", "|---|---|---|---|",
-                             *kernel_profile(solver, harmonic_target, targets, capsules)]
+                             *kernel_profile(solver, goals, targets, capsules)]
             del solver
     table = "\n".join(rows + profiles)
     print(f"\n{args.device}, {args.substeps} substeps x {args.iterations} iterations, body + self collision, harmonic "
