@@ -9,6 +9,7 @@ task.
 """
 from __future__ import annotations
 
+import abc
 import dataclasses
 from pathlib import Path
 from typing import Callable, Iterable
@@ -48,8 +49,9 @@ class DatasetRequest:
     components: int | None                        # --components (PCA)
 
 
-class Task:
-    """One learning problem; the subclasses are the applications (pipeline/tasks/<name>.py)."""
+class Task(abc.ABC):
+    """One learning problem; the subclasses are the applications (pipeline/tasks/<name>.py), each of which must
+    say how its frames are made (`prepare`) and what its network reads (`input_rows`)."""
 
     name = ""
     letter = ""               # the network: D (encoder-decoder on per-vertex features) or U (decoder from a vector)
@@ -58,13 +60,13 @@ class Task:
     timing_reference = ""     # the paper's figures to compare the inference time with
     timed = ""                # what the inference time covers
 
+    @abc.abstractmethod
     def prepare(self, request: DatasetRequest) -> tuple[TaskLayout | None, FrameMaker]:
         """The task's part of dataset.h5's layout (None: the upsampling's) and how a run becomes frames."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def input_rows(self, data: LearningData, state: dict) -> list[list]:
         """Rows of a report's "Inputs" table describing what the network read."""
-        raise NotImplementedError
 
     def extra_error_rows(self, errors: dict, splits: list[str]) -> list[list]:
         """Rows the task adds under the error table's gain row (none by default)."""
