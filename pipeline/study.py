@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from pipeline import cli
-from pipeline.artifacts.evaluation import read_errors
+from pipeline.artifacts.evaluation import read_errors, read_parameter_count
 from pipeline.artifacts.h5 import atomic_h5, atomic_write
 from pipeline.errors import PipelineError
 from viz.study_plot import study_plot
@@ -28,9 +28,10 @@ PAPER_UNIT = 1e-3
 SPLITS = ("test", "held_out")
 
 
-def gather(points: list[tuple[str, str, str]]) -> tuple[list[int], list[str], dict]:
-    """Counts and variants (in the order first given) and l1[who][split] as (variants, counts) arrays."""
-    counts, variants = [], []
+def gather(points: list[tuple[str, str, str]]) -> tuple[list[int], list[str], dict, dict[str, int]]:
+    """Counts and variants (in the order first given), l1[who][split] as (variants, counts) arrays and each
+    variant's parameter count."""
+    counts, variants, parameters = [], [], {}
     for count, variant, _ in points:
         if not re.fullmatch(r"[0-9]+", count) or int(count) < 1 or not re.fullmatch(r"[A-Za-z0-9_]+", variant):
             raise PipelineError(f"--point {count} {variant}: N must be a positive integer and VARIANT letters, "
@@ -42,6 +43,7 @@ def gather(points: list[tuple[str, str, str]]) -> tuple[list[int], list[str], di
           for who in ("network", "predictor")}
     for count, variant, path in points:
         errors = read_errors(path)
+        parameters[variant] = read_parameter_count(path)
         missing = [s for s in SPLITS if s not in errors["network"]]
         if missing:
             raise PipelineError(f"{path}: no {' or '.join(missing)} errors (the study needs a held-out motion)")
@@ -50,7 +52,7 @@ def gather(points: list[tuple[str, str, str]]) -> tuple[list[int], list[str], di
                 l1[who][split][variants.index(variant), counts.index(int(count))] = errors[who][split]["l1"]
     if any(np.isnan(table).any() for splits in l1.values() for table in splits.values()):
         raise PipelineError("the points do not fill the grid of counts x variants: give every combination once")
-    return counts, variants, l1
+    return counts, variants, l1, parameters
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -62,7 +64,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     cli.refuse_aliases({"STUDY.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
                        {f"EVAL.h5 {i}": p for i, (_, _, p) in enumerate(args.point)})
-    counts, variants, l1 = gather(args.point)
+    counts, variants, l1, parameters = gather(args.point)
     config = {"points": [list(p) for p in args.point]}
     with atomic_h5(args.table, "study", config) as f:
         f.create_dataset("counts", data=np.asarray(counts, dtype=np.int64))
@@ -77,16 +79,18 @@ def main(argv: Sequence[str] | None = None) -> None:
                      {split: l1["predictor"][split] / PAPER_UNIT for split in SPLITS})
     with atomic_write(args.plot) as f:
         f.write(png)
-    _write_report(Path(args.report), Path(args.plot), counts, variants, l1)
+    _write_report(Path(args.report), Path(args.plot), counts, variants, l1, parameters)
 
 
-def _write_report(path: Path, plot: Path, counts: list[int], variants: list[str], l1: dict) -> None:
+def _write_report(path: Path, plot: Path, counts: list[int], variants: list[str], l1: dict,
+                  parameters: dict[str, int]) -> None:
     header = "| inputs | " + " | ".join(f"{n} seq." for n in counts) + " |"
     lines = ["# Generalisation study: error against the amount of training motion", "",
              "Each cell: L1 x 1e-3 of the network on the held-out motion (never trained on), and in brackets its "
              "gain over Loop subdivision alone (predictor / network: above 1, the network helps). Every network "
              "was trained for the same number of optimiser steps on the scene's first N training sequences; "
-             "test = a random share of those sequences' frames.", "",
+             "test = a random share of those sequences' frames. Networks: "
+             + ", ".join(f"`{v}` {parameters[v]:,} parameters" for v in variants) + ".", "",
              f"![held-out and test L1 against training sequences]({os.path.relpath(plot, path.parent)})", ""]
     for split, title in (("held_out", "Held-out motion"), ("test", "Test frames of the trained motions")):
         network, predictor = l1["network"][split] / PAPER_UNIT, l1["predictor"][split] / PAPER_UNIT

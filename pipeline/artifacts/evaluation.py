@@ -64,3 +64,13 @@ def read_errors(path: str | os.PathLike) -> dict[str, dict[str, dict[str, float]
     if set(errors["network"]) != set(errors["predictor"]):
         raise PipelineError(f"{path}: the network and the predictor were evaluated on different splits")
     return errors
+
+
+def read_parameter_count(path: str | os.PathLike) -> int:
+    """The evaluated network's parameter count (the attribute `parameter_count`)."""
+    with open_artifact(path) as f:
+        count = f.attrs.get("parameter_count")
+    if not isinstance(count, (int, np.integer)) or count < 0:
+        raise PipelineError(f"{path}: attribute 'parameter_count' must be a non-negative integer: not an eval.h5 "
+                            f"of pipeline.evaluate")
+    return int(count)

@@ -13,22 +13,22 @@ from pipeline import cli, study
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
 
 
-def _evaluation(path: Path, network: dict[str, float], predictor: dict[str, float]) -> Path:
+def _evaluation(path: Path, network: dict[str, float], predictor: dict[str, float], parameters: int = 10) -> Path:
     def errors(l1: dict[str, float]) -> dict:
         return {split: {"l1": value, "l2": 2 * value, "normal": 0.0, "total": value} for split, value in l1.items()}
     empty = np.zeros(1)
     write_evaluation(path, {}, Evaluation({"network": errors(network), "predictor": errors(predictor)},
                                           {"network": {"l1": empty}, "predictor": {"l1": empty}},
-                                          np.zeros((1, 3, 3)), np.ones(2), np.arange(2), "cpu", 1, 10))
+                                          np.zeros((1, 3, 3)), np.ones(2), np.arange(2), "cpu", 1, parameters))
     return path
 
 
 def test_the_grid_becomes_a_table_plot_and_report(tmp_path, capsys):
     truth = {(n, v): {"test": 1.0 / n + k, "held_out": 2.0 / n + k} for n in (1, 4) for k, v in enumerate(("a", "b"))}
     points = []
-    for (n, variant), l1 in truth.items():
+    for k, ((n, variant), l1) in enumerate(truth.items()):
         path = _evaluation(tmp_path / f"{n}_{variant}.h5", {s: e * 1e-3 for s, e in l1.items()},
-                           {"test": 3e-3, "held_out": 4e-3})
+                           {"test": 3e-3, "held_out": 4e-3}, parameters=1000 + k)
         points += ["--point", str(n), variant, str(path)]
     out = tmp_path / "study"
     cli.run(study.main, [str(out / "study.h5"), str(out / "study.png"), str(out / "report.md"), *points])
@@ -40,6 +40,7 @@ def test_the_grid_becomes_a_table_plot_and_report(tmp_path, capsys):
     report = (out / "report.md").read_text()
     assert "| `a` | 2.000 (2.00x) | 0.500 (8.00x) |" in report          # held-out: 4 / 2 and 4 / 0.5
     assert "| Loop subdivision alone | 4.000 | 4.000 |" in report
+    assert "`a` 1,002 parameters, `b` 1,003 parameters" in report    # the last point of each variant
     assert (out / "study.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -2,7 +2,8 @@
 # training motion, per input variant. For each n of study.sequence_counts a dataset of the scene's first n
 # training sequences and every held-out one; for each variant a network trained on it for as many optimiser steps
 # as the scene's own network takes (its epochs times S / n, S = the scene's training sequences), so that two
-# points differ only in the motion they saw; each evaluated; then one table and plot. A count above the scene's
+# points differ only in the motion they saw (at `study.width`, narrower than the scene's network where a grid of
+# full-size trainings would not fit the device); each evaluated; then one table and plot. A count above the scene's
 # `sequences` makes the extra training sequences (seeded by their names, like the others). Target:
 # `results/<scene>/study/`. The variant names (schema: letters, digits, _) and their inputs (schema: enums) are the
 # only config values that reach a shell, quoted.
@@ -73,6 +74,7 @@ rule study_train:
         output_frame=lambda w: study_variant(w)["output_frame"],
         frame_tangent=lambda w: study_variant(w)["frame_tangent"],
         epochs=study_epochs,
+        width=lambda w: SETTINGS[w.scene]["study"]["width"] or SETTINGS[w.scene]["network"]["width"],
     log: f"{STUDY_POINT}/{{variant}}/logs/train.log"
     benchmark: f"{STUDY_POINT}/{{variant}}/benchmarks/train.tsv"
     threads: workflow.cores
@@ -81,7 +83,7 @@ rule study_train:
         "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
         "--settings {input.settings:q} --inputs {params.inputs:q} --input-frame {params.input_frame:q} "
         "--output-frame {params.output_frame:q} --frame-tangent {params.frame_tangent:q} "
-        "--epochs {params.epochs:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "--epochs {params.epochs:q} --width {params.width:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 # Errors only: no renders, one exported frame.
