@@ -185,3 +185,14 @@ def test_a_batch_refuses_sequences_of_another_garment(tmp_path):
     assert not (tmp_path / "a.h5").exists() and not (tmp_path / "b.h5").exists()
     run = stage("pipeline.simulate", "low", str(tmp_path / "pants.json"), str(tmp_path / "pants.h5"), "--quiet")
     assert run.returncode == 2 and "groups of SCENE OUT" in run.stderr
+
+
+def test_per_frame_product_is_a_matrix_product_per_frame():
+    """The harmonic targets' B^T M (S x_low) over all frames at once, dense and sparse, against a loop of products."""
+    import scipy.sparse as sp
+    from pipeline.simulate import per_frame_product
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(5, 7, 3)).astype(np.float32)
+    for A in (rng.normal(size=(4, 7)), sp.random(9, 7, density=0.4, random_state=1, format="csr")):
+        expected = np.stack([A @ frame for frame in x])
+        np.testing.assert_allclose(per_frame_product(A, x), expected, rtol=1e-6, atol=1e-6)
