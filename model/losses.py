@@ -9,8 +9,9 @@ import dataclasses
 
 import torch
 
-# Keeps eq. 3's normalisation finite for a collapsed triangle (zero cross product): such a face gets a zero
-# normal and a finite gradient instead of 0/0. In squared scene units (~m^2), far below any real face's area^2.
+# A face whose squared cross product is at most this (squared scene units, ~m^4: far below any real face's) is
+# collapsed: it gets a zero normal and no gradient at all, instead of 0/0 or a 1/sqrt(eps) gradient that would
+# swamp the optimiser's second moments.
 _NORMAL_EPS2 = 1e-24
 
 
@@ -30,7 +31,10 @@ def face_normals(positions: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Eq. 3: unit normals (B, F, 3) of counter-clockwise faces (F, 3); zero for a degenerate face."""
     x0, x1, x2 = (positions.index_select(-2, faces[:, k]) for k in range(3))
     cross = torch.linalg.cross(x1 - x0, x2 - x0, dim=-1)
-    return cross * torch.rsqrt(cross.square().sum(dim=-1, keepdim=True) + _NORMAL_EPS2)
+    squared = cross.square().sum(dim=-1, keepdim=True)
+    collapsed = squared <= _NORMAL_EPS2
+    # rsqrt of a safe value where collapsed, so neither branch of the where() carries an inf or NaN gradient.
+    return torch.where(collapsed, 0.0, cross * torch.rsqrt(torch.where(collapsed, 1.0, squared)))
 
 
 def normal_loss(predicted: torch.Tensor, target: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:

@@ -1,25 +1,39 @@
-"""Stage `tradeoff`: the speed-accuracy trade of a scene's learned path, as a table, a Pareto plot and a report.
+"""Stage `tradeoff`: the speed-accuracy trade of every way to a scene's high-res cloth: a table, a plot, a report.
 
     python -m pipeline.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
         --point SUBSTEPS SIM_LOW.h5 [SIM_LOW.h5 ...] [--point ...] --eval SUBSTEPS EVAL.h5 [--eval ...]
-        [--settings SETTINGS.json] [--device cpu] [--threads N] [--timing-frames 30] [--iterations N]
+        [--matched SUBSTEPS EVAL.h5 ...] [--dataset DATASET.h5 --high-res SUBSTEPS ITERATIONS SCHEDULE
+        SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md] [--settings SETTINGS.json] [--device cpu] [--threads N]
+        [--timing-frames 30] [--substeps N] [--iterations N] [--harmonic-every substep]
 
-Each point is a low-res solver budget: the scene's sequences re-simulated at low resolution with SUBSTEPS
-substeps (SIM_LOW.h5: the runs of that budget whose solver timing counts, one solver world each) and fed,
-through Loop subdivision, to networks trained on the scene's own budget (the scene's, and smaller ones); each EVAL.h5 is the evaluate stage's measure of one network on that
-budget's inputs (errors against the sequences' high-res runs, the network timed on the deployment path, and the
-network's conv and width as recorded). The input a cheaper solver makes lies outside the training data (paper
-Fig. 14): the errors say what that shift costs. Each budget gives a row per network and one for Loop
-subdivision alone (network "none"). Times are ms per frame of one sequence: the low-res solve (the solver's own
-timing, median over every frame of the budget's runs), Loop subdivision (timed here, the deployment's gather
-and weighted sum, after warm-up, a replayed CUDA graph on a GPU), the network (eval.h5); the high-res solve is
-the median of the SIM_HIGH.h5 runs' solve_ms per sequence (a batch's total divided by its sequences: on a GPU,
-where a batch costs about one sequence, that understates the high-res cost, so the speedup is a lower bound).
-speedup = ms_sim_high / ms_total (paper Table 3's "X" columns).
+Every row is a way to get the high-res cloth, scored against the scene's high-res runs (--sim-high, one per
+sequence in the dataset's order: the ground truth, and the time to beat).
+
+* Learned path, per low-res budget (--point): the scene's sequences re-simulated at low resolution with SUBSTEPS
+  substeps (SIM_LOW.h5: the runs of that budget whose solver timing counts, one solver world each), Loop-
+  subdivided and fed to networks; each --eval EVAL.h5 is the evaluate stage's measure of a network trained on the
+  scene's own budget (--substeps) fed that budget's inputs (errors against the high-res runs, the network timed on
+  the deployment path, its conv and width as recorded). The input a cheaper solver makes lies outside that
+  training data (paper Fig. 14): the errors say what the shift costs. A --matched EVAL.h5 is the same network
+  recipe trained on the budget's own inputs: whether matching the training input to the deployed budget removes
+  the shift. Each budget also gives a row for Loop subdivision alone (network "none").
+* High-res runs (--high-res): the high-res solver itself at SUBSTEPS x ITERATIONS with the harmonic projection
+  every SCHEDULE (iteration or substep), held to the scene's low-res runs, one SIM_HIGH.h5 per sequence in the
+  order of --sim-high; scored against the scene's high-res runs on the dataset's test and held-out frames
+  (--dataset: the scene's dataset.h5, which says where each frame comes from and its frame of reference), as the
+  evaluate stage scores a network: L1 (eq. 4), L2 (eq. 5).
+
+Times are ms per frame of one sequence: the low-res solve (the solver's own timing, median over every frame of
+the budget's runs), Loop subdivision (timed here, the deployment's gather and weighted sum, after warm-up, a
+replayed CUDA graph on a GPU), the network (eval.h5); a high-res solve is the median of its runs' solve_ms per
+sequence (a batch's total divided by its sequences: on a GPU, where a batch costs about one sequence, that
+understates one sequence's cost; the scene's runs and the cheaper ones alike, so their ratio is fair, and the
+learned path's speedup a lower bound). speedup = ms_sim_high / ms_total (paper Table 3's "X" columns).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import re
 import time
@@ -30,29 +44,22 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from geometry.rigid import apply_rigid_inverse
 from model.inference import CapturedCall, padded_stencil
 from pipeline import cli
-from pipeline.artifacts.evaluation import read_errors
+from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.h5 import atomic_write
-from pipeline.artifacts.simulation import read_trajectory
+from pipeline.artifacts.simulation import read_solve_ms, read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
-from pipeline.artifacts.tradeoff import (FLOAT_COLUMNS, INT_COLUMNS, Tradeoff, read_network_timing, read_solve_ms,
-                                         write_tradeoff)
+from pipeline.artifacts.tradeoff import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, FrameOrigins, Reference,
+                                         Tradeoff, read_frame_origins, write_tradeoff)
 from pipeline.errors import PipelineError
 from pipeline.torch_setup import configure_torch
+from pipeline.tradeoff_report import groups, labels, pareto_front, plotted_errors, write_report
 from viz.tradeoff_plot import tradeoff_plot
 
-PAPER_UNIT = 1e-3
 WARMUP_RUNS = 3
-LOOP_ONLY = "none"     # the `network` of a row without a network: Loop subdivision alone
-
-
-def pareto_front(ms: np.ndarray, error: np.ndarray) -> np.ndarray:
-    """Which points no other point beats: none is at most as slow and at most as wrong, and better in one."""
-    ms, error = np.asarray(ms, dtype=np.float64), np.asarray(error, dtype=np.float64)
-    dominated = ((ms[None, :] <= ms[:, None]) & (error[None, :] <= error[:, None])
-                 & ((ms[None, :] < ms[:, None]) | (error[None, :] < error[:, None])))
-    return ~dominated.any(axis=1)
+SCHEDULES = ("iteration", "substep")
 
 
 def time_subdivision(S: sp.spmatrix, low: np.ndarray, device: torch.device, frames: int) -> np.ndarray:
@@ -88,35 +95,165 @@ def per_sequence_ms(paths: Sequence[str]) -> tuple[float, int]:
     return float(np.median(np.concatenate([ms / batch for ms, batch in runs]))), max(batch for _, batch in runs)
 
 
-def _budget(text: str, flag: str) -> int:
+def high_res_errors(origins: FrameOrigins, reference: Sequence[str], runs: Sequence[str]) -> dict[str, dict]:
+    """L1 (eq. 4: mean |x - x_ref| over coordinates) and L2 (eq. 5: root of the mean squared distance) of the
+    high-res `runs` against the `reference` runs (one per sequence of `origins`, in its order) over the frames of
+    each split taken together, in the dataset's frame of reference (L1 is not rotation invariant): the numbers
+    the evaluate stage reports for a network."""
+    if not len(reference) == len(runs) == len(origins.names):
+        raise PipelineError(f"{runs[0]}: {len(runs)} high-res runs and {len(reference)} reference runs for a "
+                            f"dataset of {len(origins.names)} sequences ({', '.join(origins.names)})")
+    sums = {split: np.zeros(2) for split in origins.splits}        # sum over frames of L1 and of L2 squared
+    for k, (ref_path, run_path) in enumerate(zip(reference, runs)):
+        rows = {split: ids[origins.sequence[ids] == k] for split, ids in origins.splits.items()}
+        if not any(len(r) for r in rows.values()):
+            continue
+        ref, run = read_trajectory(ref_path).positions, read_trajectory(run_path).positions
+        if ref.shape != run.shape:
+            raise PipelineError(f"{run_path}: positions {run.shape}, but the reference {ref_path} has {ref.shape}")
+        for split, r in rows.items():
+            frames = origins.sequence_frame[r]
+            if len(frames) and frames.max() >= len(ref):
+                raise PipelineError(f"{ref_path}: {len(ref)} frames, but the dataset takes frame {frames.max()} "
+                                    f"of sequence '{origins.names[k]}' from it")
+            x, x_ref = run[frames], ref[frames]
+            if origins.torso is not None:
+                to_torso = origins.torso[r][:, None]
+                x, x_ref = apply_rigid_inverse(to_torso, x), apply_rigid_inverse(to_torso, x_ref)
+            difference = x - x_ref
+            sums[split] += [np.abs(difference).mean(axis=(1, 2)).sum(),
+                            np.square(difference).sum(axis=2).mean(axis=1).sum()]
+    counts = {split: len(ids) for split, ids in origins.splits.items()}
+    return {split: {"l1": l1 / counts[split], "l2": float(np.sqrt(l2sq / counts[split]))}
+            for split, (l1, l2sq) in sums.items()}
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """A low-res budget of the grid: its timed runs and the evaluations of networks fed its inputs."""
+    substeps: int
+    low_runs: list[str]
+    evals: list[str]            # networks trained on the scene's budget, in the order given
+    matched: str | None         # the network trained on this budget's own inputs
+
+
+@dataclasses.dataclass(frozen=True)
+class HighResRun:
+    """A high-res run of another budget or schedule than the scene's: one SIM_HIGH.h5 per sequence."""
+    substeps: int
+    iterations: int
+    harmonic_every: str
+    runs: list[str]
+
+
+def _positive(text: str, flag: str, what: str = "SUBSTEPS") -> int:
     if not re.fullmatch(r"[1-9][0-9]*", text):
-        raise PipelineError(f"{flag} {text}: SUBSTEPS must be a positive integer")
+        raise PipelineError(f"{flag} {text}: {what} must be a positive integer")
     return int(text)
 
 
-def parse_grid(points: list[list[str]], evals: list[list[str]]) -> list[tuple[int, list[str], list[str]]]:
-    """(substeps, its SIM_LOW.h5 runs, its EVAL.h5 files in the order given) per budget, in budget order."""
+def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[list[str]]) -> list[Budget]:
+    """The budgets in budget order, each with its runs, its evaluations in the order given, and its matched
+    network's evaluation if any."""
     runs: dict[int, list[str]] = {}
     for point in points:
-        n = _budget(point[0], "--point")
+        n = _positive(point[0], "--point")
         if len(point) < 2 or n in runs:
             raise PipelineError(f"--point {' '.join(point)}: give each SUBSTEPS once, with at least one SIM_LOW.h5")
         runs[n] = point[1:]
     evaluations: dict[int, list[str]] = {n: [] for n in runs}
-    for n_text, path in evals:
-        n = _budget(n_text, "--eval")
-        if n not in runs:
-            raise PipelineError(f"--eval {n_text} {path}: no --point {n_text} gives that budget's runs")
-        evaluations[n].append(path)
+    matches: dict[int, str] = {}
+    for flag, pairs in (("--eval", evals), ("--matched", matched)):
+        for n_text, path in pairs:
+            n = _positive(n_text, flag)
+            if n not in runs:
+                raise PipelineError(f"{flag} {n_text} {path}: no --point {n_text} gives that budget's runs")
+            if flag == "--eval":
+                evaluations[n].append(path)
+            elif n in matches:
+                raise PipelineError(f"--matched {n_text} {path}: budget {n} has a matched network already")
+            else:
+                matches[n] = path
     missing = [n for n, paths in evaluations.items() if not paths]
     if missing:
         raise PipelineError(f"--point {missing[0]}: no --eval of that budget")
-    return [(n, runs[n], evaluations[n]) for n in sorted(runs)]
+    return [Budget(n, runs[n], evaluations[n], matches.get(n)) for n in sorted(runs)]
+
+
+def parse_high_res(groups_: list[list[str]], reference: Reference) -> list[HighResRun]:
+    """The --high-res runs in the order given; the scene's own budget and schedule is the reference, refused."""
+    out, seen = [], set()
+    for group in groups_:
+        if len(group) < 4:
+            raise PipelineError(f"--high-res {' '.join(group)}: give SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...")
+        key = (_positive(group[0], "--high-res"), _positive(group[1], "--high-res", "ITERATIONS"), group[2])
+        if key[2] not in SCHEDULES:
+            raise PipelineError(f"--high-res {' '.join(group[:3])}: SCHEDULE must be one of {', '.join(SCHEDULES)}")
+        if key == (reference.substeps, reference.iterations, reference.harmonic_every):
+            raise PipelineError(f"--high-res {' '.join(group[:3])}: that is the scene's own high-res run, the "
+                                f"reference")
+        if key in seen:
+            raise PipelineError(f"--high-res {' '.join(group[:3])}: given twice")
+        seen.add(key)
+        out.append(HighResRun(*key, group[3:]))
+    return out
+
+
+def make_row(method: str, network: str, substeps: int, iterations: int, trained_substeps: int, params: int,
+             errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: float,
+             ms_sim_high: float, harmonic_every: str = "", ms_sim_high_run: float = 0.0) -> dict[str, Any]:
+    """One row of tradeoff.h5 (COLUMNS) from a method's errors (split -> l1, l2; no held_out: NaN) and times (a
+    high-res row's own solve in ms_sim_high_run, the reference's in ms_sim_high): ms_total is the sum of the
+    row's parts, speedup the reference high-res ms over it."""
+    total = ms_sim_low + ms_subdiv + ms_net + ms_sim_high_run
+    held_out = errors.get("held_out", {})
+    return {"method": method, "network": network, "harmonic_every": harmonic_every, "substeps": substeps,
+            "iterations": iterations, "trained_substeps": trained_substeps, "params": params,
+            "l1_test": errors["test"]["l1"], "l2_test": errors["test"]["l2"],
+            "l1_heldout": held_out.get("l1", np.nan), "l2_heldout": held_out.get("l2", np.nan),
+            "ms_sim_low": ms_sim_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net, "ms_sim_high_run": ms_sim_high_run,
+            "ms_total": total,
+            "ms_sim_high": ms_sim_high, "speedup": ms_sim_high / total}
+
+
+def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low: float, ms_subdiv: float,
+                ms_sim_high: float) -> tuple[list[dict[str, Any]], set[str]]:
+    """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched one), then
+    Loop subdivision alone (the predictor of the budget's dataset); and the devices the networks were timed on."""
+    rows, devices = [], set()
+    trained = [(path, scene_substeps) for path in budget.evals]
+    if budget.matched is not None:
+        trained.append((budget.matched, budget.substeps))
+    for path, trained_substeps in trained:
+        timing = read_network_timing(path)
+        devices.add(timing.device)
+        rows.append(make_row(LEARNED, timing.name, budget.substeps, iterations, trained_substeps, timing.params,
+                             read_errors(path)["network"], ms_sim_low, ms_subdiv, float(np.median(timing.inference_ms)),
+                             ms_sim_high))
+    rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, iterations, 0, 0, read_errors(budget.evals[0])["predictor"],
+                         ms_sim_low, ms_subdiv, 0.0, ms_sim_high))
+    return rows, devices
+
+
+def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequence[str],
+                 ms_sim_high: float) -> dict[str, Any]:
+    """A cheaper high-res run as a row: its errors against the reference runs, its solve as the whole time."""
+    ms, _ = per_sequence_ms(run.runs)
+    return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, 0, 0,
+                    high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, 0.0, ms_sim_high, run.harmonic_every,
+                    ms_sim_high_run=ms)
+
+
+def table_of(rows: list[dict[str, Any]], device: str, threads: int, sim_high_batch: int,
+             reference: Reference) -> Tradeoff:
+    return Tradeoff({name: np.asarray([row[name] for row in rows]) for name in COLUMNS}, device, threads,
+                    sim_high_batch, reference)
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
     return {"device": settings["device"], "timing_frames": settings["evaluation"]["timing_frames"],
-            "iterations": settings["solver"]["iterations"]}
+            "substeps": settings["solver"]["substeps"], "iterations": settings["solver"]["iterations"],
+            "harmonic_every": settings["high_res"]["harmonic_every"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -126,102 +263,71 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("plot", help="pareto.png to write")
     parser.add_argument("report", help="report.md to write")
     parser.add_argument("--sim-high", nargs="+", required=True, metavar="SIM_HIGH.h5",
-                        help="the high-res runs of the sequences (their solve time is the reference)")
+                        help="the scene's high-res runs, one per sequence in the dataset's order (the reference)")
     parser.add_argument("--point", nargs="+", action="append", required=True, metavar="SUBSTEPS SIM_LOW.h5",
-                        help="a low-res budget and its runs")
+                        help="a low-res budget and its timed runs")
     parser.add_argument("--eval", nargs=2, action="append", required=True, metavar=("SUBSTEPS", "EVAL.h5"),
-                        help="a network evaluated on that budget's inputs (repeatable)")
+                        help="a network trained on the scene's budget, evaluated on that budget's inputs")
+    parser.add_argument("--matched", nargs=2, action="append", default=[], metavar=("SUBSTEPS", "EVAL.h5"),
+                        help="the network trained on that budget's own inputs, evaluated on them")
+    parser.add_argument("--high-res", nargs="+", action="append", default=[],
+                        metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
+                        help="high-res runs of another budget or schedule, one per sequence as --sim-high")
+    parser.add_argument("--dataset", help="the scene's dataset.h5: the frames --high-res runs are scored on")
+    parser.add_argument("--scene-report", help="the scene's report.md, linked from REPORT.md (default: beside "
+                                               "REPORT.md's folder)")
     parser.add_argument("--device", default="cpu", help="torch device timing Loop subdivision")
     parser.add_argument("--timing-frames", type=int, default=30)
-    parser.add_argument("--iterations", type=int, default=0, help="the low-res solver's iterations (a column)")
+    parser.add_argument("--substeps", type=int, default=8, help="the scene's low-res substeps (the scene-trained "
+                                                                "networks' inputs; with --iterations the "
+                                                                "reference high-res budget)")
+    parser.add_argument("--iterations", type=int, default=75, help="the scene's solver iterations")
+    parser.add_argument("--harmonic-every", choices=SCHEDULES, default="substep",
+                        help="the scene's high-res harmonic schedule (the reference's)")
     cli.add_threads(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
-    grid = parse_grid(args.point, args.eval)
+    reference = Reference(args.substeps, args.iterations, args.harmonic_every)
+    grid = parse_grid(args.point, args.eval, args.matched)
+    high_res = parse_high_res(args.high_res, reference)
+    if high_res and not args.dataset:
+        raise PipelineError("--high-res needs --dataset (the scene's dataset.h5: which frames to score)")
+    scene_report = Path(args.scene_report or Path(args.report).parent.parent / "report.md")
     cli.refuse_aliases({"TRADEOFF.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
-                       {"SUBDIV.h5": args.subdiv, **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
-                        **{f"budget {n} file {i}": p for n, lows, evals in grid
-                           for i, p in enumerate([*lows, *evals])}})
+                       {"SUBDIV.h5": args.subdiv, **({"DATASET.h5": args.dataset} if args.dataset else {}),
+                        **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
+                        **{f"budget {b.substeps} file {i}": p for b in grid
+                           for i, p in enumerate([*b.low_runs, *b.evals, *filter(None, [b.matched])])},
+                        **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
+                           for h in high_res for i, p in enumerate(h.runs)}})
     device = configure_torch(args.device, 0, args.threads)
     S = read_subdivision(args.subdiv).S
     ms_high, high_batch = per_sequence_ms(args.sim_high)
-    rows: dict[str, list] = {name: [] for name in (*INT_COLUMNS, *FLOAT_COLUMNS, "network")}
-    where = None
-    for substeps, low_paths, eval_paths in grid:
-        ms_low, _ = per_sequence_ms(low_paths)
-        low = read_trajectory(low_paths[0]).positions
+    rows, devices = [], set()
+    for budget in grid:
+        ms_low, _ = per_sequence_ms(budget.low_runs)
+        low = read_trajectory(budget.low_runs[0]).positions
         if low.shape[1] != S.shape[1]:
-            raise PipelineError(f"{low_paths[0]}: {low.shape[1]} vertices, but S of {args.subdiv} takes {S.shape[1]}")
+            raise PipelineError(f"{budget.low_runs[0]}: {low.shape[1]} vertices, but S of {args.subdiv} takes "
+                                f"{S.shape[1]}")
         ms_subdiv = float(np.median(time_subdivision(S, low[1:], device, args.timing_frames)))
-        measured = []
-        for path in eval_paths:
-            timing = read_network_timing(path)
-            where = timing.device
-            measured.append((read_errors(path)["network"], timing.name, float(np.median(timing.inference_ms)),
-                             timing.params))
-        # Loop subdivision alone: the predictor of the budget's dataset, the same in each of its evaluations.
-        measured.append((read_errors(eval_paths[0])["predictor"], LOOP_ONLY, 0.0, 0))
-        for split, name, ms_net, count in measured:
-            total = ms_low + ms_subdiv + ms_net
-            values = {"substeps": substeps, "iterations": args.iterations, "params": count, "network": name,
-                      "l1_test": split["test"]["l1"], "l2_test": split["test"]["l2"],
-                      "l1_heldout": split.get("held_out", {}).get("l1", np.nan),
-                      "l2_heldout": split.get("held_out", {}).get("l2", np.nan),
-                      "ms_sim_low": ms_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net, "ms_total": total,
-                      "ms_sim_high": ms_high, "speedup": ms_high / total}
-            for key, value in values.items():
-                rows[key].append(value)
-    table = Tradeoff(rows.pop("network"), {k: np.asarray(v) for k, v in rows.items()}, where,
-                     torch.get_num_threads(), high_batch)
+        budget_table, timed_on = budget_rows(budget, args.substeps, args.iterations, ms_low, ms_subdiv, ms_high)
+        rows += budget_table
+        devices |= timed_on
+    if len(devices) > 1:
+        raise PipelineError(f"the networks were timed on different devices ({', '.join(sorted(devices))}): their "
+                            f"ms would not compare; evaluate them again on one")
+    if high_res:
+        origins = read_frame_origins(args.dataset)
+        rows += [high_res_row(run, origins, args.sim_high, ms_high) for run in high_res]
+    table = table_of(rows, devices.pop(), torch.get_num_threads(), high_batch, reference)
     write_tradeoff(args.table, vars(args), table)
+    errors = plotted_errors(table)
     with atomic_write(args.plot) as f:
-        errors = _plotted_errors(table)
-        f.write(tradeoff_plot(_labels(table), table.columns["ms_total"], errors,
-                              {split: pareto_front(table.columns["ms_total"], e) for split, e in errors.items()}))
-    _write_report(Path(args.report), Path(args.plot), table, os.getloadavg())
-
-
-def _labels(table: Tradeoff) -> list[str]:
-    return [f"{n} sub, {'Loop only' if net == LOOP_ONLY else net}"
-            for n, net in zip(table.columns["substeps"], table.network)]
-
-
-def _plotted_errors(table: Tradeoff) -> dict[str, np.ndarray]:
-    """L1 x 1e-3 per split the scene has (held-out only where it has a held-out motion)."""
-    errors = {"test": table.columns["l1_test"] / PAPER_UNIT}
-    if np.all(np.isfinite(table.columns["l1_heldout"])):
-        errors["held-out"] = table.columns["l1_heldout"] / PAPER_UNIT
-    return errors
-
-
-def _write_report(path: Path, plot: Path, table: Tradeoff, load: tuple[float, float, float]) -> None:
-    c = table.columns
-    front = pareto_front(c["ms_total"], c["l1_heldout"] if "held-out" in _plotted_errors(table) else c["l1_test"])
-    header = ("| substeps x iterations | network | params | test L1 | test L2 | held-out L1 | held-out L2 | "
-              "low-res sim | Loop subdiv. | network | learned path | high-res sim | speedup |")
-    lines = ["# Speed-accuracy trade: low-res solver budget and network size", "",
-             f"Device: {table.device}; torch threads: {table.threads}; load average when tabulated: "
-             f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} (1 / 5 / 15 min).", "",
-             "The networks, trained on the scene's own low-res budget, are fed the low-res runs made with fewer "
-             "substeps (the input shift of paper Fig. 14); Loop subdivision alone is the floor. Errors x 1e-3 "
-             "scene units against the high-res runs (as the scene's report); times in ms per frame of one "
-             "sequence: low-res solve (the solver's own timing), Loop subdivision and network (the deployment "
-             "path, median after warm-up), their sum (the learned path), and the high-res solve"
-             + (f" (a batch of {table.sim_high_batch} sequences' ms divided by {table.sim_high_batch}: a lower "
-                f"bound of one sequence's on a GPU)" if table.sim_high_batch > 1 else "")
-             + ". speedup = high-res sim / learned path. **Bold**: on the Pareto front (no row both faster and "
-             "more accurate).", "", f"![error against ms per frame]({os.path.relpath(plot, path.parent)})", "",
-             header, "|---" * (header.count("|") - 1) + "|"]
-    for i, name in enumerate(table.network):
-        mark = "**" if front[i] else ""
-        cells = [f"{mark}{c['substeps'][i]} x {c['iterations'][i]}{mark}",
-                 "Loop subdivision alone" if name == LOOP_ONLY else name, f"{c['params'][i]:,}",
-                 *[f"{c[k][i] / PAPER_UNIT:.3f}" if np.isfinite(c[k][i]) else "-"
-                   for k in ("l1_test", "l2_test", "l1_heldout", "l2_heldout")],
-                 *[f"{c[k][i]:.3g}" for k in ("ms_sim_low", "ms_subdiv", "ms_net", "ms_total", "ms_sim_high")],
-                 f"{c['speedup'][i]:.1f}x"]
-        lines.append("| " + " | ".join(cells) + " |")
-    with atomic_write(path) as f:
-        f.write(("\n".join(lines) + "\n").encode())
+        f.write(tradeoff_plot(labels(table), table.columns["ms_total"], errors,
+                              {split: pareto_front(table.columns["ms_total"], e) for split, e in errors.items()},
+                              groups(table), ms_high, f"high-res reference ({reference.substeps} x "
+                              f"{reference.iterations}, harmonic every {reference.harmonic_every})"))
+    write_report(Path(args.report), Path(args.plot), scene_report, table, os.getloadavg())
 
 
 if __name__ == "__main__":

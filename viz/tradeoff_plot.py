@@ -1,5 +1,7 @@
-"""The speed-accuracy figure: error against ms per frame of the learned path (log-log), every configuration a
-labelled point and the Pareto front drawn, so that a person sees at a glance which one to pick for a budget."""
+"""The speed-accuracy figure: error against ms per frame (log-log), every configuration a labelled point whose
+marker says what it is (learned path by training input, Loop subdivision alone, a cheaper high-res run), the
+Pareto front drawn and the reference high-res run's ms as a line, so that a person sees at a glance which one to
+pick for a budget."""
 from __future__ import annotations
 
 import io
@@ -8,31 +10,45 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+MARKERS = ("o", "^", "s", "D", "v", "P", "X")
+COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+
 
 def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarray], fronts: dict[str, np.ndarray],
+                  groups: list[str], reference_ms: float | None = None, reference_label: str = "high-res reference",
                   unit: str = "L1 (x 1e-3 scene units)") -> bytes:
     """A PNG (its bytes) with one panel per split of `errors` (split -> one error per point): each point at
-    (ms, error) with its label, the points of `fronts[split]` (a mask) joined as the Pareto front."""
+    (ms, error) with its label and the marker of its group (`groups`, one name per point, in the legend), the
+    points of `fronts[split]` (a mask) joined as the Pareto front, and `reference_ms` a vertical line."""
     ms = np.asarray(ms, dtype=np.float64)
-    fig = Figure(figsize=(6.4 * len(errors), 5.0), dpi=120)
+    kinds = list(dict.fromkeys(groups))
+    fig = Figure(figsize=(7.2 * len(errors), 6.2), dpi=120)
     FigureCanvasAgg(fig)
     for i, (split, error) in enumerate(errors.items()):
+        error = np.asarray(error, dtype=np.float64)
         ax = fig.add_subplot(1, len(errors), i + 1)
-        ax.scatter(ms, error, color="tab:blue", zorder=3)
+        for k, kind in enumerate(kinds):
+            mask = np.array([g == kind for g in groups])
+            ax.scatter(ms[mask], error[mask], marker=MARKERS[k % len(MARKERS)], color=COLOURS[k % len(COLOURS)],
+                       label=kind, zorder=3)
         for label, x, y in zip(labels, ms, error):
-            ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+            ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
         on_front = np.flatnonzero(fronts[split])
         order = on_front[np.argsort(ms[on_front])]
-        ax.step(ms[order], np.asarray(error)[order], where="post", color="tab:red", linewidth=1.5,
-                label="Pareto front", zorder=2)
+        ax.step(ms[order], error[order], where="post", color="tab:red", linewidth=1.5, label="Pareto front",
+                zorder=2)
+        if reference_ms is not None:
+            ax.axvline(reference_ms, color="black", linestyle="--", linewidth=1, label=reference_label)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("learned path, ms per frame (low-res sim + Loop subdivision + network)")
+        ax.set_xlabel("ms per frame (learned: low-res sim + Loop subdivision + network; high-res: its solve)")
         ax.set_ylabel(unit)
         ax.set_title(f"{split} frames")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=9)
-    fig.tight_layout()
+    # One legend under the panels, clear of the points.
+    handles, names = fig.axes[0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     png = io.BytesIO()
     fig.savefig(png, format="png")
     return png.getvalue()

@@ -8,7 +8,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
+from pipeline.artifacts.h5 import atomic_h5, config_of, open_artifact, read
 from pipeline.errors import PipelineError
 
 STAGE = "evaluate"
@@ -64,6 +64,30 @@ def read_errors(path: str | os.PathLike) -> dict[str, dict[str, dict[str, float]
     if set(errors["network"]) != set(errors["predictor"]):
         raise PipelineError(f"{path}: the network and the predictor were evaluated on different splits")
     return errors
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkTiming:
+    """What an eval.h5 says of its network's speed and size."""
+    inference_ms: np.ndarray    # (T,) ms per timed frame on the deployment path
+    device: str                 # where it ran, in words
+    params: int                 # learnable parameters
+    name: str                   # "<conv> x<width>", from the recorded model spec
+
+
+def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
+    """The timed frames' ms, the device, the parameter count and a short name of the evaluated network."""
+    with open_artifact(path) as f:
+        times = read(f, "inference_ms", np.float64)
+        spec = config_of(f).get("model_spec", {})
+        try:
+            device = str(f.attrs["device"])
+            name = f"{spec['conv']} x{float(spec['width']):g}"
+        except (KeyError, TypeError, ValueError) as err:
+            raise PipelineError(f"{path}: {err} missing or malformed: not an eval.h5 of pipeline.evaluate") from None
+    if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
+        raise PipelineError(f"{path}: 'inference_ms' must hold the finite ms of at least one timed frame")
+    return NetworkTiming(times, device, read_parameter_count(path), name)
 
 
 def read_parameter_count(path: str | os.PathLike) -> int:

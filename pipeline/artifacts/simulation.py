@@ -103,3 +103,14 @@ def read_run_physics(path: str | os.PathLike) -> RunPhysics:
         raise PipelineError(f"{path}: config solver.dt must be finite and > 0 and solver.gravity three finite "
                             f"numbers, not all zero")
     return RunPhysics(dt, gravity)
+
+
+def read_solve_ms(path: str | os.PathLike) -> tuple[np.ndarray, int]:
+    """A run's ms per frame of its solve (frames 1.., frame 0 being the initial state) and the sequences its batch
+    stepped together (whose total those ms are)."""
+    with open_artifact(path) as f:
+        solve_ms = read(f, "solve_ms", np.float64)
+        batch = int(f.attrs.get("batch", 1))
+    if solve_ms.ndim != 1 or len(solve_ms) < 2 or batch < 1 or not np.all(np.isfinite(solve_ms)):
+        raise PipelineError(f"{path}: 'solve_ms' must hold finite ms of at least one solved frame (batch >= 1)")
+    return solve_ms[1:], batch

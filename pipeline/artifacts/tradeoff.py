@@ -1,6 +1,6 @@
 """tradeoff.h5, written by the `tradeoff` stage: one row per point of the speed-accuracy grid (docs/artifacts.md,
-section "tradeoff.h5"); and the two timing figures it reads from the artifacts of other stages, which their
-own modules do not read back yet (a sim's `solve_ms`, an evaluation's inference times and network)."""
+section "tradeoff.h5"); and what the stage reads of the scene's dataset.h5 to score a high-res run against the
+scene's (which sequence and frame each test and held-out frame is, and the frame of reference)."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,49 +10,86 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from pipeline.artifacts.h5 import FLOAT32_MAX, atomic_h5, config_of, open_artifact, read
+from pipeline.artifacts.dataset import SEQUENCE, SEQUENCE_FRAME, SEQUENCE_NAMES, SPLIT_HELD_OUT, SPLIT_TEST
+from pipeline.artifacts.h5 import FLOAT32_MAX, atomic_h5, open_artifact, read, read_indices
+from pipeline.artifacts.scene import read_torso_transforms
 from pipeline.errors import PipelineError
 
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
-INT_COLUMNS = ("substeps", "iterations", "params")
-FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net", "ms_total",
-                 "ms_sim_high", "speedup")
+STRING_COLUMNS = ("method", "network", "harmonic_every")
+INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "params")
+FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net",
+                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup")
+COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
 NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout")     # NaN: the scene has no held-out motion
+# `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
+# alone, or a high-res run of another budget or harmonic schedule than the scene's.
+LEARNED, LOOP, HIGH_RES = "learned", "loop", "high_res"
+METHODS = (LEARNED, LOOP, HIGH_RES)
+NO_NETWORK = "none"      # `network` of a row without one
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """The scene's own high-res run, the ground truth every row is scored against and timed beside."""
+    substeps: int
+    iterations: int
+    harmonic_every: str
 
 
 @dataclasses.dataclass(frozen=True)
 class Tradeoff:
-    """The grid's rows: `network` names the network of each row ("none": Loop subdivision alone), `columns`
-    maps every name of INT_COLUMNS and FLOAT_COLUMNS to one value per row (errors in scene units, NaN for
-    a split the scene lacks; times in ms per frame)."""
-    network: list[str]
+    """The grid's rows: `columns` maps every name of COLUMNS to one value per row (strings as str arrays; errors
+    in scene units, NaN for a split the scene lacks; times in ms per frame)."""
     columns: dict[str, np.ndarray]
     device: str                 # where the learned path was timed, in words
     threads: int                # torch CPU threads of that timing
     sim_high_batch: int         # sequences the high-res run stepped together (ms_sim_high is per sequence)
+    reference: Reference
+
+    def __len__(self) -> int:
+        return len(self.columns["method"])
 
 
 def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tradeoff) -> None:
     with atomic_h5(path, STAGE, config) as f:
-        f.create_dataset("network", data=np.array(table.network, dtype="S"))
+        for name in STRING_COLUMNS:
+            f.create_dataset(name, data=np.array(table.columns[name], dtype="S"))
         for name in INT_COLUMNS:
             f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.int64))
         for name in FLOAT_COLUMNS:
             f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.float64))
+        ref = table.reference
         f.attrs.update(device=table.device, threads=table.threads, sim_high_batch=table.sim_high_batch,
+                       reference_substeps=ref.substeps, reference_iterations=ref.iterations,
+                       reference_harmonic_every=ref.harmonic_every,
                        error_unit="scene units (~m); the report shows x 1e-3", time_unit="ms per frame")
 
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
     with open_artifact(path) as f:
-        network = [name.decode() for name in read(f, "network")]
-        columns = {name: read(f, name, np.int64) for name in INT_COLUMNS}
+        columns = {name: _read_strings(f, name) for name in STRING_COLUMNS}
+        columns.update({name: read(f, name, np.int64) for name in INT_COLUMNS})
         columns.update({name: _read_float_column(f, name) for name in FLOAT_COLUMNS})
-        if any(len(values) != len(network) for values in columns.values()):
-            raise PipelineError(f"{path}: its columns do not all have one value per row ({len(network)})")
-        return Tradeoff(network, columns, str(f.attrs["device"]), int(f.attrs["threads"]),
-                        int(f.attrs["sim_high_batch"]))
+        n_rows = len(columns["method"])
+        if any(values.shape != (n_rows,) for values in columns.values()):
+            raise PipelineError(f"{path}: its columns do not all have one value per row ({n_rows})")
+        unknown = sorted(set(columns["method"]) - set(METHODS))
+        if unknown:
+            raise PipelineError(f"{path}: 'method' holds '{unknown[0]}', not one of {', '.join(METHODS)}")
+        attrs = f.attrs
+        reference = Reference(int(attrs["reference_substeps"]), int(attrs["reference_iterations"]),
+                              str(attrs["reference_harmonic_every"]))
+        return Tradeoff(columns, str(attrs["device"]), int(attrs["threads"]), int(attrs["sim_high_batch"]),
+                        reference)
+
+
+def _read_strings(f: h5py.File, name: str) -> np.ndarray:
+    column = f.get(name)
+    if not isinstance(column, h5py.Dataset) or column.dtype.kind != "S" or column.ndim != 1:
+        raise PipelineError(f"{f.filename}: missing dataset '{name}' (one string per row)")
+    return np.array([value.decode() for value in column[()]], dtype=str)
 
 
 def _read_float_column(f: h5py.File, name: str) -> np.ndarray:
@@ -67,35 +104,29 @@ def _read_float_column(f: h5py.File, name: str) -> np.ndarray:
     return read(f, name, np.float64)
 
 
-def read_solve_ms(path: str | os.PathLike) -> tuple[np.ndarray, int]:
-    """A sim_low.h5 or sim_high.h5's ms per frame of its solve (frames 1.., frame 0 being the initial state) and
-    the sequences its batch stepped together (whose total those ms are)."""
-    with open_artifact(path) as f:
-        solve_ms = read(f, "solve_ms", np.float64)
-        batch = int(f.attrs.get("batch", 1))
-    if solve_ms.ndim != 1 or len(solve_ms) < 2 or batch < 1 or not np.all(np.isfinite(solve_ms)):
-        raise PipelineError(f"{path}: 'solve_ms' must hold finite ms of at least one solved frame (batch >= 1)")
-    return solve_ms[1:], batch
-
-
 @dataclasses.dataclass(frozen=True)
-class NetworkTiming:
-    """What an eval.h5 says of its network's speed and size."""
-    inference_ms: np.ndarray    # (T,) ms per timed frame on the deployment path
-    device: str                 # where it ran, in words
-    params: int                 # learnable parameters
-    name: str                   # "<conv> x<width>", from the recorded model spec
+class FrameOrigins:
+    """Where the test and held-out frames of a dataset.h5 come from, and the frame its positions are in."""
+    names: tuple[str, ...]          # its sequences, in dataset order
+    sequence: np.ndarray            # (F,) index into `names` of each frame's sequence
+    sequence_frame: np.ndarray      # (F,) the frame's index within its sequence's runs
+    splits: dict[str, np.ndarray]   # "test" and, where the scene has a held-out motion, "held_out": frame ids
+    torso: np.ndarray | None        # (F, 4, 4) world-from-torso per frame for a dataset in the torso frame
 
 
-def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
+def read_frame_origins(path: str | os.PathLike) -> FrameOrigins:
     with open_artifact(path) as f:
-        times = read(f, "inference_ms", np.float64)
-        spec = config_of(f).get("model_spec", {})
-        try:
-            device, params = str(f.attrs["device"]), int(f.attrs["parameter_count"])
-            name = f"{spec['conv']} x{float(spec['width']):g}"
-        except (KeyError, TypeError, ValueError) as err:
-            raise PipelineError(f"{path}: {err} missing or malformed: not an eval.h5 of pipeline.evaluate") from None
-    if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
-        raise PipelineError(f"{path}: 'inference_ms' must hold the finite ms of at least one timed frame")
-    return NetworkTiming(times, device, params, name)
+        names = f.get(SEQUENCE_NAMES)
+        if not isinstance(names, h5py.Dataset) or names.dtype.kind != "S" or names.ndim != 1:
+            raise PipelineError(f"{path}: missing dataset '{SEQUENCE_NAMES}': not a dataset.h5 of pipeline.dataset")
+        names = tuple(name.decode() for name in names[()])
+        sequence = read_indices(f, SEQUENCE, len(names), shape=(None,))
+        n_frames = len(sequence)
+        sequence_frame = read_indices(f, SEQUENCE_FRAME, np.iinfo(np.int64).max, shape=(n_frames,))
+        splits = {"test": read_indices(f, SPLIT_TEST, n_frames, shape=(None,)),
+                  "held_out": read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))}
+        frame = str(f.attrs.get("frame", "world"))
+    torso = read_torso_transforms(path, n_frames) if frame == "torso" else None
+    if not len(splits["test"]):
+        raise PipelineError(f"{path}: '{SPLIT_TEST}' is empty")
+    return FrameOrigins(names, sequence, sequence_frame, {k: v for k, v in splits.items() if len(v)}, torso)

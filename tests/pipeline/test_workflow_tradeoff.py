@@ -1,102 +1,188 @@
-"""`results/<scene>/tradeoff/` end to end on tiny pants: each low-res budget re-simulated and fed to the scene's
-trained network and to a smaller one, one table row per (budget, network or Loop alone), the plot and the
-report; and the table's arithmetic checked against the artifacts it was made from."""
+"""`results/<scene>/tradeoff/` end to end on tiny pants: a cheaper low-res budget re-simulated and fed to the
+scene's trained network, to a smaller one and to one trained on that budget's own inputs; the high-res solver at
+a cheaper budget and with the other harmonic schedule; one table row per way to the high-res cloth, the plot and
+the report; the table's arithmetic and the high-res rows' errors checked against the artifacts they were made
+from. Then the plans: the CI patch's (the scene's own budget reusing the scene's runs and dataset) and a sharded
+scene's (batch jobs per shard at every budget and high-res run)."""
+import json
 import shlex
 
 import h5py
 import numpy as np
 import pytest
 import yaml
-from test_workflow import REPO, planned_counts, planned_jobs, snakemake, tail, tiny_pants
+from test_workflow import planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
-from pipeline.artifacts.tradeoff import read_tradeoff
+from pipeline.artifacts.tradeoff import HIGH_RES, LEARNED, LOOP, read_tradeoff
 
-BUDGETS = [1]         # below tiny pants' own low-res budget of 2 substeps: one budget keeps this test ~60 s
+# Tiny pants simulate 2 substeps x 10 iterations, harmonic projection every substep (the defaults' schedule).
+GRID = {"substeps": [1], "widths": [0.125], "epochs": 1, "matched": [1], "high_res_budgets": [[1, 5]],
+        "harmonic_every": ["iteration", "substep"]}
+
+
+def tiny_grid(tmp_path, grid=GRID, **kwargs):
+    """tiny_pants with its tradeoff grid (the whole block: the garments' paper-sized grid would fill the rest)."""
+    path = tiny_pants(tmp_path, **kwargs)
+    config = yaml.safe_load(path.read_text())
+    config["profiles"]["cpu"]["scenes"]["pants"]["tradeoff"] = grid
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def why(run):
+    """What a failed run said, with the first traceback of a job run inside Snakemake (a `run:` block's)."""
+    start = run.stderr.find("Traceback")
+    return tail(run) + ("" if start < 0 else "\n" + run.stderr[start:start + 3000])
 
 
 @pytest.fixture(scope="module")
 def tradeoff(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("tradeoff")
-    config_path = tiny_pants(workdir)
-    config = yaml.safe_load(config_path.read_text())
-    config["profiles"]["cpu"]["scenes"]["pants"]["tradeoff"] = {"substeps": BUDGETS, "widths": [0.125], "epochs": 1}
-    config_path.write_text(yaml.safe_dump(config))
-    run = snakemake(workdir, "results/pants/tradeoff/", "--configfile", str(config_path))
-    assert run.returncode == 0, tail(run)
+    run = snakemake(workdir, "results/pants/tradeoff/", "--configfile", str(tiny_grid(workdir, shard=2)))
+    assert run.returncode == 0, why(run)
     return workdir / "results" / "pants"
 
 
-def test_the_table_has_a_row_per_budget_and_network_with_finite_positive_figures(tradeoff):
+def test_the_table_has_a_row_per_way_to_the_high_res_cloth_with_finite_positive_figures(tradeoff):
     out = tradeoff / "tradeoff"
     assert (out / "pareto.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     table = read_tradeoff(out / "tradeoff.h5")
     c = table.columns
-    assert list(c["substeps"]) == [1, 1, 1] and list(c["iterations"]) == [10] * 3
-    assert table.network == ["RC9 x0.25", "RC9 x0.125", "none"]
-    assert c["params"][0] > c["params"][1] > 0 and c["params"][2] == 0
-    for name in ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_total",
-                 "ms_sim_high", "speedup"):
+    assert (table.reference.substeps, table.reference.iterations, table.reference.harmonic_every) == (2, 10, "substep")
+    assert c["method"].tolist() == [LEARNED] * 3 + [LOOP, HIGH_RES, HIGH_RES]
+    assert c["network"].tolist() == ["RC9 x0.25", "RC9 x0.125", "RC9 x0.25", "none", "none", "none"]
+    assert c["trained_substeps"].tolist() == [2, 2, 1, 0, 0, 0]       # the scene's budget, then the matched one
+    assert list(zip(c["substeps"], c["iterations"], c["harmonic_every"])) == [
+        (1, 10, "")] * 4 + [(1, 5, "substep"), (2, 10, "iteration")]
+    assert c["params"][0] == c["params"][2] > c["params"][1] > 0 and not c["params"][3:].any()
+    for name in ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_total", "ms_sim_high", "speedup"):
         assert np.all(np.isfinite(c[name]) & (c[name] > 0)), name
-    assert np.all((c["ms_net"] > 0) == (c["params"] > 0))
-    np.testing.assert_allclose(c["ms_total"], c["ms_sim_low"] + c["ms_subdiv"] + c["ms_net"])
+    low_res = c["method"] != HIGH_RES
+    assert np.all((c["ms_sim_low"] > 0) == low_res) and np.all((c["ms_subdiv"] > 0) == low_res)
+    assert np.all((c["ms_net"] > 0) == (c["method"] == LEARNED))
+    assert np.all((c["ms_sim_high_run"] > 0) == ~low_res)
+    np.testing.assert_allclose(c["ms_total"], c["ms_sim_low"] + c["ms_subdiv"] + c["ms_net"] + c["ms_sim_high_run"])
     np.testing.assert_allclose(c["speedup"], c["ms_sim_high"] / c["ms_total"])
     assert table.threads >= 1 and table.device.startswith("cpu")
     report = (out / "report.md").read_text()
-    assert "](pareto.png)" in report and report.count("| 1 x 10") + report.count("| **1 x 10") == 3
+    assert "](pareto.png)" in report and "[report.md](../report.md)" in report and "## Findings" in report
+    assert "Matched training at 1 substeps: RC9 x0.25 trained on 1-substep inputs" in report
+    rows = report.split("|---")[-1].splitlines()[1:]
+    assert len(rows) == 6 and all(row.startswith("| ") for row in rows)
 
 
-def test_the_rows_are_the_evaluations_and_runs_of_their_budget(tradeoff):
+def test_the_learned_rows_are_the_evaluations_and_runs_of_their_budget(tradeoff):
     """Errors are eval.h5's of the budget's own dataset, each network's and Loop subdivision's; the budget's
     low-res run is a re-simulation with its substeps (not the scene's run); the smaller network was trained at
-    its width."""
+    its width on the scene's dataset, the matched one on the budget's."""
     table = read_tradeoff(tradeoff / "tradeoff" / "tradeoff.h5")
-    for row, net in enumerate(("scene", "w0.125")):
+    for row, net in enumerate(("scene", "w0.125", "matched")):
         with h5py.File(tradeoff / "tradeoff/s1" / net / "eval.h5") as f:
             assert table.columns["l1_test"][row] == f["errors/network/test/l1"][()]
             assert table.columns["l2_heldout"][row] == f["errors/network/held_out/l2"][()]
-            assert table.columns["l1_heldout"][2] == f["errors/predictor/held_out/l1"][()]
+            assert table.columns["l1_heldout"][3] == f["errors/predictor/held_out/l1"][()]
     with h5py.File(tradeoff / "sequences/train_000/sim_low.h5") as scene_run, \
             h5py.File(tradeoff / "tradeoff/s1/sequences/train_000/sim_low.h5") as cheap_run:
         assert not np.allclose(scene_run["positions"][-1], cheap_run["positions"][-1])
-        assert cheap_run.attrs["config"] and '"substeps": 1' in cheap_run.attrs["config"]
-    with h5py.File(tradeoff / "tradeoff/w0.125/train.h5") as f:
-        assert '"width": 0.125' in f.attrs["config"]
+        assert json.loads(cheap_run.attrs["config"])["solver"]["substeps"] == 1
+    for folder, width, dataset in (("w0.125", 0.125, "results/pants/dataset.h5"),
+                                   ("s1/matched", 0.25, "results/pants/tradeoff/s1/dataset.h5")):
+        with h5py.File(tradeoff / "tradeoff" / folder / "train.h5") as f:
+            config = json.loads(f.attrs["config"])
+            assert (config["width"], config["dataset"]) == (width, dataset)
+
+
+def dataset_frame(positions, torso):
+    """R^T (x - t) per frame: world positions (F, V, 3) in the torso frames (F, 4, 4)."""
+    return np.einsum("fji,fvj->fvi", torso[:, :3, :3], positions - torso[:, None, :3, 3])
+
+
+def test_the_high_res_rows_score_their_runs_against_the_scenes_high_res_run_on_the_datasets_frames(tradeoff):
+    """Each high-res run's errors, recomputed from the scene's dataset (its truth S x_low + target, in the torso
+    frame) and the run's own positions turned into that frame with each sequence's scene.h5; the run was made with
+    its budget and schedule, held to the scene's low-res run."""
+    table = read_tradeoff(tradeoff / "tradeoff" / "tradeoff.h5")
+    with h5py.File(tradeoff / "dataset.h5") as f:
+        truth = f["input"][()].astype(np.float64) + f["target"][()]
+        sequence, frame = f["sequence"][()], f["sequence_frame"][()]
+        names = [n.decode() for n in f["sequences/names"][()]]
+        splits = {"test": f["split/test"][()], "heldout": f["split/held_out"][()]}
+    for row, folder, (substeps, iterations, schedule) in ((4, "h1x5_substep", (1, 5, "substep")),
+                                                          (5, "h2x10_iteration", (2, 10, "iteration"))):
+        ours = np.empty_like(truth)
+        for k, name in enumerate(names):
+            with h5py.File(tradeoff / "tradeoff" / folder / "sequences" / name / "sim_high.h5") as run, \
+                    h5py.File(tradeoff / "sequences" / name / "scene.h5") as scene:
+                config = json.loads(run.attrs["config"])
+                assert (config["solver"]["substeps"], config["solver"]["iterations"],
+                        config["high_res"]["harmonic_every"]) == (substeps, iterations, schedule)
+                rows = np.flatnonzero(sequence == k)
+                torso = scene["torso_transforms"][()][frame[rows]]
+                ours[rows] = dataset_frame(run["positions"][()][frame[rows]], torso)
+        for split, ids in splits.items():
+            difference = ours[ids] - truth[ids]
+            assert table.columns[f"l1_{split}"][row] == pytest.approx(np.abs(difference).mean(), rel=1e-3)
+            assert table.columns[f"l2_{split}"][row] == pytest.approx(
+                np.sqrt(np.square(difference).sum(axis=2).mean()), rel=1e-3)
+
+
+def run_plan(tmp_path, target, *args):
+    run = snakemake(tmp_path, "-n", "-p", target, *args)
+    assert run.returncode == 0, tail(run)
+    return run
 
 
 def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_only_paths_in_shells(tmp_path):
-    """The cpu profile's grid on the CI patch (3 budgets x its one sequence, the scene's network and one of
-    width 0.125): the jobs it plans, each with log, benchmark and resources, the device's GPU asked for by the
-    jobs that run on it, and shells of paths and flags only (a width reaches one as a folder name)."""
-    run = snakemake(tmp_path, "-n", "-p", "results/patch/tradeoff/", "--config", "device=cuda:0")
-    assert run.returncode == 0, tail(run)
+    """The cpu profile's grid on the CI patch (budgets 1, 2 and its own 4 x its one sequence; the scene's network,
+    one of width 0.125 and one trained on 1-substep inputs; high-res 1 x 10, 2 x 15 and its own 4 x 30 with the
+    every-iteration projection): the jobs it plans, each with log, benchmark and resources, the device's GPU asked
+    for by the jobs that run on it, and shells of paths, flags and the grid's numbers and schedule names only. The
+    scene's own budget re-simulates nothing and evaluates on the scene's dataset."""
+    run = run_plan(tmp_path, "results/patch/tradeoff/", "--config", "device=cuda:0")
     counts = planned_counts(run)
-    assert {name: counts.get(name) for name in ("tradeoff_settings", "tradeoff_simulate_low",
-                                                 "tradeoff_sequence_links", "tradeoff_dataset", "tradeoff_evaluate",
-                                                 "tradeoff_network_settings", "tradeoff_train", "tradeoff")} == {
-        "tradeoff_settings": 3, "tradeoff_simulate_low": 3, "tradeoff_sequence_links": 3, "tradeoff_dataset": 3,
-        "tradeoff_evaluate": 6, "tradeoff_network_settings": 1, "tradeoff_train": 1, "tradeoff": 1}
+    rules = ("tradeoff_settings", "tradeoff_simulate_low", "tradeoff_sequence_links", "tradeoff_dataset",
+             "tradeoff_evaluate", "tradeoff_network_settings", "tradeoff_train", "tradeoff_train_matched",
+             "tradeoff_high_settings", "tradeoff_simulate_high", "tradeoff")
+    assert {name: counts.get(name) for name in rules} == {
+        "tradeoff_settings": 3, "tradeoff_simulate_low": 2, "tradeoff_sequence_links": 2, "tradeoff_dataset": 2,
+        "tradeoff_evaluate": 7, "tradeoff_network_settings": 1, "tradeoff_train": 1, "tradeoff_train_matched": 1,
+        "tradeoff_high_settings": 3, "tradeoff_simulate_high": 3, "tradeoff": 1}
     jobs = {name: job for name, job in planned_jobs(run).items() if name.startswith("tradeoff")}
     for name, job in jobs.items():
         assert job["log"].startswith("results/patch/tradeoff/") and "mem_mb=" in job["resources"], name
-        assert ("gpu=1" in job["resources"]) == (name in ("tradeoff_simulate_low", "tradeoff_evaluate",
-                                                           "tradeoff_train", "tradeoff")), name
-        if name not in ("tradeoff_settings", "tradeoff_network_settings", "tradeoff_sequence_links"):
+        on_device = {"tradeoff_simulate_low", "tradeoff_simulate_high", "tradeoff_evaluate", "tradeoff_train",
+                     "tradeoff_train_matched", "tradeoff"}
+        assert ("gpu=1" in job["resources"]) == (name in on_device), name
+        if name not in ("tradeoff_settings", "tradeoff_network_settings", "tradeoff_high_settings",
+                        "tradeoff_sequence_links"):
             assert "benchmark" in job, name
             words = shlex.split(job["shell"])[1:]
-            assert [w for w in words if not (w.startswith(("results/patch/", "-")) or w in
-                                             {"low", "0", "1", "2", "4", "2>&1", "|", "tee"}
+            assert [w for w in words if not (w.startswith(("results/patch/", "-")) or w.isdigit() or w in
+                                             {"low", "high", "iteration", "substep", "2>&1", "|", "tee"}
                                              or w.startswith("pipeline."))] == [], job["shell"]
+    stage = next(line for line in run.stdout.splitlines() if "-m pipeline.tradeoff " in line)
+    assert (" --point 4 results/patch/sequences/train_000/sim_low.h5 --eval 4 results/patch/tradeoff/s4/scene/eval.h5"
+            in stage)
+    assert " --matched 1 results/patch/tradeoff/s1/matched/eval.h5 " in stage and "--matched 4" not in stage
+    assert " --high-res 4 30 iteration results/patch/tradeoff/h4x30_iteration/sequences/train_000/sim_high.h5" in stage
+    assert "h4x30_substep" not in stage                 # the scene's own high-res run: the reference
+    assert "s4/dataset.h5" not in run.stdout
+    assert any("-m pipeline.evaluate results/patch/dataset.h5 " in line and "/tradeoff/s4/scene/" in line
+               for line in run.stdout.splitlines())
 
 
-def test_a_sharded_scene_resimulates_by_shard_and_times_one_sequence_alone(tmp_path):
-    """With `shard: 2`, each budget's runs are a batch job per shard (as the scene's), and the budget's low-res
-    ms comes from a run of the first sequence alone, the only run the stage is given for timing."""
-    config = tiny_pants(tmp_path, shard=2)
-    run = snakemake(tmp_path, "-n", "-p", "results/pants/tradeoff/", "--configfile", str(config))
-    assert run.returncode == 0, tail(run)
+def test_a_sharded_scene_simulates_by_shard_and_times_one_sequence_alone(tmp_path):
+    """With `shard: 2`, each cheaper budget's low-res runs and each high-res run are a batch job per shard (as the
+    scene's), and a budget's low-res ms comes from a run of the first sequence alone, the only run the stage is
+    given for timing (the scene's own budget too: its runs are batches)."""
+    grid = {**GRID, "substeps": [1, 2], "high_res_budgets": [[1, 5], [2, 10]]}
+    run = run_plan(tmp_path, "results/pants/tradeoff/", "--configfile", str(tiny_grid(tmp_path, grid, shard=2)))
     counts = planned_counts(run)
     assert (counts["tradeoff_simulate_low_batch_pants_000"], counts["tradeoff_simulate_low_batch_pants_001"],
-            counts["tradeoff_timing_low"]) == (3, 3, 3)         # the cpu profile's 3 budgets
-    assert "tradeoff_simulate_low" not in counts
+            counts["tradeoff_timing_low"]) == (1, 1, 2)        # budget 1 re-simulated; both timed
+    assert (counts["tradeoff_simulate_high_batch_pants_000"], counts["tradeoff_simulate_high_batch_pants_001"],
+            counts["tradeoff_high_settings"]) == (2, 2, 2)     # 1 x 5 and the every-iteration 2 x 10
+    assert "tradeoff_simulate_low" not in counts and "tradeoff_simulate_high" not in counts
     stage = next(line for line in run.stdout.splitlines() if "-m pipeline.tradeoff " in line)
     assert " --point 1 results/pants/tradeoff/s1/timing/sim_low.h5 --eval 1 " in stage
+    assert " --point 2 results/pants/tradeoff/s2/timing/sim_low.h5 --eval 2 " in stage

@@ -57,10 +57,14 @@ rule evaluate:
     benchmark: benchmark_of("evaluate")
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
+    # The scene's other reports, made by their own targets (the links work once those are built).
+    params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md"
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
         "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
+        "--link 'Speed-accuracy trade (snakemake results/{wildcards.scene}/tradeoff/)' {params.tradeoff:q} "
+        "--link 'Generalisation study (snakemake results/{wildcards.scene}/study/)' {params.study:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 

@@ -1,31 +1,81 @@
-# The speed-accuracy trade (issue 14, docs/performance.md): `results/<scene>/tradeoff/`. For each low-res budget
-# n of `tradeoff.substeps` the scene's sequences are re-simulated at low resolution with n substeps (the scene's
-# iterations), as the scene's runs were: one job per sequence (`shard: 1`, whose solver timing is one sequence's),
-# or a batch job per shard plus a timing run of the first sequence alone (timing/sim_low.h5: a batch's ms on a
-# GPU is about one sequence's, so divided by its sequences it would flatter the learned path); a folder per sequence
-# beside that run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the
-# dataset stage gathers them unchanged (same sequences, same seeded split); the scene's trained network is
-# evaluated on that dataset (errors and deployment-path timing only). Smaller networks, the scene's conv at each
-# width of `tradeoff.widths` (folder w<width>/, its settings.json the scene's with that width and
-# `tradeoff.epochs`), are trained on the scene's own dataset.h5 and evaluated on each budget's the same way.
-# Then one table, plot and report.
-# None of this is part of `results/<scene>/`: `make run` does not grow. Only paths reach a shell.
+# The speed-accuracy trade (issue 14, docs/performance.md): `results/<scene>/tradeoff/`. Every row of the table is
+# a way to get the high-res cloth, scored against the scene's high-res runs and timed beside them.
+# * Low-res budgets (`tradeoff.substeps`, plus those of `tradeoff.matched`): for each n other than the scene's own
+#   the scene's sequences are re-simulated at low resolution with n substeps (the scene's iterations), as the
+#   scene's runs were: one job per sequence (`shard: 1`, whose solver timing is one sequence's), or a batch job per
+#   shard plus a timing run of the first sequence alone (timing/sim_low.h5: a batch's ms on a GPU is about one
+#   sequence's, so divided by its sequences it would flatter the learned path); a folder per sequence beside that
+#   run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the dataset stage
+#   gathers them unchanged (same sequences, same seeded split). The scene's own budget reuses the scene's runs and
+#   dataset.h5 (a sharded scene still gets its timing run).
+# * Networks fed each budget's inputs (errors and deployment-path timing only): the scene's trained network; the
+#   scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings with that width and
+#   `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of `tradeoff.matched` other than
+#   the scene's own, the scene's network recipe trained on that budget's own dataset (s<n>/matched/): does
+#   matching the training input to the deployed solver budget remove the input shift?
+# * High-res runs beside the scene's (folder h<substeps>x<iterations>_<schedule>/): each [substeps, iterations] of
+#   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
+#   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
+#   simulated as the scene's high-res runs were (per sequence, or a batch job per shard).
+# Then one table, plot and report (pipeline.tradeoff). None of this is part of `results/<scene>/`: `make run` does
+# not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by the schema)
+# reach a shell, quoted.
 
 TRADEOFF = "results/{scene}/tradeoff"
 TRADEOFF_POINT = "results/{scene}/tradeoff/s{substeps}"
 TRADEOFF_SEQ = "results/{scene}/tradeoff/s{substeps}/sequences/{seq}"
 TRADEOFF_NET = "results/{scene}/tradeoff/w{width}"       # a smaller network: settings.json, model.pt, train.h5
+TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained on the budget's inputs: model.pt
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
+TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # settings.json, sequences/
 
 wildcard_constraints:
     substeps="[1-9][0-9]*",
     width="[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
-    net="scene|w[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
+    net="scene|matched|w[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
+    hsubsteps="[1-9][0-9]*",
+    hiterations="[1-9][0-9]*",
+    schedule="iteration|substep",
 
 
 def width_folder(width):
     """The folder name of a width: `:g`, so that the config's 0.5 and the wildcard's '0.5' agree."""
     return f"w{float(width):g}"
+
+
+def own_substeps(scene):
+    return SETTINGS[scene]["solver"]["substeps"]
+
+
+def tradeoff_budgets(scene):
+    """Every low-res budget of the grid, in order: `tradeoff.substeps` and the matched ones."""
+    tradeoff = SETTINGS[scene]["tradeoff"]
+    return sorted(set(tradeoff["substeps"]) | set(tradeoff["matched"]))
+
+
+def matched_budgets(scene):
+    """The budgets with a network trained on their own inputs; at the scene's own that is the scene's network."""
+    return [n for n in sorted(set(SETTINGS[scene]["tradeoff"]["matched"])) if n != own_substeps(scene)]
+
+
+def high_res_runs(scene):
+    """(substeps, iterations, harmonic schedule) of each high-res run beside the scene's, in config order, the
+    scene's own (the reference) left out."""
+    settings = SETTINGS[scene]
+    tradeoff, solver = settings["tradeoff"], settings["solver"]
+    own = (solver["substeps"], solver["iterations"], settings["high_res"]["harmonic_every"])
+    runs = ([(n, i, own[2]) for n, i in tradeoff["high_res_budgets"]]
+            + [(own[0], own[1], schedule) for schedule in tradeoff["harmonic_every"]])
+    return [run for run in dict.fromkeys(runs) if run != own]
+
+
+def high_res_folder(scene, run):
+    n, i, schedule = run
+    return f"results/{scene}/tradeoff/h{n}x{i}_{schedule}"
+
+
+def high_res_files(scene, run):
+    return [f"{high_res_folder(scene, run)}/sequences/{seq}/sim_high.h5" for seq in SEQUENCES[scene]]
 
 
 def tradeoff_point_settings(settings, substeps):
@@ -41,8 +91,15 @@ def tradeoff_network_settings(settings, width):
             "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
 
 
+def tradeoff_high_settings(settings, substeps, iterations, schedule):
+    """settings.json of a high-res run: the scene's, with that solver budget and harmonic schedule."""
+    shared = shared_settings(settings)
+    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps), "iterations": int(iterations)},
+            "high_res": {**shared["high_res"], "harmonic_every": schedule}}
+
+
 def tradeoff_evals(scene, n):
-    """Every eval.h5 of budget `n`: the scene's network's, then each smaller one's."""
+    """Every eval.h5 of budget `n` of a network trained on the scene's budget: the scene's, then each smaller."""
     nets = ["scene", *[width_folder(w) for w in SETTINGS[scene]["tradeoff"]["widths"]]]
     return [f"results/{scene}/tradeoff/s{n}/{net}/eval.h5" for net in nets]
 
@@ -50,7 +107,16 @@ def tradeoff_evals(scene, n):
 def tradeoff_model(wildcards):
     if wildcards.net == "scene":
         return f"results/{wildcards.scene}/model.pt"
+    if wildcards.net == "matched":
+        return f"results/{wildcards.scene}/tradeoff/s{wildcards.substeps}/matched/model.pt"
     return f"results/{wildcards.scene}/tradeoff/{wildcards.net}/model.pt"
+
+
+def tradeoff_point_dataset(wildcards):
+    """The budget's dataset.h5: the scene's own at the scene's budget."""
+    if int(wildcards.substeps) == own_substeps(wildcards.scene):
+        return f"results/{wildcards.scene}/dataset.h5"
+    return f"results/{wildcards.scene}/tradeoff/s{wildcards.substeps}/dataset.h5"
 
 
 def tradeoff_sequence_files(name):
@@ -63,7 +129,8 @@ def tradeoff_sequence_folders(wildcards):
 
 
 def tradeoff_low_runs(scene, n):
-    return [f"results/{scene}/tradeoff/s{n}/sequences/{seq}/sim_low.h5" for seq in SEQUENCES[scene]]
+    folder = f"results/{scene}" if n == own_substeps(scene) else f"results/{scene}/tradeoff/s{n}"
+    return [f"{folder}/sequences/{seq}/sim_low.h5" for seq in SEQUENCES[scene]]
 
 
 def tradeoff_timed_runs(scene, n):
@@ -73,18 +140,30 @@ def tradeoff_timed_runs(scene, n):
     return [f"results/{scene}/tradeoff/s{n}/timing/sim_low.h5"]
 
 
-def tradeoff_point_arguments(wildcards):
-    """`--point N SIM_LOW.h5 ...` and `--eval N EVAL.h5` for each budget and network."""
-    scene = wildcards.scene
-    return [str(x) for n in SETTINGS[scene]["tradeoff"]["substeps"]
-            for x in ("--point", n, *tradeoff_timed_runs(scene, n),
-                      *[y for path in tradeoff_evals(scene, n) for y in ("--eval", n, path)])]
+def tradeoff_matched_eval(scene, n):
+    return f"results/{scene}/tradeoff/s{n}/matched/eval.h5"
+
+
+def tradeoff_arguments(wildcards):
+    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5` per network and `--matched N EVAL.h5` for each budget, and
+    `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run."""
+    scene, words = wildcards.scene, []
+    for n in tradeoff_budgets(scene):
+        words += ["--point", n, *tradeoff_timed_runs(scene, n)]
+        words += [x for path in tradeoff_evals(scene, n) for x in ("--eval", n, path)]
+        if n in matched_budgets(scene):
+            words += ["--matched", n, tradeoff_matched_eval(scene, n)]
+    for run in high_res_runs(scene):
+        words += ["--high-res", *run, *high_res_files(scene, run)]
+    return [str(word) for word in words]
 
 
 def tradeoff_inputs(wildcards):
     scene = wildcards.scene
-    return [path for n in SETTINGS[scene]["tradeoff"]["substeps"]
-            for path in (*tradeoff_evals(scene, n), *tradeoff_timed_runs(scene, n))]
+    return ([path for n in tradeoff_budgets(scene)
+             for path in (*tradeoff_evals(scene, n), *tradeoff_timed_runs(scene, n))]
+            + [tradeoff_matched_eval(scene, n) for n in matched_budgets(scene)]
+            + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)])
 
 
 rule tradeoff_settings:
@@ -127,17 +206,53 @@ rule tradeoff_timing_low:
         "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} --quiet 2>&1 | tee {log:q}"
 
 
-# Sharded scenes: a rule per shard steps its sequences together at every budget (the `substeps` wildcard), named
-# tradeoff_simulate_low_batch_<scene>_<k>, as simulate.smk's; every path but the budget's folder is a literal.
+rule tradeoff_high_settings:
+    output: f"{TRADEOFF_HIGH}/settings.json"
+    params:
+        settings=lambda w: tradeoff_high_settings(SETTINGS[w.scene], w.hsubsteps, w.hiterations, w.schedule)
+    log: f"{TRADEOFF_HIGH}/logs/settings.log"
+    benchmark: f"{TRADEOFF_HIGH}/benchmarks/settings.tsv"
+    localrule: True
+    threads: 1
+    resources: mem_mb=500
+    run:
+        write_settings(params.settings, output[0])
+        with open(log[0], "w") as f:
+            print(f"{output[0]}: the scene's settings with solver {wildcards.hsubsteps} substeps x "
+                  f"{wildcards.hiterations} iterations, harmonic projection every {wildcards.schedule}", file=f)
+
+
+# A high-res run held to the scene's own low-res run of the sequence (only the high-res solver's budget or schedule
+# differs from the scene's high-res run).
+rule tradeoff_simulate_high:
+    input:
+        settings=f"{TRADEOFF_HIGH}/settings.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
+        sim_low=f"{SEQ}/sim_low.h5",
+    output: f"{TRADEOFF_HIGH}/sequences/{{seq}}/sim_high.h5"
+    wildcard_constraints: scene=UNSHARDED
+    log: f"{TRADEOFF_HIGH}/logs/{{seq}}/simulate_high.log"
+    benchmark: f"{TRADEOFF_HIGH}/benchmarks/{{seq}}/simulate_high.tsv"
+    threads: 1
+    resources: mem_mb=8000, gpu=gpus_on_device
+    shell:
+        "{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} {input.sim_low:q} "
+        "{output:q} --quiet 2>&1 | tee {log:q}"
+
+
+# Sharded scenes: a rule per shard steps its sequences together at every low-res budget (the `substeps` wildcard)
+# and every high-res run (its folder's wildcards), named tradeoff_simulate_low_batch_<scene>_<k> and
+# tradeoff_simulate_high_batch_<scene>_<k>, as simulate.smk's; every path but the budget's folder is a literal.
 for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if SETTINGS[s]["shard"] > 1):
     for _k, _names in enumerate(_shards):
-        _point = f"results/{_scene}/tradeoff/s{{substeps}}"
+        _point, _out = f"results/{_scene}/tradeoff/s{{substeps}}", f"results/{_scene}"
+        _high = f"results/{_scene}/tradeoff/h{{hsubsteps}}x{{hiterations}}_{{schedule}}"
+        _gpu = int(SETTINGS[_scene]["device"].startswith("cuda"))
 
         rule:
             name: batch_rule_name("tradeoff_simulate_low", _scene, _k)
             input:
                 settings=f"{_point}/settings.json",
-                scenes=[f"results/{_scene}/sequences/{n}/scene.h5" for n in _names]
+                scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names]
             output: [f"{_point}/sequences/{n}/sim_low.h5" for n in _names]
             params:
                 files=lambda w, names=_names, scene=_scene: [
@@ -146,8 +261,27 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             log: f"{_point}/logs/shard_{_k:03d}/simulate_low.log"
             benchmark: f"{_point}/benchmarks/shard_{_k:03d}/simulate_low.tsv"
             threads: 1
-            resources: mem_mb=4000 + 500 * len(_names), gpu=int(SETTINGS[_scene]["device"].startswith("cuda"))
+            resources: mem_mb=4000 + 500 * len(_names), gpu=_gpu
             shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} --quiet 2>&1 | tee {log:q}"
+
+        rule:
+            name: batch_rule_name("tradeoff_simulate_high", _scene, _k)
+            input:
+                settings=f"{_high}/settings.json", subdiv=f"{_out}/subdiv.h5",
+                scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names],
+                sim_low=[f"{_out}/sequences/{n}/sim_low.h5" for n in _names],
+            output: [f"{_high}/sequences/{n}/sim_high.h5" for n in _names]
+            params:
+                files=lambda w, names=_names, scene=_scene: [
+                    p for n in names for p in (
+                        f"results/{scene}/sequences/{n}/scene.h5", f"results/{scene}/subdiv.h5",
+                        f"results/{scene}/sequences/{n}/sim_low.h5",
+                        high_res_files(scene, (w.hsubsteps, w.hiterations, w.schedule))[SEQUENCES[scene].index(n)])]
+            log: f"{_high}/logs/shard_{_k:03d}/simulate_high.log"
+            benchmark: f"{_high}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
+            threads: 1
+            resources: mem_mb=8000 + 2000 * len(_names), gpu=_gpu
+            shell: "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --quiet 2>&1 | tee {log:q}"
 
 
 # The sequence's own scene.h5 and high-res run, linked (relative) into the budget's sequence folder.
@@ -160,6 +294,9 @@ rule tradeoff_sequence_links:
     resources: mem_mb=100
     run:
         for source, link in ((input.scene, output.scene), (input.sim_high, output.sim_high)):
+            os.makedirs(os.path.dirname(link), exist_ok=True)
+            if os.path.lexists(link):    # a dangling link: Snakemake, which follows links, does not see it to remove
+                os.remove(link)
             os.symlink(os.path.relpath(source, os.path.dirname(link)), link)
         with open(log[0], "w") as f:
             print(f"{output.scene}, {output.sim_high}: links to {input.scene}, {input.sim_high}", file=f)
@@ -207,11 +344,27 @@ rule tradeoff_train:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# A network on a budget's inputs (`net`: `scene`, the scene's own model.pt, or w<width>): errors and timing only
-# (no renders, one exported frame).
-rule tradeoff_evaluate:
+# The scene's network recipe (its settings, which the budget's settings.json keeps but for the low-res substeps the
+# training never reads) trained on the budget's own dataset.
+rule tradeoff_train_matched:
     input:
         settings=f"{TRADEOFF_POINT}/settings.json", dataset=f"{TRADEOFF_POINT}/dataset.h5",
+        operators=f"{OUT}/operators.h5",
+    output: model=f"{TRADEOFF_MATCHED}/model.pt", history=f"{TRADEOFF_MATCHED}/train.h5"
+    log: f"{TRADEOFF_MATCHED}/logs/train.log"
+    benchmark: f"{TRADEOFF_MATCHED}/benchmarks/train.tsv"
+    threads: workflow.cores
+    resources: mem_mb=8000, gpu=gpus_on_device
+    shell:
+        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+
+
+# A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; or w<width>): errors and
+# timing only (no renders, one exported frame).
+rule tradeoff_evaluate:
+    input:
+        settings=f"{TRADEOFF_POINT}/settings.json", dataset=tradeoff_point_dataset,
         operators=f"{OUT}/operators.h5", model=tradeoff_model,
     output:
         eval=f"{TRADEOFF_EVAL}/eval.h5", report=f"{TRADEOFF_EVAL}/report.md",
@@ -228,18 +381,18 @@ rule tradeoff_evaluate:
 
 rule tradeoff:
     input:
-        settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", sim_high=sequence_files("sim_high.h5"),
-        points=tradeoff_inputs,
+        settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", dataset=f"{OUT}/dataset.h5",
+        sim_high=sequence_files("sim_high.h5"), points=tradeoff_inputs,
     output: table=f"{TRADEOFF}/tradeoff.h5", plot=f"{TRADEOFF}/pareto.png", report=f"{TRADEOFF}/report.md"
-    params: points=tradeoff_point_arguments
+    params: grid=tradeoff_arguments
     log: f"{TRADEOFF}/logs/tradeoff.log"
     benchmark: f"{TRADEOFF}/benchmarks/tradeoff.tsv"
     threads: workflow.cores
-    resources: mem_mb=2000, gpu=gpus_on_device
+    resources: mem_mb=4000, gpu=gpus_on_device
     shell:
         "{PY:q} -m pipeline.tradeoff {input.subdiv:q} {output.table:q} {output.plot:q} {output.report:q} "
-        "--sim-high {input.sim_high:q} {params.points:q} --settings {input.settings:q} --threads {threads} "
-        "2>&1 | tee {log:q}"
+        "--sim-high {input.sim_high:q} --dataset {input.dataset:q} {params.grid:q} --settings {input.settings:q} "
+        "--threads {threads} 2>&1 | tee {log:q}"
 
 
 # `results/<scene>/tradeoff/` as a target (see the Snakefile's `results/<scene>/`), with and without the slash.

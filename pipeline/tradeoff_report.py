@@ -1,0 +1,154 @@
+"""What the trade-off table says, for `pipeline.tradeoff`: the Pareto front, each row's label and marker group, the
+findings in words (the cost of the input shift, whether matched training removes it, the cheaper high-res runs,
+the pick for 60 Hz), and report.md."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.artifacts.h5 import atomic_write
+from pipeline.artifacts.tradeoff import HIGH_RES, LEARNED, LOOP, NO_NETWORK, Tradeoff
+
+PAPER_UNIT = 1e-3          # errors are shown x 1e-3 scene units, as the scene's report (paper Table 3)
+FRAME_60HZ_MS = 1e3 / 60
+
+
+def pareto_front(ms: np.ndarray, error: np.ndarray) -> np.ndarray:
+    """Which points no other point beats: none is at most as slow and at most as wrong, and better in one."""
+    ms, error = np.asarray(ms, dtype=np.float64), np.asarray(error, dtype=np.float64)
+    dominated = ((ms[None, :] <= ms[:, None]) & (error[None, :] <= error[:, None])
+                 & ((ms[None, :] < ms[:, None]) | (error[None, :] < error[:, None])))
+    return ~dominated.any(axis=1)
+
+
+def plotted_errors(table: Tradeoff) -> dict[str, np.ndarray]:
+    """L1 x 1e-3 per split the scene has (held-out only where it has a held-out motion)."""
+    errors = {"test": table.columns["l1_test"] / PAPER_UNIT}
+    if np.all(np.isfinite(table.columns["l1_heldout"])):
+        errors["held-out"] = table.columns["l1_heldout"] / PAPER_UNIT
+    return errors
+
+
+def _main_error(table: Tradeoff) -> tuple[str, np.ndarray]:
+    """The error the findings and the bold rows use: held-out L1 where the scene has a held-out motion (what a
+    user meets), else test L1."""
+    errors = plotted_errors(table)
+    split = "held-out" if "held-out" in errors else "test"
+    return split, errors[split]
+
+
+def labels(table: Tradeoff) -> list[str]:
+    c = table.columns
+    out = []
+    for i, method in enumerate(c["method"]):
+        if method == HIGH_RES:
+            out.append(f"high-res {c['substeps'][i]}x{c['iterations'][i]}, every {c['harmonic_every'][i]}")
+        elif method == LOOP:
+            out.append(f"{c['substeps'][i]} sub, Loop only")
+        else:
+            matched = " (matched)" if c["trained_substeps"][i] != table.reference.substeps else ""
+            out.append(f"{c['substeps'][i]} sub, {c['network'][i]}{matched}")
+    return out
+
+
+def groups(table: Tradeoff) -> list[str]:
+    """Each row's marker group in the plot."""
+    own = table.reference.substeps
+    names = {HIGH_RES: "high-res run, cheaper budget or other harmonic schedule",
+             LOOP: "low-res + Loop subdivision alone"}
+    return [names.get(method) or (f"learned, trained on {own}-substep inputs" if trained == own
+                                  else "learned, trained on its own budget's inputs (matched)")
+            for method, trained in zip(table.columns["method"], table.columns["trained_substeps"])]
+
+
+def findings(table: Tradeoff) -> list[str]:
+    """Sentences answering the issue's questions from the rows (empty where the grid lacks the rows to say)."""
+    c, ref = table.columns, table.reference
+    split, error = _main_error(table)
+    learned = c["method"] == LEARNED
+
+    def at(network: str, substeps: int, trained: int) -> int | None:
+        rows = np.flatnonzero(learned & (c["network"] == network) & (c["substeps"] == substeps)
+                              & (c["trained_substeps"] == trained))
+        return int(rows[0]) if len(rows) else None
+
+    lines = []
+    for network in dict.fromkeys(c["network"][learned & (c["trained_substeps"] == ref.substeps)]):
+        own, cheapest = at(network, ref.substeps, ref.substeps), int(c["substeps"][learned].min())
+        shifted = at(network, cheapest, ref.substeps)
+        if own is not None and shifted is not None and cheapest != ref.substeps:
+            lines.append(f"Input shift: {network} trained on {ref.substeps}-substep inputs has {split} L1 "
+                         f"{error[shifted]:.3f} fed {cheapest}-substep runs against {error[own]:.3f} at its own "
+                         f"budget ({error[shifted] / error[own] - 1:+.0%}).")
+    for i in np.flatnonzero(learned & (c["trained_substeps"] != ref.substeps)):
+        network, n = c["network"][i], int(c["substeps"][i])
+        shifted, own = at(network, n, ref.substeps), at(network, ref.substeps, ref.substeps)
+        if shifted is None:
+            continue
+        text = (f"Matched training at {n} substeps: {network} trained on {n}-substep inputs has {split} L1 "
+                f"{error[i]:.3f} against {error[shifted]:.3f} trained on {ref.substeps}-substep inputs")
+        if own is not None and error[shifted] > error[own]:
+            text += (f" and {error[own]:.3f} at {ref.substeps} substeps: it removes "
+                     f"{(error[shifted] - error[i]) / (error[shifted] - error[own]):.0%} of the input shift")
+        lines.append(text + ".")
+    for i in np.flatnonzero(c["method"] == HIGH_RES):
+        lines.append(f"High-res at {c['substeps'][i]} x {c['iterations'][i]}, harmonic projection every "
+                     f"{c['harmonic_every'][i]}: {split} L1 {error[i]:.3f} from the {ref.substeps} x "
+                     f"{ref.iterations} run (every {ref.harmonic_every}), {c['ms_total'][i]:.3g} ms a frame "
+                     f"({c['speedup'][i]:.2f}x).")
+    fits = np.flatnonzero(c["ms_total"] <= FRAME_60HZ_MS)
+    if len(fits):
+        best = fits[np.argmin(error[fits])]
+        lines.append(f"For 60 Hz ({FRAME_60HZ_MS:.1f} ms a frame) on this device: {labels(table)[best]}, {split} "
+                     f"L1 {error[best]:.3f} in {c['ms_total'][best]:.3g} ms.")
+    else:
+        lines.append(f"No row fits 60 Hz ({FRAME_60HZ_MS:.1f} ms a frame) on this device.")
+    return lines
+
+
+def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
+                 load: tuple[float, float, float]) -> None:
+    c, ref = table.columns, table.reference
+    _, error = _main_error(table)
+    front = pareto_front(c["ms_total"], error)
+    header = ("| method | solver budget | network | trained on | params | test L1 | test L2 | held-out L1 | "
+              "held-out L2 | low-res sim | Loop subdiv. | network | high-res sim | total | reference high-res sim | "
+              "speedup |")
+    lines = ["# Speed-accuracy trade", "",
+             f"The scene's report: [{scene_report.name}]({os.path.relpath(scene_report, path.parent)}).", "",
+             f"Device: {table.device}; torch threads: {table.threads}; load average when tabulated: "
+             f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} (1 / 5 / 15 min).", "",
+             f"Every row is a way to get the high-res cloth, scored against the scene's high-res run ({ref.substeps} "
+             f"substeps x {ref.iterations} iterations, harmonic projection every {ref.harmonic_every}). Learned: "
+             "the low-res run at that budget, Loop subdivision and a network trained on the scene's "
+             f"{ref.substeps}-substep inputs (fed cheaper runs: the input shift of paper Fig. 14) or on that "
+             "budget's own inputs (matched); Loop subdivision alone is the floor; high-res: the high-res solver "
+             "itself at a cheaper budget or the other harmonic schedule, held to the scene's low-res run. Errors "
+             "x 1e-3 scene units (as the scene's report); times in ms per frame of one sequence: low-res solve (the "
+             "solver's own timing), Loop subdivision and network (the deployment path, median after warm-up), "
+             "a high-res row's own solve, their sum, and the reference high-res solve"
+             + (f" (a batch of {table.sim_high_batch} sequences' ms divided by {table.sim_high_batch}: a lower "
+                f"bound of one sequence's on a GPU)" if table.sim_high_batch > 1 else "")
+             + ". speedup = high-res sim / total. **Bold**: on the Pareto front of the "
+             + ("held-out" if "held-out" in plotted_errors(table) else "test") + " L1 (no row both faster and "
+             "more accurate).", "", f"![error against ms per frame]({os.path.relpath(plot, path.parent)})", "",
+             "## Findings", "", *[f"- {line}" for line in findings(table)], "", "## Table", "",
+             header, "|---" * (header.count("|") - 1) + "|"]
+    names = {LEARNED: "learned", LOOP: "Loop subdivision alone", HIGH_RES: "high-res"}
+    for i, method in enumerate(c["method"]):
+        mark = "**" if front[i] else ""
+        budget = f"{c['substeps'][i]} x {c['iterations'][i]}" + (
+            f", harmonic every {c['harmonic_every'][i]}" if method == HIGH_RES else "")
+        trained = f"{c['trained_substeps'][i]} substeps" if method == LEARNED else "-"
+        cells = [f"{mark}{names[method]}{mark}", budget, "-" if c["network"][i] == NO_NETWORK else c["network"][i],
+                 trained, f"{c['params'][i]:,}",
+                 *[f"{c[k][i] / PAPER_UNIT:.3f}" if np.isfinite(c[k][i]) else "-"
+                   for k in ("l1_test", "l2_test", "l1_heldout", "l2_heldout")],
+                 *[f"{c[k][i]:.3g}" for k in ("ms_sim_low", "ms_subdiv", "ms_net", "ms_sim_high_run", "ms_total",
+                                               "ms_sim_high")],
+                 f"{c['speedup'][i]:.1f}x"]
+        lines.append("| " + " | ".join(cells) + " |")
+    with atomic_write(path) as f:
+        f.write(("\n".join(lines) + "\n").encode())
