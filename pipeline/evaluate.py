@@ -273,9 +273,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="test (and held-out) frames shown as stills; 0: no stills and no plots")
     parser.add_argument("--video-frames", type=int, default=120, help="frames of each video; 0: no videos")
     parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
-    parser.add_argument("--link", nargs=2, action="append", default=[], metavar=("LABEL", "PATH"),
-                        help="another report of the scene to list under the report's files (e.g. its trade-off "
-                             "or study report, made by their own targets)")
+    parser.add_argument("--tradeoff-report", help="the scene's tradeoff/report.md, listed under the report's "
+                                                  "files (made by its own target; the link works once it exists)")
+    parser.add_argument("--study-report", help="the scene's study/report.md, likewise")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--device", default="cpu")
     cli.add_threads(parser)
@@ -367,7 +367,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         files = [(label, href(path)) for label, path in exports] + [
             ("eval.h5: errors, per-frame errors, predicted positions, inference times",
              os.path.relpath(args.eval, report_dir))] + [
-            (label, os.path.relpath(path, report_dir)) for label, path in args.link]
+            (label, os.path.relpath(path, report_dir)) for label, path in (
+                ("the speed-accuracy trade (target results/<scene>/tradeoff/)", args.tradeoff_report),
+                ("the generalisation study (target results/<scene>/study/)", args.study_report)) if path]
         sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
                                     pictures, plots, videos, files, task)
         title = f"Evaluation of {args.model}"

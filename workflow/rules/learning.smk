@@ -63,8 +63,7 @@ rule evaluate:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
         "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
-        "--link 'Speed-accuracy trade (snakemake results/{wildcards.scene}/tradeoff/)' {params.tradeoff:q} "
-        "--link 'Generalisation study (snakemake results/{wildcards.scene}/study/)' {params.study:q} "
+        "--tradeoff-report {params.tradeoff:q} --study-report {params.study:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
