@@ -3,7 +3,9 @@
 # config's `default_scene`; `results/<scene>/` builds everything a scene has; any artifact path is a target too
 # (e.g. results/patch/sequences/train_000/sim_high.h5), and `--forcerun <rule>` reruns one stage. The rules live
 # in workflow/rules/: common.smk (settings and sequences per scene, paths, input functions), scene.smk,
-# simulate.smk, learning.smk, study.smk (`results/<scene>/study/`: error against the amount of training motion).
+# simulate.smk, learning.smk, study.smk (`results/<scene>/study/`: error against the amount of training motion),
+# applications.smk (`results/<scene>/pose/`, `pca/`), tradeoff.smk (`results/<scene>/tradeoff/`: speed against
+# accuracy), multi.smk (`results/multi/`: one network for several garments).
 import os
 
 from snakemake.utils import min_version, validate
@@ -28,6 +30,7 @@ include: "workflow/rules/learning.smk"
 include: "workflow/rules/study.smk"
 include: "workflow/rules/applications.smk"
 include: "workflow/rules/tradeoff.smk"
+include: "workflow/rules/multi.smk"
 
 if config["default_scene"] not in SETTINGS:
     raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Mapping, Protocol
 
 import torch
 
-from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
@@ -65,6 +64,28 @@ class Frames:
     targets: torch.Tensor    # (F, V, 3)
     faces: torch.Tensor      # (n_faces, 3) int64
 
+    def batch_loss(self, model, mesh: MeshHierarchy, ids: torch.Tensor,
+                   weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Eq. 7 over the frames `ids` taken together, and its terms (model.losses.total_loss)."""
+        inputs = self.store.batch(ids)
+        return total_loss(inputs.positions + model(inputs, mesh), inputs.positions + self.targets[ids], self.faces,
+                          weights)
+
+    def errors(self, model, mesh: MeshHierarchy, ids: torch.Tensor, batch_size: int,
+               weights: LossWeights) -> dict[str, float]:
+        return split_errors(lambda inputs: model(inputs, mesh), self, ids, batch_size, weights)
+
+
+class Problem(Protocol):
+    """What `fit` trains on: the loss of a batch of sample ids and the errors over a split's sample ids, for a
+    model on `mesh`. `Frames` is one mesh's problem (a sample is a frame); model.multi_mesh.MultiMeshFrames
+    trains one network on several meshes (a sample is one frame of each)."""
+
+    def batch_loss(self, model, mesh, ids: torch.Tensor,
+                   weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]: ...
+
+    def errors(self, model, mesh, ids: torch.Tensor, batch_size: int, weights: LossWeights) -> dict[str, float]: ...
+
 
 def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, ids: torch.Tensor,
                  batch_size: int, weights: LossWeights) -> dict[str, float]:
@@ -84,12 +105,14 @@ def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, 
     return errors
 
 
-def fit(model: FeatureRegressor, mesh: MeshHierarchy, frames: Frames, train_ids: torch.Tensor,
-        test_ids: torch.Tensor, settings: TrainSettings, resume_from: dict[str, Any] | None = None,
-        save_checkpoint: Callable[[dict[str, Any]], None] | None = None, identity: dict[str, Any] | None = None,
+def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy], frames: Problem,
+        train_ids: torch.Tensor, test_ids: torch.Tensor, settings: TrainSettings,
+        resume_from: dict[str, Any] | None = None, save_checkpoint: Callable[[dict[str, Any]], None] | None = None,
+        identity: dict[str, Any] | None = None,
         on_batch: Callable[[int, float], None] = lambda epoch, loss: None,
         on_notice: Callable[[str], None] = print) -> History:
-    """Train `model` in place for `settings.epochs` epochs; returns the loss history.
+    """Train `model` in place for `settings.epochs` epochs; returns the loss history. `frames` says what a
+    batch's loss and a split's errors are (a `Frames`, or another `Problem`), `mesh` what it runs `model` on.
 
     `save_checkpoint(state)`, if given, is called after every epoch with the whole training state (see the
     module docstring); given such a state as `resume_from`, training resumes from it if it was written for the
@@ -110,9 +133,7 @@ def fit(model: FeatureRegressor, mesh: MeshHierarchy, frames: Frames, train_ids:
         sums = dict.fromkeys(TERMS, 0.0)
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
-            inputs = frames.store.batch(batch)
-            loss, terms = total_loss(inputs.positions + model(inputs, mesh), inputs.positions + frames.targets[batch],
-                                     frames.faces, settings.weights)
+            loss, terms = frames.batch_loss(model, mesh, batch, settings.weights)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -124,7 +145,7 @@ def fit(model: FeatureRegressor, mesh: MeshHierarchy, frames: Frames, train_ids:
         for name in TERMS:
             history.train[name].append(sums[name] / len(order))
         model.eval()
-        test = split_errors(lambda inputs: model(inputs, mesh), frames, test_ids, settings.batch_size, settings.weights)
+        test = frames.errors(model, mesh, test_ids, settings.batch_size, settings.weights)
         for name in TERMS:
             history.test[name].append(test[name])
         history.epoch_seconds.append(time.perf_counter() - start)

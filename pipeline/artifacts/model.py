@@ -25,13 +25,27 @@ from pipeline.errors import PipelineError
 MODEL_FORMAT = "trimesh-cnn/model-2"     # 1: absolute positions only, no feature spec
 
 
+def read_model_state(path: str | os.PathLike, expected_format: str, what: str) -> dict:
+    """The dict a model file holds, loaded without unpickling (weights_only) on the CPU; one error naming the file
+    if it is missing, unreadable or not of `expected_format` (`what` says which writer's file was expected)."""
+    if not Path(path).is_file():
+        raise PipelineError(f"{path}: model file does not exist")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a corrupt or foreign file
+        raise PipelineError(f"{path}: not a readable model file ({type(err).__name__})") from None
+    if not isinstance(state, dict) or state.get("format") != expected_format:
+        raise PipelineError(f"{path}: not {what} (format {expected_format})")
+    return state
+
+
 def save_model(path: Path, model: FeatureRegressor | VectorRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
                extra: Mapping[str, Any]) -> None:
     state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
              "state_dict": model.state_dict(),
              "arch_expanded": str(model.net.arch), "parameter_count": model.net.parameter_count(),
              "operators": {"fingerprint": mesh.fingerprint(), "vertex_counts": mesh.vertex_counts}, **extra}
-    _torch_save(path, state)
+    save_state(path, state)
 
 
 def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
@@ -39,22 +53,15 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
     """A trained model and the hierarchy it runs on, after checking the operators are those it was trained on.
     An encoder-decoder (D tokens) reads per-vertex features (FeatureRegressor), a decoder (U tokens) one vector
     per frame (model.tasks.VectorRegressor)."""
-    if not Path(path).is_file():
-        raise PipelineError(f"{path}: model file does not exist")
+    state = read_model_state(path, MODEL_FORMAT, "a model written by pipeline.train")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a corrupt or foreign file
-        raise PipelineError(f"{path}: not a readable model file ({type(err).__name__})") from None
-    if not isinstance(state, dict) or state.get("format") != MODEL_FORMAT:
-        raise PipelineError(f"{path}: not a model written by pipeline.train (format {MODEL_FORMAT})")
-    try:
-        _check_plain(state, _PLAIN_FIELDS)
+        check_plain(state, _PLAIN_FIELDS)
         spec, weights, trained = NetworkSpec(**state["spec"]), state["state_dict"], state["operators"]
         if spec.letter == "U":
-            _check_plain(state["spec"], {"coarse_vertices": int}, "spec.")
+            check_plain(state["spec"], {"coarse_vertices": int}, "spec.")
             vector = VectorSpec(**state["features"])
         else:
-            _check_plain(state["features"], _FEATURE_FIELDS, "features.")
+            check_plain(state["features"], _FEATURE_FIELDS, "features.")
             features = FeatureSpec(**state["features"])
             faces, rest = weights["features.faces"].numpy(), weights["features.rest"].numpy()
     except (KeyError, TypeError, ValueError, AttributeError) as err:
@@ -95,19 +102,19 @@ _PLAIN_FIELDS = {
 _FEATURE_FIELDS = {"inputs": (list, tuple), "input_frame": str, "output_frame": str, "frame_tangent": str}
 
 
-def _check_plain(values: dict, fields: dict, where: str = "") -> None:
+def check_plain(values: dict, fields: dict, where: str = "") -> None:
     """TypeError naming the first field of `fields` that `values` lacks or holds with another type."""
     for name, kind in fields.items():
         if not isinstance(values, dict) or name not in values:
             raise TypeError(f"missing '{where}{name}'")
         if isinstance(kind, dict):
-            _check_plain(values[name], kind, f"{where}{name}.")
+            check_plain(values[name], kind, f"{where}{name}.")
         elif not isinstance(values[name], kind) or isinstance(values[name], bool):
             raise TypeError(f"'{where}{name}' is {type(values[name]).__name__}")
 
 
 def write_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    _torch_save(path, state)
+    save_state(path, state)
 
 
 def read_checkpoint(path: Path) -> dict[str, Any] | None:
@@ -126,6 +133,6 @@ def read_checkpoint(path: Path) -> dict[str, Any] | None:
     return state
 
 
-def _torch_save(path: Path, state: dict[str, Any]) -> None:
+def save_state(path: Path, state: dict[str, Any]) -> None:
     with atomic_write(path) as f:
         torch.save(state, f)
