@@ -91,16 +91,16 @@ def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, 
                  batch_size: int, weights: LossWeights) -> dict[str, float]:
     """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
     `predict` maps a batch of frames to predicted displacements. Positions are S x_low + displacement."""
-    sums = dict.fromkeys(("l1", "l2sq", "normal"), 0.0)
+    sums = []      # per batch (l1, l2², normal) × its frame count, on the device until the end (no per-batch wait)
     with torch.no_grad():
         for start in range(0, len(ids), batch_size):
             batch = ids[start:start + batch_size]
             inputs = frames.store.batch(batch)
             predicted, truth = inputs.positions + predict(inputs), inputs.positions + frames.targets[batch]
-            sums["l1"] += l1_loss(predicted, truth).item() * len(batch)
-            sums["l2sq"] += l2_loss(predicted, truth).item() ** 2 * len(batch)
-            sums["normal"] += normal_loss(predicted, truth, frames.faces).item() * len(batch)
-    errors = {"l1": sums["l1"] / len(ids), "l2": (sums["l2sq"] / len(ids)) ** 0.5, "normal": sums["normal"] / len(ids)}
+            sums.append(torch.stack([l1_loss(predicted, truth), l2_loss(predicted, truth) ** 2,
+                                     normal_loss(predicted, truth, frames.faces)]) * len(batch))
+    l1, l2sq, normal = (torch.stack(sums).sum(dim=0) / len(ids)).tolist()
+    errors = {"l1": l1, "l2": l2sq ** 0.5, "normal": normal}
     errors["total"] = weights.l1 * errors["l1"] + weights.l2 * errors["l2"] + weights.normal * errors["normal"]
     return errors
 
@@ -109,7 +109,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         train_ids: torch.Tensor, test_ids: torch.Tensor, settings: TrainSettings,
         resume_from: dict[str, Any] | None = None, save_checkpoint: Callable[[dict[str, Any]], None] | None = None,
         identity: dict[str, Any] | None = None,
-        on_batch: Callable[[int, float], None] = lambda epoch, loss: None,
+        on_batch: Callable[[int, torch.Tensor], None] = lambda epoch, loss: None,
         on_notice: Callable[[str], None] = print) -> History:
     """Train `model` in place for `settings.epochs` epochs; returns the loss history. `frames` says what a
     batch's loss and a split's errors are (a `Frames`, or another `Problem`), `mesh` what it runs `model` on.
@@ -118,7 +118,8 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     module docstring); given such a state as `resume_from`, training resumes from it if it was written for the
     same `identity` (settings, data and operators fingerprints) and starts afresh otherwise, saying why through
     `on_notice`. Raises CheckpointError for a matching state that cannot be restored. `on_batch(epoch, loss)`
-    is called after every optimiser step.
+    is called after every optimiser step with the batch's loss as a 0-d tensor on the device (reading it makes
+    the host wait for the GPU: read it now and then, not every step).
     """
     optimizer = torch.optim.Adam(model.parameters(), lr=settings.lr, betas=(0.9, 0.999), eps=1e-8)
     shuffle = torch.Generator().manual_seed(settings.seed)
@@ -130,20 +131,22 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         start = time.perf_counter()
         model.train()
         order = train_ids[torch.randperm(len(train_ids), generator=shuffle).to(train_ids.device)]
-        sums = dict.fromkeys(TERMS, 0.0)
+        # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait for
+        # the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
+        totals, weighted = [], []
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
             loss, terms = frames.batch_loss(model, mesh, batch, settings.weights)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
-            value = loss.item()
-            history.batch_total.append(value)
-            for name, term in (("total", value), *((k, v.item()) for k, v in terms.items())):
-                sums[name] += term * len(batch)
-            on_batch(epoch, value)
-        for name in TERMS:
-            history.train[name].append(sums[name] / len(order))
+            values = torch.stack([loss.detach(), *(terms[name].detach() for name in TERMS[1:])])
+            totals.append(values[0])
+            weighted.append(values * len(batch))
+            on_batch(epoch, values[0])
+        history.batch_total.extend(torch.stack(totals).tolist())
+        for name, total in zip(TERMS, torch.stack(weighted).sum(dim=0).tolist()):
+            history.train[name].append(total / len(order))
         model.eval()
         test = frames.errors(model, mesh, test_ids, settings.batch_size, settings.weights)
         for name in TERMS:

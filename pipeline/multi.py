@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import torch
-from tqdm import tqdm
 
 from model.architecture import ArchitectureError
 from model.feature_regressor import FeatureSpec
@@ -44,6 +43,7 @@ from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.config import read_settings
 from pipeline.errors import PipelineError
+from pipeline.progress import batch_reporter, training_bar
 from pipeline.tasks import frames_of
 from pipeline.torch_setup import configure_torch
 
@@ -158,14 +158,8 @@ def _train(argv: Sequence[str]) -> None:
                 "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(features)}
     steps_per_epoch = -(-len(problem.train_samples) // settings.batch_size)
     start = time.perf_counter()
-    with tqdm(total=settings.epochs * steps_per_epoch, desc="multi", unit="batch", disable=args.quiet,
-              mininterval=1.0) as bar:
-        def on_batch(epoch: int, loss: float) -> None:
-            if bar.n == 0:
-                bar.update(epoch * steps_per_epoch)      # a resumed run starts past the checkpointed epochs
-            bar.update()
-            bar.set_postfix_str(f"epoch {epoch + 1}/{settings.epochs} loss {loss:.3e}")
-
+    with training_bar("multi", settings.epochs, steps_per_epoch, args.quiet) as bar:
+        on_batch = batch_reporter(bar, settings.epochs, steps_per_epoch)
         try:
             history = fit(model, problem.meshes, problem, problem.train_samples, problem.test_samples, settings,
                           read_checkpoint(checkpoint), lambda state: write_checkpoint(checkpoint, state), identity,

@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import torch
-from tqdm import tqdm
 
 from model.architecture import ArchitectureError, parse_architecture
 from model.feature_regressor import FRAMES, FeatureRegressor, FeatureSpec
@@ -46,6 +45,7 @@ from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoi
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.errors import PipelineError
+from pipeline.progress import batch_reporter, training_bar
 from pipeline.tasks import frames_of, task_of
 from pipeline.torch_setup import configure_torch
 
@@ -125,15 +125,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()
-    # A second between updates: through Snakemake's `| tee` the bar is also the job's log.
-    with tqdm(total=args.epochs * steps_per_epoch, desc="train", unit="batch", disable=args.quiet,
-              mininterval=1.0) as bar:
-        def on_batch(epoch: int, loss: float) -> None:
-            if bar.n == 0:
-                bar.update(epoch * steps_per_epoch)      # a resumed run starts past the checkpointed epochs
-            bar.update()
-            bar.set_postfix_str(f"epoch {epoch + 1}/{args.epochs} loss {loss:.3e}")
-
+    with training_bar("train", args.epochs, steps_per_epoch, args.quiet) as bar:
+        on_batch = batch_reporter(bar, args.epochs, steps_per_epoch)
         identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec),
                     "features": dataclasses.asdict(model.spec)}
         try:
