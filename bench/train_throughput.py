@@ -88,7 +88,7 @@ def main() -> None:
             net = build_network(NetworkSpec(ARCH, args.conv, "max", args.width, spec.channels))
             mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces).to(device)
             model = FeatureRegressor(net, spec, data.faces, data.rest_vertices).to(device)
-            model.normalise(frames.store, ids[:64], frames.targets[ids[:64]])
+            model.normalise(frames.store, ids[:64], frames.targets)
             for precomputed in (False, True):
                 seconds = seconds_per_step(model, mesh, frames, ids, batch_size, precomputed, args.steps, args.warmup)
                 rate = batch_size / seconds

@@ -73,6 +73,16 @@ def store_statistics(features: InputFeatures, store: FrameStore, ids: torch.Tens
     return offset.float(), torch.cat(scales).float()
 
 
+def mean_square(targets: torch.Tensor, ids: torch.Tensor, batch_size: int = 256) -> float:
+    """Mean of the squared entries of `targets[ids]` (float64 sums), a batch of frames at a time: a copy of every
+    training frame's targets (3 GB in float64 for 64 paper-profile sequences) would crowd other trainings out of
+    a shared GPU."""
+    with torch.no_grad():
+        total = sum(float(targets[ids[i:i + batch_size]].double().square().sum())
+                    for i in range(0, len(ids), batch_size))
+    return total / max(1, len(ids) * targets[0].numel()) if len(targets) else 0.0
+
+
 class FeatureRegressor(nn.Module):
     """features(inputs) → (x - offset) / scale → mesh network → × output_scale → [from local frames]: the
     predicted displacement x_high - S x_low (B, V, 3) in the dataset's frame.
@@ -94,13 +104,14 @@ class FeatureRegressor(nn.Module):
         self.register_buffer("input_scale", torch.as_tensor(scale, dtype=torch.float32).reshape(-1))
         self.register_buffer("output_scale", torch.tensor(float(output_scale)))
 
-    def normalise(self, store: FrameStore, train_ids: torch.Tensor, train_targets: torch.Tensor) -> None:
-        """Fix the normalisations from the training frames only: the inputs' (store_statistics) and the RMS of
-        the target displacements (rotation-invariant, so the same in local frames)."""
+    def normalise(self, store: FrameStore, train_ids: torch.Tensor, targets: torch.Tensor) -> None:
+        """Fix the normalisations from the training frames `train_ids` only: the inputs' (store_statistics) and
+        the RMS of their target displacements (of every frame's `targets`; rotation-invariant, so the same in
+        local frames)."""
         offset, scale = store_statistics(self.features, store, train_ids)
         self.input_offset.copy_(offset)
         self.input_scale.copy_(scale)
-        self.output_scale.fill_(float(train_targets.double().square().mean().sqrt()) or 1.0)
+        self.output_scale.fill_(mean_square(targets, train_ids) ** 0.5 or 1.0)
 
     def encode(self, inputs: FrameBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The normalised network input (B, V, C) and, for local outputs, the frames (B, V, 3, 3) to restore them

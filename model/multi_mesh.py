@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from model.feature_regressor import FeatureRegressor, FeatureSpec, store_statistics
+from model.feature_regressor import FeatureRegressor, FeatureSpec, mean_square, store_statistics
 from model.losses import LossWeights
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
@@ -90,8 +90,8 @@ class MultiMeshRegressor(nn.Module):
             offset, scale = store_statistics(self.part(garment.name).features, garment.frames.store, garment.train)
             offsets.append(offset.double())
             scale_squares.append(scale.double().square())
-            target_squares.append(garment.frames.targets[garment.train].double().square().mean())
-        output_scale = float(torch.stack(target_squares).mean().sqrt()) or 1.0
+            target_squares.append(mean_square(garment.frames.targets, garment.train))
+        output_scale = (sum(target_squares) / len(target_squares)) ** 0.5 or 1.0
         for part in self.parts.values():
             part.input_offset.copy_(torch.stack(offsets).mean(dim=0))
             part.input_scale.copy_(torch.stack(scale_squares).mean(dim=0).sqrt())

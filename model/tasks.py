@@ -13,6 +13,7 @@ import dataclasses
 import torch
 from torch import nn
 
+from model.feature_regressor import mean_square
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import Decoder
 
@@ -69,14 +70,14 @@ class VectorRegressor(nn.Module):
         self.register_buffer("input_scale", torch.as_tensor(scale, dtype=torch.float32).reshape(-1))
         self.register_buffer("output_scale", torch.tensor(float(output_scale)))
 
-    def normalise(self, store: VectorStore, train_ids: torch.Tensor, train_targets: torch.Tensor) -> None:
-        """Fix the normalisations from the training frames only: per-scalar mean and standard deviation of the
-        inputs, and the RMS of the target displacements."""
+    def normalise(self, store: VectorStore, train_ids: torch.Tensor, targets: torch.Tensor) -> None:
+        """Fix the normalisations from the training frames `train_ids` only: per-scalar mean and standard
+        deviation of the inputs, and the RMS of their target displacements (of every frame's `targets`)."""
         values = store.values[train_ids].double()
         mean, std = values.mean(dim=0), values.std(dim=0, unbiased=False)
         self.input_offset.copy_(mean)
         self.input_scale.copy_(torch.where(std > STATISTICS_EPS, std, torch.ones_like(std)))
-        self.output_scale.fill_(float(train_targets.double().square().mean().sqrt()) or 1.0)
+        self.output_scale.fill_(mean_square(targets, train_ids) ** 0.5 or 1.0)
 
     def forward(self, inputs: VectorBatch, mesh: MeshHierarchy) -> torch.Tensor:
         z = (inputs.values - self.input_offset) / self.input_scale

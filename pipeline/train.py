@@ -119,7 +119,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     frames = frames_of(data, device)
     train_ids = torch.as_tensor(data.train, device=device)
     model = model.to(device)
-    model.normalise(frames.store, train_ids, frames.targets[train_ids])
+    model.normalise(frames.store, train_ids, frames.targets)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
     resume_from = read_checkpoint(checkpoint)

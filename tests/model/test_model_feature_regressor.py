@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import model.feature_regressor as feature_regressor
-from model.feature_regressor import FeatureRegressor, FeatureSpec, store_statistics
+from model.feature_regressor import FeatureRegressor, FeatureSpec, mean_square, store_statistics
 from model.features import FrameBatch, FrameStore, previous_frames
 from model.networks import NetworkSpec, build_network
 
@@ -112,3 +112,11 @@ def test_encoded_inputs_can_be_cached_and_decoded_later(grid):
         assert (frames is None) == (frame == "dataset")
         with torch.no_grad():
             torch.testing.assert_close(model.decode(encoded, frames, mesh), model(inputs, mesh))
+
+
+def test_mean_square_of_the_chosen_frames_batch_by_batch_matches_numpy():
+    targets = torch.randn(11, 7, 3)
+    ids = torch.tensor([9, 0, 3, 3, 10, 5, 1])       # any order, repeats count twice, batches of 3 cross them
+    expected = np.mean(np.square(targets.double().numpy()[ids.numpy()]))
+    assert mean_square(targets, ids, batch_size=3) == pytest.approx(expected, rel=1e-12)
+    assert mean_square(targets, ids[:0]) == 0.0

@@ -20,8 +20,9 @@ def test_inputs_are_centred_and_scaled_per_scalar_from_the_training_frames_only(
     values[15:] += 1000.0                                       # frames outside the training ids: not looked at
     train = torch.arange(15)
     targets = torch.randn(20, 42, 3) * 0.02
+    targets[15:] *= 100.0                                      # nor are their targets
     model = VectorRegressor(decoder_on(mesh, 5), VectorSpec(("pose",)))
-    model.normalise(VectorStore(torch.zeros(20, 42, 3), values.float()), train, targets[train])
+    model.normalise(VectorStore(torch.zeros(20, 42, 3), values.float()), train, targets)
     seen = values[:15].numpy()
     np.testing.assert_allclose(model.input_offset.numpy(), seen.mean(axis=0), rtol=1e-6)
     expected_scale = np.where(seen.std(axis=0) > 0, seen.std(axis=0), 1.0)    # a constant scalar keeps scale 1
@@ -43,7 +44,7 @@ def test_the_shared_training_loop_fits_a_decoder_task_below_its_predictor(grid):
     frames = Frames(VectorStore(predictor, pose), targets, torch.as_tensor(faces, dtype=torch.int64))
     model = VectorRegressor(decoder_on(mesh, 4), VectorSpec(("pose",)))
     train, test = torch.arange(20), torch.arange(20, 24)
-    model.normalise(frames.store, train, targets[train])
+    model.normalise(frames.store, train, targets)
     weights = LossWeights(1.0, 1.0, 0.0)
     fit(model, mesh, frames, train, test, TrainSettings(30, 3, 1e-3, weights, 0), on_notice=lambda _: None)
     network = split_errors(lambda batch: model(batch, mesh), frames, train, 8, weights)

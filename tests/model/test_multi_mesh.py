@@ -112,7 +112,7 @@ def test_the_normalisation_is_the_garments_statistics_averaged(garments):
     alone = MultiMeshRegressor(_network(), SPEC, {"a": meshes["a"]})
     alone.normalise(parts[:1])
     own = FeatureRegressor(_network(), SPEC, *meshes["a"])
-    own.normalise(parts[0].frames.store, parts[0].train, parts[0].frames.targets[parts[0].train])
+    own.normalise(parts[0].frames.store, parts[0].train, parts[0].frames.targets)
     for name in ("input_offset", "input_scale", "output_scale"):
         assert torch.equal(getattr(alone.part("a"), name), getattr(own, name)), name
 
@@ -121,7 +121,7 @@ def test_one_garment_trains_exactly_as_the_one_mesh_training(garments):
     parts, meshes = garments
     garment = parts[0]
     single = FeatureRegressor(_network(), SPEC, *meshes["a"])
-    single.normalise(garment.frames.store, garment.train, garment.frames.targets[garment.train])
+    single.normalise(garment.frames.store, garment.train, garment.frames.targets)
     fit(single, garment.mesh, garment.frames, garment.train, garment.test, TrainSettings(epochs=2, batch_size=2))
     multi = MultiMeshRegressor(_network(), SPEC, {"a": meshes["a"]})
     multi.normalise([garment])
