@@ -85,3 +85,35 @@ def test_split_errors_match_numpy(grid):
     # L2 over the whole split, not a mean of per-batch L2s
     assert np.isclose(errors["l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-5)
     assert np.isclose(errors["total"], errors["l1"] + 2 * errors["l2"], rtol=1e-6)
+
+
+def test_no_op_of_a_training_step_reads_uninitialised_memory(grid):
+    """pipeline.torch_setup turns off deterministic mode's NaN fill of new tensors (an extra kernel each): safe only
+    while nothing reads memory it did not write. With the fill on, such a read would turn the result into NaN or
+    change it; training with body-relative local inputs and all three loss terms must come out bit for bit equal."""
+    vertices, faces, mesh = grid
+    _, frames = _problem(grid)
+    store = frames.store
+    capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(len(store.positions), 2, 3)
+    store = FrameStore(store.positions, torch.clamp(torch.arange(len(store.positions)) - 1, min=0), capsule_a,
+                       capsule_a + 0.3, torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]), store.gravity, 0.1)
+    frames = Frames(store, frames.targets, frames.faces)
+    spec = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
+    results = []
+    was = torch.are_deterministic_algorithms_enabled(), torch.utils.deterministic.fill_uninitialized_memory
+    try:
+        for fill in (True, False):
+            torch.use_deterministic_algorithms(True)
+            torch.utils.deterministic.fill_uninitialized_memory = fill
+            torch.manual_seed(0)
+            model = FeatureRegressor(build_network(NetworkSpec("D8 D D8", "RC7", in_channels=spec.channels)), spec,
+                                     faces, vertices, output_scale=0.01)
+            history = fit(model, mesh, frames, torch.arange(6), torch.tensor([6]),
+                          TrainSettings(epochs=2, weights=LossWeights(1.0, 1.0, 0.1)))
+            results.append((history.batch_total, model.state_dict()))
+    finally:
+        torch.use_deterministic_algorithms(was[0])
+        torch.utils.deterministic.fill_uninitialized_memory = was[1]
+    assert results[0][0] == results[1][0] and all(np.isfinite(results[0][0]))
+    for name, value in results[0][1].items():
+        torch.testing.assert_close(results[1][1][name], value, rtol=0, atol=0)
