@@ -1,12 +1,18 @@
 """Training throughput: samples (frames) per second of the upsampling network's optimiser steps on a real dataset,
-per input variant and batch size, with the input features computed per batch (what `pipeline.train` does) and,
-as the ceiling, precomputed once (the features do not depend on the weights).
+per input variant, batch size and mode, through the training loop's own step (model.training_step):
+
+  eager        what `pipeline.train` does by default: input features computed per batch, then the step;
+  graph        the same step replayed as one CUDA graph (training.cuda_graph; CUDA only);
+  precomputed  the ceiling of caching the features (they do not depend on the weights): the step without them;
+  precomputed-graph  both.
 
     python bench/train_throughput.py DATASET.h5 OPERATORS.h5 [--device cpu|cuda] [--batch-sizes 3,16]
-        [--variants positions,body_relative] [--conv RC9] [--width 0.25] [--steps 30] [--warmup 5] [--threads N]
+        [--variants positions,body_relative] [--modes eager,graph] [--conv RC9] [--width 0.25] [--steps 30]
+        [--warmup 5] [--threads N]
 
-Median seconds per step over `--steps` steps after `--warmup` (synchronised on CUDA), as samples/s; the ratio
-column is against the positions variant at the same batch size in the same run. Also prints what the dataset
+Torch is set up as the training stage sets it up (deterministic, seeded). Median seconds per step over `--steps`
+steps after `--warmup` (synchronised on CUDA; a graph mode captures during its warm-up), as samples/s; the ratio
+column is against the eager mode of the same variant and batch size in the same run. Also prints what the dataset
 occupies on the device (inputs + targets): the whole of it stays there during training.
 """
 from __future__ import annotations
@@ -20,37 +26,53 @@ import torch
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.losses import LossWeights, total_loss
 from model.networks import NetworkSpec, build_network
+from model.training import Frames
+from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.operators import load_hierarchy
-from pipeline.torch_setup import frames_on
+from pipeline.torch_setup import configure_torch, frames_on
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
 VARIANTS = {"positions": FeatureSpec(("position",)),
             "body_relative": FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")}
+MODES = ("eager", "graph", "precomputed", "precomputed-graph")
 
 
-def seconds_per_step(model, mesh, frames, ids, batch_size, precomputed, steps, warmup) -> float:
-    optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
-    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-    cache = None
-    if precomputed:
+class PrecomputedFeatures:
+    """A Problem whose sample k is the k-th frame of `ids`, its network input encoded once beforehand."""
+
+    def __init__(self, model: FeatureRegressor, frames: Frames, ids: torch.Tensor, chunk: int = 16):
+        self.frames, self.ids = frames, ids
         with torch.no_grad():
-            cache = [model.encode(frames.store.batch(ids[i:i + batch_size]))
-                     for i in range(0, batch_size * (steps + warmup), batch_size)]
+            encoded = [model.encode(frames.store.batch(ids[i:i + chunk])) for i in range(0, len(ids), chunk)]
+        self.inputs = torch.cat([x for x, _ in encoded])
+        self.local = None if encoded[0][1] is None else torch.cat([f for _, f in encoded])
+
+    def batch_loss(self, model, mesh, slots: torch.Tensor, weights: LossWeights):
+        real = self.ids[slots]
+        positions = self.frames.store.positions[real]
+        displacement = model.decode(self.inputs[slots], None if self.local is None else self.local[slots], mesh)
+        return total_loss(positions + displacement, positions + self.frames.targets[real], self.frames.faces, weights)
+
+
+def seconds_per_step(model, mesh, frames: Frames, ids: torch.Tensor, batch_size: int, mode: str, steps: int,
+                     warmup: int) -> float:
+    graphed = mode.endswith("graph")
+    problem, samples = frames, ids
+    if mode.startswith("precomputed"):
+        problem, samples = PrecomputedFeatures(model, frames, ids), torch.arange(len(ids), device=ids.device)
+    step = eager_step(model, mesh, problem, adam(model, 1e-3, graphed), LossWeights())
+    if graphed:
+        step = GraphedStep(step, batch_size, ids.device)
+    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
     times = []
-    for step in range(warmup + steps):
-        batch = ids[step * batch_size:(step + 1) * batch_size]
+    for k in range(warmup + steps):
+        batch = samples[k * batch_size:(k + 1) * batch_size]
         sync()
         start = time.perf_counter()
-        inputs = frames.store.batch(batch)
-        displacement = (model.decode(*cache[step], mesh) if precomputed else model(inputs, mesh))
-        loss, _ = total_loss(inputs.positions + displacement, inputs.positions + frames.targets[batch],
-                             frames.faces, LossWeights())
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
+        step(batch)
         sync()
-        if step >= warmup:
+        if k >= warmup:
             times.append(time.perf_counter() - start)
     return statistics.median(times)
 
@@ -61,40 +83,48 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--batch-sizes", default="3,16")
     parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--modes", default="eager,precomputed", help=f"comma-separated of {', '.join(MODES)}")
     parser.add_argument("--conv", default="RC9")
     parser.add_argument("--width", type=float, default=0.25)
     parser.add_argument("--steps", type=int, default=30)
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--threads", type=int)
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    torch.set_flush_denormal(True)
-    device = torch.device(args.device)
+    modes = args.modes.split(",")
+    if not set(modes) <= set(MODES):
+        parser.error(f"--modes: one or more of {', '.join(MODES)}")
+    if any(m.endswith("graph") for m in modes) and (args.device == "cpu" or args.warmup <= WARMUP_STEPS):
+        parser.error(f"graph modes need a CUDA --device and --warmup > {WARMUP_STEPS} (capture happens in it)")
+    device = configure_torch(args.device, 0, args.threads)
     data = load_dataset(args.dataset)
     frames = frames_on(data, device)
     gib = (frames.store.positions.nbytes + frames.targets.nbytes) / 2 ** 30
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     print(f"{where}; {len(data.inputs)} frames of {data.inputs.shape[1]} vertices on the device ({gib:.2f} GiB); "
           f"{ARCH} {args.conv} x{args.width:g}; median of {args.steps} steps after {args.warmup}")
-    print("| variant | batch | features | samples/s | ms/step | x positions |\n|---|---|---|---|---|---|")
-    baseline = {}
+    print("| variant | batch | mode | samples/s | ms/step | x eager |\n|---|---|---|---|---|---|")
     for batch_size in map(int, args.batch_sizes.split(",")):
         ids = torch.randperm(len(data.train), generator=torch.Generator().manual_seed(0))
         ids = torch.as_tensor(data.train, device=device)[ids.to(device)]
-        ids = ids.repeat(-(-batch_size * (args.steps + args.warmup) // len(ids)))
+        ids = ids.repeat(-(-batch_size * (args.steps + args.warmup) // len(ids)))[:batch_size * (args.steps + args.warmup)]
         for name in args.variants.split(","):
             spec = VARIANTS[name]
-            net = build_network(NetworkSpec(ARCH, args.conv, "max", args.width, spec.channels))
-            mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces).to(device)
-            model = FeatureRegressor(net, spec, data.faces, data.rest_vertices).to(device)
-            model.normalise(frames.store, ids[:64], frames.targets)
-            for precomputed in (False, True):
-                seconds = seconds_per_step(model, mesh, frames, ids, batch_size, precomputed, args.steps, args.warmup)
+            if "body" in spec.inputs and data.context.capsule_a.shape[1] == 0:
+                print(f"| {name} | {batch_size} | – | skipped: {args.dataset} has no body | | |")
+                continue
+            mesh = None
+            eager_rate = None
+            for mode in modes:
+                torch.manual_seed(0)
+                net = build_network(NetworkSpec(ARCH, args.conv, "max", args.width, spec.channels))
+                mesh = mesh or load_hierarchy(args.operators, args.conv, net.n_levels, data.faces).to(device)
+                model = FeatureRegressor(net, spec, data.faces, data.rest_vertices).to(device)
+                model.normalise(frames.store, ids[:64], frames.targets)
+                seconds = seconds_per_step(model, mesh, frames, ids, batch_size, mode, args.steps, args.warmup)
                 rate = batch_size / seconds
-                baseline.setdefault((batch_size, precomputed), rate)
-                print(f"| {name} | {batch_size} | {'precomputed' if precomputed else 'per batch'} | {rate:.1f} | "
-                      f"{seconds * 1e3:.1f} | {rate / baseline[(batch_size, precomputed)]:.2f} |", flush=True)
+                eager_rate = eager_rate or (rate if mode == "eager" else None)
+                ratio = f"{rate / eager_rate:.2f}" if eager_rate else "–"
+                print(f"| {name} | {batch_size} | {mode} | {rate:.1f} | {seconds * 1e3:.1f} | {ratio} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -21,9 +21,10 @@ import torch
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
+from model.training_step import LOSS_TERMS, GraphedStep, adam, eager_step
 
 CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
-TERMS = ("total", "l1", "l2", "normal")
+TERMS = ("total", *LOSS_TERMS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,6 +34,7 @@ class TrainSettings:
     lr: float = 1e-3
     weights: LossWeights = LossWeights()
     seed: int = 0
+    cuda_graph: bool = False     # replay each full batch's step as one CUDA graph (model.training_step)
 
 
 @dataclasses.dataclass
@@ -121,10 +123,10 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     is called after every optimiser step with the batch's loss as a 0-d tensor on the device (reading it makes
     the host wait for the GPU: read it now and then, not every step).
     """
-    parameters = list(model.parameters())
-    # On CUDA one fused kernel updates every parameter (the per-tensor loop launches several kernels a tensor).
-    fused = bool(parameters) and all(p.is_cuda for p in parameters)
-    optimizer = torch.optim.Adam(parameters, lr=settings.lr, betas=(0.9, 0.999), eps=1e-8, fused=fused or None)
+    optimizer = adam(model, settings.lr, settings.cuda_graph)
+    step = eager_step(model, mesh, frames, optimizer, settings.weights)
+    if settings.cuda_graph:
+        step = GraphedStep(step, settings.batch_size, train_ids.device)
     shuffle = torch.Generator().manual_seed(settings.seed)
     identity = {"settings": _settings_key(settings), **(identity or {})}
     history = History()
@@ -139,11 +141,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         totals, weighted = [], []
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
-            loss, terms = frames.batch_loss(model, mesh, batch, settings.weights)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            values = torch.stack([loss.detach(), *(terms[name].detach() for name in TERMS[1:])])
+            values = step(batch)
             totals.append(values[0])
             weighted.append(values * len(batch))
             on_batch(epoch, values[0])

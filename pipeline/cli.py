@@ -59,6 +59,15 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
     return args
 
 
+def boolean(text: str) -> bool:
+    """A flag's true/false value, as a setting (True/False) or a person (true, false, yes, no, on, off, 1, 0)
+    spells it."""
+    words = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
+    if text.lower() not in words:
+        raise argparse.ArgumentTypeError(f"'{text}' is not true or false")
+    return words[text.lower()]
+
+
 def settings_of(argv: Sequence[str] | None) -> str | None:
     """The `--settings` path of a command line (None without one); `parse_with_settings` keeps it out of the
     namespace it returns."""

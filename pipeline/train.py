@@ -57,7 +57,8 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
             "output_frame": network["output_frame"], "frame_tangent": network["frame_tangent"],
             "epochs": training["epochs"], "batch_size": training["batch_size"], "lr": training["lr"],
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
-            "loss_normal": training["loss"]["normal"], "device": settings["device"]}
+            "loss_normal": training["loss"]["normal"], "cuda_graph": training["cuda_graph"],
+            "device": settings["device"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -85,6 +86,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--loss-normal", type=float, default=0.0, help="gamma of eq. 7")
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cuda-graph", type=cli.boolean, default=False, metavar="true|false",
+                        help="replay each optimiser step as one CUDA graph (a CUDA device only)")
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
@@ -99,6 +102,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads)
+    if args.cuda_graph and device.type != "cuda":
+        raise PipelineError(f"--cuda-graph (training.cuda_graph) needs a CUDA device, not '{args.device}'")
     try:
         features = FeatureSpec(tuple(args.inputs.split(",")), args.input_frame, args.output_frame, args.frame_tangent)
     except ValueError as err:
@@ -121,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     model = model.to(device)
     model.normalise(frames.store, train_ids, frames.targets)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
-                             LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed)
+                             LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed, args.cuda_graph)
     resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()

@@ -1,0 +1,81 @@
+"""The training step replayed as a CUDA graph (model.training_step) computes what the eager step computes."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from model.feature_regressor import FeatureRegressor, FeatureSpec
+from model.features import FrameStore
+from model.losses import LossWeights
+from model.networks import NetworkSpec, build_network
+from model.training import Frames, TrainSettings, fit
+from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
+from pipeline.errors import PipelineError
+from pipeline.train import main as train_main
+
+SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
+
+
+def _problem(grid, device):
+    vertices, faces, mesh = grid
+    generator = torch.Generator().manual_seed(5)
+    base = torch.as_tensor(vertices, dtype=torch.float32)
+    positions = base + 0.05 * torch.randn(8, *base.shape, generator=generator)
+    capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(8, 2, 3)
+    store = FrameStore(positions, torch.tensor([0, 0, 1, 2, 4, 4, 5, 6]), capsule_a, capsule_a + 0.3,
+                       torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]),
+                       torch.tensor([[0.0, -1.0, 0.0]]).expand(8, 3), 0.1)
+    on = {f.name: getattr(store, f.name) for f in dataclasses.fields(store)}
+    store = FrameStore(**{k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in on.items()})
+    targets = 0.01 * torch.sin(7 * positions)
+    return mesh.to(device), Frames(store, targets.to(device), torch.as_tensor(faces, device=device))
+
+
+def _model(grid, device) -> FeatureRegressor:
+    torch.manual_seed(0)
+    net = build_network(NetworkSpec("D8 D D8", "RC7", in_channels=SPEC.channels))
+    return FeatureRegressor(net, SPEC, grid[1], grid[0], output_scale=0.01).to(device)
+
+
+def test_the_eager_step_is_one_adam_step_on_the_batch_loss(grid):
+    mesh, frames = _problem(grid, "cpu")
+    model, reference = _model(grid, "cpu"), _model(grid, "cpu")
+    weights, ids = LossWeights(1.0, 1.0, 0.1), torch.tensor([1, 4, 6])
+    values = eager_step(model, mesh, frames, adam(model, 1e-3, graphed=False), weights)(ids)
+    optimizer = torch.optim.Adam(reference.parameters(), lr=1e-3, betas=(0.9, 0.999), eps=1e-8)
+    loss, terms = frames.batch_loss(reference, mesh, ids, weights)
+    loss.backward()
+    optimizer.step()
+    torch.testing.assert_close(values, torch.stack([loss, terms["l1"], terms["l2"], terms["normal"]]).detach(),
+                               rtol=0, atol=0)
+    for name, value in reference.state_dict().items():
+        torch.testing.assert_close(model.state_dict()[name], value, rtol=0, atol=0)
+
+
+def test_a_graph_needs_a_cuda_device():
+    with pytest.raises(ValueError, match="CUDA device"):
+        GraphedStep(lambda ids: ids, 3, torch.device("cpu"))
+    with pytest.raises(PipelineError, match="needs a CUDA device"):
+        train_main(["d.h5", "o.h5", "m.pt", "l.h5", "--arch", "D8 D D8", "--cuda-graph", "true"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a CUDA device")
+def test_graph_replay_trains_as_the_eager_step_does(grid):
+    """7 training frames at batch 3: two full batches and a partial one per epoch, so over 4 epochs the graph is
+    warmed up, captured, replayed, and interleaved with eager partial batches on the same gradient tensors."""
+    torch.use_deterministic_algorithms(True)
+    mesh, frames = _problem(grid, "cuda")
+    train, test = torch.arange(7, device="cuda"), torch.tensor([7], device="cuda")
+    histories, states = [], []
+    for graphed in (False, True):
+        model = _model(grid, "cuda")
+        histories.append(fit(model, mesh, frames, train, test,
+                             TrainSettings(4, 3, 1e-3, LossWeights(1.0, 1.0, 0.1), 0, graphed)).batch_total)
+        states.append(model.state_dict())
+    assert len(histories[1]) == 12 and 2 * 4 > WARMUP_STEPS
+    np.testing.assert_allclose(histories[1], histories[0], rtol=1e-5)
+    for name, value in states[0].items():
+        torch.testing.assert_close(states[1][name], value, rtol=1e-5, atol=1e-7)
