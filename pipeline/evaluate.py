@@ -277,6 +277,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                                                   "files (made by its own target; the link works once it exists)")
     parser.add_argument("--study-report", help="the scene's study/report.md, likewise")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
+    parser.add_argument("--no-predictions", action="store_true",
+                        help="eval.h5 without every frame's predicted positions (errors and times only: a grid of "
+                             "evaluations at the paper profile would otherwise store 1.8 GB each)")
     parser.add_argument("--device", default="cpu")
     cli.add_threads(parser)
     cli.add_quiet(parser)
@@ -365,8 +368,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             return os.path.relpath(final(path), report_dir)
 
         files = [(label, href(path)) for label, path in exports] + [
-            ("eval.h5: errors, per-frame errors, predicted positions, inference times",
-             os.path.relpath(args.eval, report_dir))] + [
+            ("eval.h5: errors, per-frame errors, " + ("" if args.no_predictions else "predicted positions, ")
+             + "inference times", os.path.relpath(args.eval, report_dir))] + [
             (label, os.path.relpath(path, report_dir)) for label, path in (
                 ("the speed-accuracy trade (target results/<scene>/tradeoff/)", args.tradeoff_report),
                 ("the generalisation study (target results/<scene>/study/)", args.study_report)) if path]
@@ -376,8 +379,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
         config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
-        write_evaluation(args.eval, config, Evaluation(errors, per_frame, predicted, times, timed, where,
-                                                       WARMUP_RUNS, state["parameter_count"]))
+        write_evaluation(args.eval, config, Evaluation(errors, per_frame, None if args.no_predictions else predicted,
+                                                       times, timed, where, WARMUP_RUNS, state["parameter_count"]))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:

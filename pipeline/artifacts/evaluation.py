@@ -20,7 +20,8 @@ class Evaluation:
 
     errors: dict[str, dict[str, dict[str, float]]]   # "network"/"predictor" -> split -> term (l1, l2, ...) -> value
     per_frame: dict[str, dict[str, np.ndarray]]      # "network"/"predictor" -> "l1"/"l2" -> (F,) error per frame
-    predicted: np.ndarray                            # (F, V, 3) predicted high-res positions, dataset's frame
+    predicted: np.ndarray | None                     # (F, V, 3) predicted high-res positions, dataset's frame;
+                                                     # None: not stored (errors only, for grids of evaluations)
     inference_ms: np.ndarray                         # (T,) ms per timed frame
     inference_frames: np.ndarray                     # (T,) the timed frame ids
     device: str                                      # where it ran, in words (e.g. "cpu, 2 threads")
@@ -41,8 +42,10 @@ def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluat
         for who, values in evaluation.per_frame.items():
             for term, per_frame in values.items():
                 f.create_dataset(f"per_frame/{who}_{term}", data=per_frame.astype(np.float64))
-        f.create_dataset("predicted", data=evaluation.predicted.astype(np.float32))
-        f["predicted"].attrs["meaning"] = "predicted high-res positions per frame (F, V, 3), dataset's frame"
+        if evaluation.predicted is not None:
+            f.create_dataset("predicted", data=evaluation.predicted.astype(np.float32))
+            f["predicted"].attrs["meaning"] = "predicted high-res positions per frame (F, V, 3), dataset's frame"
+        f.attrs["predictions_stored"] = evaluation.predicted is not None
         f.create_dataset("inference_ms", data=evaluation.inference_ms)
         f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
         f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),

@@ -20,6 +20,7 @@ import torch
 import trimesh
 
 from pipeline import cli, dataset, evaluate, operators, train
+from pipeline.artifacts.evaluation import read_errors
 from pipeline.artifacts.h5 import atomic_h5, config_of, read_csr, write_csr
 from pipeline.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
@@ -171,6 +172,24 @@ def test_evaluation_errors_renders_and_exports(trained):
     scene = trimesh.load(next((out / "export").glob("*.glb")))
     assert set(scene.geometry) == {"low_res_input", "ground_truth", "network_output"}
     assert not (out / "videos").exists() and not (out / "report.html").exists()    # --video-frames 0, no --html
+
+
+def test_an_evaluation_without_predictions_has_the_same_errors_and_no_positions(trained):
+    full, lean = trained / "eval", trained / "lean"
+    if not (full / "eval.h5").exists():
+        stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt",
+              full / "eval.h5", full / "report.md", "--render-frames", "0", "--video-frames", "0", "--quiet")
+    stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", lean / "eval.h5",
+          lean / "report.md", "--render-frames", "0", "--timing-frames", "1", "--video-frames", "0",
+          "--export-frames", "1", "--no-predictions", "--quiet")
+    with h5py.File(full / "eval.h5") as f, h5py.File(lean / "eval.h5") as g:
+        assert "predicted" in f and f.attrs["predictions_stored"]
+        assert "predicted" not in g and not g.attrs["predictions_stored"]
+        assert read_errors(full / "eval.h5") == read_errors(lean / "eval.h5")
+        for name in f["per_frame"]:
+            np.testing.assert_array_equal(g[f"per_frame/{name}"][()], f[f"per_frame/{name}"][()])
+    assert "eval.h5: errors, per-frame errors, inference times" in (lean / "report.md").read_text()
+    assert "eval.h5: errors, per-frame errors, predicted positions, inference times" in (full / "report.md").read_text()
 
 
 def data_uri_bytes(uri: str) -> bytes:

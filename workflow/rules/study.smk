@@ -86,7 +86,7 @@ rule study_train:
         "--epochs {params.epochs:q} --width {params.width:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# Errors only: no renders, one exported frame.
+# Errors only: no renders, one exported frame, no predicted positions in eval.h5.
 rule study_evaluate:
     input:
         settings=f"{OUT}/settings.json", dataset=f"{STUDY_POINT}/dataset.h5", operators=f"{OUT}/operators.h5",
@@ -101,7 +101,7 @@ rule study_evaluate:
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --export {output.export:q} --render-frames 0 --video-frames 0 "
-        "--export-frames 1 --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "--export-frames 1 --no-predictions --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule study:

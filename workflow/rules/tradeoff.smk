@@ -361,7 +361,7 @@ rule tradeoff_train_matched:
 
 
 # A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; or w<width>): errors and
-# timing only (no renders, one exported frame).
+# timing only (no renders, one exported frame, no predicted positions in eval.h5).
 rule tradeoff_evaluate:
     input:
         settings=f"{TRADEOFF_POINT}/settings.json", dataset=tradeoff_point_dataset,
@@ -376,7 +376,7 @@ rule tradeoff_evaluate:
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --export {output.export:q} --render-frames 0 --video-frames 0 "
-        "--export-frames 1 --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "--export-frames 1 --no-predictions --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule tradeoff:
