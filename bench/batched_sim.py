@@ -31,6 +31,7 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd.body import outside_body
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
@@ -63,11 +64,14 @@ def harmonics(vertices, faces, pins):
     return harmonic_constraint(basis, mass, pins)
 
 
-def harmonic_targets(constraint, S, x_low):
-    """B^T M S x_low (F, B, K, 3) of low-res positions (F, B, V_low, 3)."""
+def harmonic_targets(constraint, S, x_low, capsules, radii, settings, device):
+    """B^T M S x_low (F, B, K, 3) of low-res positions (F, B, V_low, 3), S x_low moved clear of each world's
+    capsules (B, F', P, 2, 3) first as the simulate stage does (pipeline.simulate.simulate_high)."""
     f, b, v, _ = x_low.shape
     subdivided = (S @ x_low.transpose(2, 0, 1, 3).reshape(v, -1)).reshape(-1, f, b, 3).transpose(1, 2, 0, 3)
-    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, subdivided)
+    clear = np.stack([outside_body(subdivided[:, w], capsules[w, :f], radii, settings.collision_thickness, device)
+                      for w in range(b)], axis=1)
+    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, clear.astype(np.float64))
 
 
 def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n_frames):
@@ -150,7 +154,7 @@ def main():
             if constraint is not None:
                 x_low = low_res_run(levels["low"], settings, args.device, pins, targets, capsules, radii, worlds,
                                     n_frames)
-                goals = harmonic_targets(constraint, S, x_low)
+                goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
             solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds, constraint,
                                  goals, start)

@@ -568,30 +568,87 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
 
 
 @wp.kernel
-def finish_substep(sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Capsules):
-    """Friction for vertices the body pushed in this substep, then a nearest-point projection out of every
-    capsule, watched or not: the constraints may have pulled a vertex into a capsule it was far from at the
-    prediction, the harmonic projection may have moved it since the last sweep, and friction slides it along one
-    capsule's tangent plane, which may enter a neighbouring capsule. Then store_state."""
+def finish_substep(sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Capsules, with_friction: int):
+    """Friction for vertices the body pushed in this substep (unless `body_friction` applied it already), then a
+    nearest-point projection out of every capsule, watched or not: the constraints may have pulled a vertex into
+    a capsule it was far from at the prediction, the harmonic projection may have moved it since the last sweep,
+    and friction slides it along one capsule's tangent plane, which may enter a neighbouring capsule. Then
+    store_state."""
     i = wp.tid()
     xi = x_solved[i]
     if sub.inv_mass[i] > 0.0:
         first = first_capsule(i, sub, capsules)
-        if capsules.friction > 0.0:
-            if capsules.push[i] > 0.0:
-                xi = apply_friction(i, first, xi, sub.x_prev[i], capsules, sub.f0, sub.f1)
-        # Capsules overlap at the joints; in the crook between two, leaving one may enter the other, so the
-        # capsules take turns a few times (alternating projections converge to the crease).
-        for _ in range(FINAL_PASSES):
-            total = float(0.0)
-            for c in range(first, first + capsules.per_world):
-                a, b = capsule_at(capsules, c, sub.f1)
-                ra = capsules.radius[c, 0]
-                rb = capsules.radius[c, 1]
-                if wp.length(xi - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + capsules.thickness:
-                    continue
-                xi, moved = keep_outside(xi, xi, a, b, ra, rb, capsules.thickness)
-                total = total + moved
-            if total == 0.0:
-                break
+        if with_friction != 0:
+            xi = friction_of(i, first, xi, sub, capsules)
+        xi = clear_of_capsules(first, xi, sub.f1, capsules)
     store_state(i, xi, sub)
+
+
+@wp.kernel
+def body_friction(sub: Substep, x: wp.array(dtype=wp.vec3), capsules: Capsules):
+    """The friction of finish_substep, in place on the solved positions: before the rounds of harmonic and
+    capsule projections that end a high-res substep, so that its tangential slide is held to the harmonic
+    constraint too (applied after them, friction alone left a residual of ~3e-4 on the CPU pants)."""
+    i = wp.tid()
+    if sub.inv_mass[i] > 0.0:
+        x[i] = friction_of(i, first_capsule(i, sub, capsules), x[i], sub, capsules)
+
+
+@wp.func
+def friction_of(i: int, first: int, x: wp.vec3, sub: Substep, capsules: Capsules) -> wp.vec3:
+    """x after friction, for a vertex the body pushed in this substep."""
+    if capsules.friction > 0.0:
+        if capsules.push[i] > 0.0:
+            return apply_friction(i, first, x, sub.x_prev[i], capsules, sub.f0, sub.f1)
+    return x
+
+
+@wp.func
+def clear_of_capsules(first: int, x: wp.vec3, fraction: float, capsules: Capsules) -> wp.vec3:
+    """x moved to the thickness outside every capsule of its world at `fraction` of the frame, by nearest-point
+    projections. Capsules overlap at the joints; in the crook between two, leaving one may enter the other, so
+    the capsules take turns a few times (alternating projections converge to the crease)."""
+    for _ in range(FINAL_PASSES):
+        total = float(0.0)
+        for c in range(first, first + capsules.per_world):
+            a, b = capsule_at(capsules, c, fraction)
+            ra = capsules.radius[c, 0]
+            rb = capsules.radius[c, 1]
+            if wp.length(x - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + capsules.thickness:
+                continue
+            x, moved = keep_outside(x, x, a, b, ra, rb, capsules.thickness)
+            total = total + moved
+        if total == 0.0:
+            break
+    return x
+
+
+@wp.kernel
+def clear_of_body(sub: Substep, x: wp.array(dtype=wp.vec3), capsules: Capsules):
+    """x (the solved positions) moved clear of the body in place, between harmonic projections."""
+    i = wp.tid()
+    if sub.inv_mass[i] > 0.0:
+        x[i] = clear_of_capsules(first_capsule(i, sub, capsules), x[i], sub.f1, capsules)
+
+
+@wp.kernel
+def move_outside_capsules(points: wp.array2d(dtype=wp.vec3), ends: wp.array3d(dtype=wp.vec3),
+                          radii: wp.array2d(dtype=float), thickness: float):
+    """Points (F, N) to `thickness` outside frame f's capsules (ends (F, P, 2), radii (P, 2)): the nearest-point
+    projection of finish_substep, capsules taking turns FINAL_PASSES times (the crease where two overlap)."""
+    f, i = wp.tid()
+    x = points[f, i]
+    for _ in range(FINAL_PASSES):
+        total = float(0.0)
+        for c in range(ends.shape[1]):
+            a = ends[f, c, 0]
+            b = ends[f, c, 1]
+            ra = radii[c, 0]
+            rb = radii[c, 1]
+            if wp.length(x - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + thickness:
+                continue
+            x, moved = keep_outside(x, x, a, b, ra, rb, thickness)
+            total = total + moved
+        if total == 0.0:
+            break
+    points[f, i] = x

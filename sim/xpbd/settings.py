@@ -28,6 +28,9 @@ class SolverSettings:
     self_thickness: float = 0.004        # least distance of a vertex from a non-incident triangle
     harmonic_every: str = "iteration"    # project onto the harmonic constraint after every "iteration" or once a
                                          # "substep" (after its last iteration): 1/iterations of the cost
+    contact_rounds: int = 3              # with the harmonic constraint and the body: rounds of clearing the body
+                                         # and projecting that end a substep (friction first), which hold both;
+                                         # 0: friction and clearance after the last projection only
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
@@ -45,7 +48,7 @@ class SolverSettings:
             "damping": self.damping >= 0, "density": self.density > 0,
             "relaxation": 0 < self.relaxation < 2, "max_speed": self.max_speed > 0,
             "collision_thickness": self.collision_thickness > 0, "friction": self.friction >= 0,
-            "self_thickness": self.self_thickness > 0,
+            "self_thickness": self.self_thickness > 0, "contact_rounds": self.contact_rounds >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

@@ -438,8 +438,17 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
                 if self.harmonic_projection is not None and (every_iteration or sweep is self._sweeps[-1]):
                     self._launch_projection(sweep.x_out, sub.f1)
             solved = self._sweeps[-1].x_out
+            # With the body, contacts after the last harmonic projection would break the constraint (friction most):
+            # friction first, then the body and the constraint take turns, converging to a shape that meets both.
+            rounds = self.harmonic_projection is not None and s.body_collision and s.contact_rounds > 0
+            if rounds:
+                wp.launch(collision.body_friction, dim=n, device=dev, inputs=[sub, solved, self.capsules])
+                for _ in range(s.contact_rounds):
+                    wp.launch(collision.clear_of_body, dim=n, device=dev, inputs=[sub, solved, self.capsules])
+                    self._launch_projection(solved, sub.f1)
             if collide:
-                wp.launch(collision.finish_substep, dim=n, device=dev, inputs=[sub, solved, self.capsules])
+                wp.launch(collision.finish_substep, dim=n, device=dev,
+                          inputs=[sub, solved, self.capsules, int(not rounds)])
             else:
                 wp.launch(kernels.update_velocities, dim=n, device=dev, inputs=[sub, solved])
 
