@@ -101,3 +101,16 @@ def test_network_overfits_a_handful_of_frames(grid):
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < losses[0] / 10, f"L1 went from {losses[0]:.3g} to {losses[-1]:.3g}"
+
+
+@pytest.mark.parametrize("inputs, coarse, expected", [
+    (208, 48, 7_117_519),    # dress2, pose -> cloth (paper Table 4, RC13)
+    (208, 36, 6_595_855),    # tank-male
+    (32, 53, 5_394_655),     # cape, PCA 32
+    (64, 53, 5_747_423),     # cape, PCA 64
+])
+def test_the_papers_decoder_has_table_4s_parameter_counts(inputs, coarse, expected):
+    """U208 U U208 U U208 U U208 U104 U52 U3 with RC13: the fully connected layer (inputs + 1) x 208 per
+    coarsest-level vertex, then the same convolutions whatever the mesh; Table 4's four counts pin both parts."""
+    spec = NetworkSpec("U208 U U208 U U208 U U208 U104 U52 U3", "RC13", in_channels=inputs, coarse_vertices=coarse)
+    assert build_network(spec).parameter_count() == expected
