@@ -192,6 +192,24 @@ def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequenc
     assert "Loop subdivision alone" in (out / "report.md").read_text()
 
 
+def test_the_study_step_budget_is_its_own_or_the_scenes(tmp_path):
+    """study.epochs sets the grid's steps apart from the scene's own training (null: training.epochs); a network
+    on n of S sequences trains epochs x S / n epochs."""
+    config = tiny_pants(tmp_path, "budget.yaml", sequences=4)
+    overlay = yaml.safe_load(config.read_text())
+    pants = overlay["profiles"]["cpu"]["scenes"]["pants"]
+    for study_epochs, expected in ((None, {1: 12, 2: 6}), (2, {1: 8, 2: 4})):
+        pants["training"] = {"epochs": 3}
+        pants["study"] = {"sequence_counts": [1, 2], "epochs": study_epochs}
+        config.write_text(yaml.safe_dump(overlay))
+        run = snakemake(tmp_path, "-n", "-p", "results/pants/study/", "--configfile", str(config))
+        assert run.returncode == 0, tail(run)
+        trainings = [line for line in run.stdout.splitlines() if "-m pipeline.train" in line and "/study/n" in line]
+        found = {int(re.search(r"/study/n([0-9]+)/", line)[1]): int(re.search(r"--epochs '?([0-9]+)", line)[1])
+                 for line in trainings}
+        assert found == expected, study_epochs
+
+
 def test_a_bvh_clip_is_an_input_of_its_sequence_and_a_missing_one_is_named(tmp_path):
     bvh = tmp_path / "walk.bvh"
     bvh.write_text("not parsed by a dry run")

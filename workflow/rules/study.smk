@@ -1,7 +1,8 @@
 # The generalisation study (docs/performance.md): how the error on the held-out motion falls with the amount of
 # training motion, per input variant. For each n of study.sequence_counts a dataset of the scene's first n
 # training sequences and every held-out one; for each variant a network trained on it for as many optimiser steps
-# as the scene's own network takes (its epochs times S / n, S = the scene's training sequences), so that two
+# as `study.epochs` over the scene's sequences take (null: the scene's training.epochs; epochs times S / n, S = the
+# scene's training sequences), so that two
 # points differ only in the motion they saw (at `study.width`, narrower than the scene's network where a grid of
 # full-size trainings would not fit the device); each evaluated; then one table and plot. A count above the scene's
 # `sequences` makes the extra training sequences (seeded by their names, like the others). Target:
@@ -38,8 +39,11 @@ def study_variant(wildcards):
 
 
 def study_epochs(wildcards):
+    """Epochs over n sequences that make as many optimiser steps as `study.epochs` (null: the scene's own
+    training.epochs) over the scene's sequences."""
     settings = SETTINGS[wildcards.scene]
-    return max(1, round(settings["training"]["epochs"] * settings["sequences"] / int(wildcards.n)))
+    epochs = settings["study"]["epochs"] or settings["training"]["epochs"]
+    return max(1, round(epochs * settings["sequences"] / int(wildcards.n)))
 
 
 def study_points(scene):
