@@ -146,6 +146,7 @@ def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: boo
 
 def simulate_low(settings: dict, scene_paths: Sequence[str], device: str, quiet: bool) -> list[SimulationRun]:
     """The low-res runs of a batch of sequences, one per scene file."""
+    start = time.perf_counter()
     s = solver_settings(settings)
     batch = read_batch(scene_paths, s.body_collision)
     rest, faces = read_rest_mesh(scene_paths[0])
@@ -156,14 +157,17 @@ def simulate_low(settings: dict, scene_paths: Sequence[str], device: str, quiet:
     def inputs(f: int) -> FrameInputs:
         return FrameInputs(pin_targets=batch.stack(targets, f), capsules=batch.capsules(f))
 
+    setup = time.perf_counter() - start
     positions, solve_ms = run_frames(solver, batch, inputs, "low-res", quiet)
     return [SimulationRun(positions[:d.n_frames, w], faces, rest, pin_ids, solve_ms[:d.n_frames],
-                          solver.n_constraints, batch_worlds=solver.worlds) for w, d in enumerate(batch.drives)]
+                          solver.n_constraints, batch_worlds=solver.worlds, setup_seconds=setup)
+            for w, d in enumerate(batch.drives)]
 
 
 def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, low_paths: Sequence[str],
                   device: str, quiet: bool) -> list[SimulationRun]:
     """The high-res runs of a batch of sequences (scene file and low-res run of each), one subdivision."""
+    start = time.perf_counter()
     s = solver_settings(settings)
     batch = read_batch(scene_paths, s.body_collision)
     for path in (subdiv_path, *low_paths):  # before any work: S of another mesh would multiply without complaint
@@ -208,6 +212,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
         return FrameInputs(pin_targets=batch.stack(targets, f), harmonic_target=batch.stack(harmonic_targets, f),
                            capsules=batch.capsules(f))
 
+    setup = time.perf_counter() - start
     positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet)
     runs = []
     for w, (drive, target) in enumerate(zip(batch.drives, harmonic_targets)):
@@ -216,7 +221,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
         residual = (np.linalg.norm((high_content - target).reshape(len(x), -1), axis=1)
                     / np.linalg.norm(high_content.reshape(len(x), -1), axis=1))
         runs.append(SimulationRun(x, faces, rest, pins, solve_ms[:drive.n_frames], solver.n_constraints, residual,
-                                  basis.shape[1], batch_worlds=solver.worlds))
+                                  basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup))
     return runs
 
 
@@ -252,8 +257,14 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise PipelineError(f"{groups[1][1]}: a batch is one garment: every sequence takes the same SUBDIV")
         runs = simulate_high(settings, scenes, groups[0][1], [group[2] for group in groups], device, args.quiet)
     source_mesh = mesh_fingerprint(*read_rest_mesh(scenes[0]))
+    start = time.perf_counter()
     for group, run in zip(groups, runs):
         write_simulation(group[-1], args.level, settings, run, device, source_mesh)
+    if not args.quiet:    # where the stage's time went (issue 12: its wall against its stepping)
+        ms = runs[0].solve_ms
+        print(f"simulate {args.level}: setup {runs[0].setup_seconds:.1f} s, first frame (compiling, capture) "
+              f"{ms[1] / 1e3 if len(ms) > 1 else 0.0:.1f} s, the other frames {ms[2:].sum() / 1e3:.1f} s, writing "
+              f"{len(runs)} file(s) {time.perf_counter() - start:.1f} s", file=sys.stderr)
 
 
 if __name__ == "__main__":

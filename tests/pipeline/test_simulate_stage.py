@@ -51,6 +51,9 @@ def test_artifacts_are_self_describing(scene_run):
         assert f["positions"].dtype == np.float32
         assert f["solve_ms"].shape == (f["positions"].shape[0],)
         assert "warp-lang" in f.attrs["versions"]
+    for name in ("sim_low.h5", "sim_high.h5"):
+        with h5py.File(scene_run / name) as f:
+            assert 0.0 <= f.attrs["setup_seconds"] < 60.0 and f.attrs["batch"] == 1
 
 
 def rod_positions(rotation: np.ndarray, translation: np.ndarray, pivot: np.ndarray, points: np.ndarray) -> np.ndarray:
