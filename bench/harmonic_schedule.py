@@ -53,7 +53,8 @@ def main():
                    args.worlds, args.frames)
     constraint = harmonics(high, high_faces, pins)
     mass_basis_t = constraint.mass_basis.T
-    goals = harmonic_targets(constraint, S, x_low, capsules, radii, SolverSettings(**base), args.device)  # (F, B, K, 3)
+    # (F, B, K, 3)
+    goals = harmonic_targets(constraint, S, x_low, capsules, radii, SolverSettings(**base), args.device)
     rows = ["| harmonic projection | ms per batch frame | residual median | residual max | mean move (mm) | "
             "max move (mm) |", "|---|---|---|---|---|---|"]
     reference = None

@@ -106,7 +106,8 @@ def main() -> None:
     for batch_size in map(int, args.batch_sizes.split(",")):
         ids = torch.randperm(len(data.train), generator=torch.Generator().manual_seed(0))
         ids = torch.as_tensor(data.train, device=device)[ids.to(device)]
-        ids = ids.repeat(-(-batch_size * (args.steps + args.warmup) // len(ids)))[:batch_size * (args.steps + args.warmup)]
+        needed = batch_size * (args.steps + args.warmup)
+        ids = ids.repeat(-(-needed // len(ids)))[:needed]
         for name in args.variants.split(","):
             spec = VARIANTS[name]
             if "body" in spec.inputs and data.context.capsule_a.shape[1] == 0:

@@ -21,7 +21,7 @@ import torch
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
-from model.training_step import LOSS_TERMS, GraphedStep, adam, eager_step
+from model.training_step import LOSS_TERMS, BatchLoss, GraphedStep, adam, eager_step
 
 CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
 TERMS = ("total", *LOSS_TERMS)
@@ -78,13 +78,10 @@ class Frames:
         return split_errors(lambda inputs: model(inputs, mesh), self, ids, batch_size, weights)
 
 
-class Problem(Protocol):
-    """What `fit` trains on: the loss of a batch of sample ids and the errors over a split's sample ids, for a
-    model on `mesh`. `Frames` is one mesh's problem (a sample is a frame); model.multi_mesh.MultiMeshFrames
-    trains one network on several meshes (a sample is one frame of each)."""
-
-    def batch_loss(self, model, mesh, ids: torch.Tensor,
-                   weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]: ...
+class Problem(BatchLoss, Protocol):
+    """What `fit` trains on: the loss of a batch of sample ids (BatchLoss) and the errors over a split's
+    sample ids, for a model on `mesh`. `Frames` is one mesh's problem (a sample is a frame);
+    model.multi_mesh.MultiMeshFrames trains one network on several meshes (a sample is one frame of each)."""
 
     def errors(self, model, mesh, ids: torch.Tensor, batch_size: int, weights: LossWeights) -> dict[str, float]: ...
 

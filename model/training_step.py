@@ -21,6 +21,8 @@ Step = Callable[[torch.Tensor], torch.Tensor]   # frame ids (B,) -> (total, l1, 
 
 
 class BatchLoss(Protocol):
+    """What a step needs of a learning problem: the loss of a batch of sample ids and its terms (LOSS_TERMS)."""
+
     def batch_loss(self, model, mesh, ids: torch.Tensor, weights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]: ...
 
 

@@ -202,7 +202,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
             return positions
         return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
 
-    harmonic_targets = [per_frame_product(mass_basis_t, smooth(x_low, drive).astype(np.float64))
+    harmonic_targets = [per_frame_product(mass_basis_t, smooth(x_low, drive).astype(np.float64, copy=False))
                         for x_low, drive in zip(x_lows, batch.drives)]
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
                          harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),

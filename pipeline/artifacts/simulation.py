@@ -55,8 +55,9 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
                        batch=run.batch_worlds, setup_seconds=run.setup_seconds)
         if run.harmonic_residual is not None:
             f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
-            f["harmonic_residual"].attrs["meaning"] = ("|B^T M x_high - t| / |B^T M x_high| per frame, t = B^T M S x_low "
-                                                       "(S x_low moved clear of the body where it collides)")
+            f["harmonic_residual"].attrs["meaning"] = ("|B^T M x_high - t| / |B^T M x_high| per frame, "
+                                                       "t = B^T M S x_low (S x_low moved clear of the body where "
+                                                       "it collides)")
             f.attrs["n_harmonics"] = run.n_harmonics
 
 

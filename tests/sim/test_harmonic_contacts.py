@@ -60,7 +60,8 @@ def pants_on_a_dancer():
     S, faces = loop_subdivide(garment.vertices, garment.faces, levels=1)
     high = S @ garment.vertices
     basis, _, mass = harmonic_basis(high, faces, harmonic_count(len(high)))
-    smooth = outside_body(np.stack([S @ x for x in x_low]), capsules, radii, SolverSettings().collision_thickness, "cpu")
+    smooth = outside_body(np.stack([S @ x for x in x_low]), capsules, radii, SolverSettings().collision_thickness,
+                          "cpu")
     goals = np.einsum("kv,fvc->fkc", (mass[:, None] * basis).T, smooth.astype(np.float64))
     return high, faces, pins, targets, capsules, radii, basis, mass, goals, S @ x_low[0]
 
