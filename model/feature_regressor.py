@@ -73,6 +73,15 @@ def store_statistics(features: InputFeatures, store: FrameStore, ids: torch.Tens
     return offset.float(), torch.cat(scales).float()
 
 
+def with_input_noise(z: torch.Tensor, std: float, training: bool) -> torch.Tensor:
+    """`z` plus Gaussian noise of standard deviation `std` while training, `z` itself otherwise. Applied to the
+    normalised inputs (each channel has unit training variance, so `std` is a fraction of each channel's spread):
+    a regulariser (noise on the inputs acts like a penalty on the network's input gradients, Bishop 1995) meant to
+    keep the map smooth where an unseen motion puts inputs between the training frames'. Draws from torch's
+    default generator, which the training checkpoint saves and a CUDA graph replays safely."""
+    return z + std * torch.randn_like(z) if training and std > 0 else z
+
+
 def mean_square(targets: torch.Tensor, ids: torch.Tensor, batch_size: int = 256) -> float:
     """Mean of the squared entries of `targets[ids]` (float64 sums), a batch of frames at a time: a copy of every
     training frame's targets (3 GB in float64 for 64 paper-profile sequences) would crowd other trainings out of
@@ -103,6 +112,7 @@ class FeatureRegressor(nn.Module):
         self.register_buffer("input_offset", torch.as_tensor(offset, dtype=torch.float32).reshape(-1))
         self.register_buffer("input_scale", torch.as_tensor(scale, dtype=torch.float32).reshape(-1))
         self.register_buffer("output_scale", torch.tensor(float(output_scale)))
+        self.input_noise = 0.0   # training only (with_input_noise); not part of the saved model
 
     def normalise(self, store: FrameStore, train_ids: torch.Tensor, targets: torch.Tensor) -> None:
         """Fix the normalisations from the training frames `train_ids` only: the inputs' (store_statistics) and
@@ -116,7 +126,8 @@ class FeatureRegressor(nn.Module):
     def encode(self, inputs: FrameBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The normalised network input (B, V, C) and, for local outputs, the frames (B, V, 3, 3) to restore them
         with. Neither depends on the weights: a caller may compute them once per frame and reuse them."""
-        x = (self.features(inputs) - self.input_offset) / self.input_scale
+        x = with_input_noise((self.features(inputs) - self.input_offset) / self.input_scale, self.input_noise,
+                             self.training)
         return x, self.features.frames(inputs) if self.spec.output_frame == "local" else None
 
     def decode(self, x: torch.Tensor, frames: torch.Tensor | None, mesh: MeshHierarchy) -> torch.Tensor:

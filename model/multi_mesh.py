@@ -68,6 +68,15 @@ class MultiMeshRegressor(nn.Module):
             raise UnknownMeshError(f"the network was trained on {', '.join(self.parts)}; not on '{name}'")
         return self.parts[name]
 
+    @property
+    def input_noise(self) -> float:
+        return next(iter(self.parts.values())).input_noise
+
+    @input_noise.setter
+    def input_noise(self, std: float) -> None:
+        for part in self.parts.values():
+            part.input_noise = std
+
     def train(self, mode: bool = True) -> MultiMeshRegressor:
         super().train(mode)
         for part in self.parts.values():

@@ -13,7 +13,7 @@ import dataclasses
 import torch
 from torch import nn
 
-from model.feature_regressor import mean_square
+from model.feature_regressor import mean_square, with_input_noise
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import Decoder
 
@@ -69,6 +69,7 @@ class VectorRegressor(nn.Module):
         self.register_buffer("input_offset", torch.as_tensor(offset, dtype=torch.float32).reshape(-1))
         self.register_buffer("input_scale", torch.as_tensor(scale, dtype=torch.float32).reshape(-1))
         self.register_buffer("output_scale", torch.tensor(float(output_scale)))
+        self.input_noise = 0.0   # training only (model.feature_regressor.with_input_noise); not saved
 
     def normalise(self, store: VectorStore, train_ids: torch.Tensor, targets: torch.Tensor) -> None:
         """Fix the normalisations from the training frames `train_ids` only: per-scalar mean and standard
@@ -80,5 +81,5 @@ class VectorRegressor(nn.Module):
         self.output_scale.fill_(mean_square(targets, train_ids) ** 0.5 or 1.0)
 
     def forward(self, inputs: VectorBatch, mesh: MeshHierarchy) -> torch.Tensor:
-        z = (inputs.values - self.input_offset) / self.input_scale
+        z = with_input_noise((inputs.values - self.input_offset) / self.input_scale, self.input_noise, self.training)
         return self.net(z, mesh) * self.output_scale

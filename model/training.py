@@ -35,6 +35,7 @@ class TrainSettings:
     weights: LossWeights = LossWeights()
     seed: int = 0
     cuda_graph: bool = False     # replay each full batch's step as one CUDA graph (model.training_step)
+    input_noise: float = 0.0     # std of the noise on the normalised inputs (model.feature_regressor.with_input_noise)
 
 
 @dataclasses.dataclass
@@ -120,6 +121,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     is called after every optimiser step with the batch's loss as a 0-d tensor on the device (reading it makes
     the host wait for the GPU: read it now and then, not every step).
     """
+    model.input_noise = settings.input_noise
     optimizer = adam(model, settings.lr, settings.cuda_graph)
     step = eager_step(model, mesh, frames, optimizer, settings.weights)
     if settings.cuda_graph:
@@ -128,7 +130,8 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     identity = {"settings": _settings_key(settings), **(identity or {})}
     history = History()
     if resume_from is not None:
-        history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, on_notice)
+        history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, on_notice,
+                          train_ids.device)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
@@ -153,13 +156,27 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         if save_checkpoint is not None:
             save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
                              "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
-                             "history": dataclasses.asdict(history)})
+                             "noise": _noise_state(train_ids.device), "history": dataclasses.asdict(history)})
     model.eval()
     return history
 
 
+def _noise_state(device: torch.device) -> torch.Tensor:
+    """The state of the generator that input noise draws from (torch's default one on `device`): saved so that
+    a resumed run draws the noise the uninterrupted one would have."""
+    return torch.cuda.get_rng_state(device) if device.type == "cuda" else torch.get_rng_state()
+
+
+def _restore_noise_state(state: torch.Tensor, device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.set_rng_state(state, device)
+    else:
+        torch.set_rng_state(state)
+
+
 def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model: torch.nn.Module,
-            optimizer: torch.optim.Optimizer, shuffle: torch.Generator, on_notice: Callable[[str], None]) -> History:
+            optimizer: torch.optim.Optimizer, shuffle: torch.Generator, on_notice: Callable[[str], None],
+            device: torch.device) -> History:
     """Restore model, optimiser and shuffle states from a matching checkpoint; a fresh History otherwise."""
     if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT
             and state.get("identity") == identity):
@@ -173,6 +190,8 @@ def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model:
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         shuffle.set_state(state["shuffle"])
+        if "noise" in state:       # checkpoints written before input noise existed have none
+            _restore_noise_state(state["noise"], device)
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as err:
         # The message of a failed load_state_dict spans lines; the type is enough to say it is damaged.
         raise CheckpointError(f"checkpoint contents cannot be restored ({type(err).__name__})") from None

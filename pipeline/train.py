@@ -5,7 +5,7 @@
         [--inputs position,...] [--input-frame dataset|local] [--output-frame dataset|local]
         [--frame-tangent edge|gravity] [--epochs 200]
         [--batch-size 3] [--lr 1e-3] [--loss-l1 1] [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0]
-        [--checkpoint PATH] [--threads N] [--quiet]
+        [--cuda-graph true|false] [--input-noise 0] [--checkpoint PATH] [--threads N] [--quiet]
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
@@ -58,7 +58,7 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
             "epochs": training["epochs"], "batch_size": training["batch_size"], "lr": training["lr"],
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
             "loss_normal": training["loss"]["normal"], "cuda_graph": training["cuda_graph"],
-            "device": settings["device"]}
+            "input_noise": training["input_noise"], "device": settings["device"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -88,6 +88,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cuda-graph", type=cli.boolean, default=False, metavar="true|false",
                         help="replay each optimiser step as one CUDA graph (a CUDA device only)")
+    parser.add_argument("--input-noise", type=float, default=0.0,
+                        help="std of Gaussian noise on the normalised inputs while training (0: none)")
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
@@ -98,6 +100,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError("--epochs and --batch-size must be >= 1 and --lr finite and > 0")
     if not all(0 <= w < math.inf for w in (args.loss_l1, args.loss_l2, args.loss_normal)):
         raise PipelineError("loss weights must be finite and >= 0")
+    if not 0 <= args.input_noise < math.inf:
+        raise PipelineError("--input-noise must be finite and >= 0")
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
@@ -126,7 +130,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     model = model.to(device)
     model.normalise(frames.store, train_ids, frames.targets)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
-                             LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed, args.cuda_graph)
+                             LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed, args.cuda_graph,
+                             args.input_noise)
     resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()

@@ -48,6 +48,7 @@ EDITS = {
     "frames 10 million": (_set("frames", 10**7), ("frames", "maximum of 100000")),
     "dt of 5 s": (_set("solver", "dt", 5.0), ("solver.dt", "maximum of 0.1")),
     "seed past 32 bits": (_set("training", "seed", 2**40), ("training.seed", "maximum")),
+    "negative input noise": (_set("training", "input_noise", -0.1), ("training.input_noise", "minimum")),
     "missing solver.substeps": (_drop("solver", "substeps"), ("missing key 'substeps' in solver",)),
     "missing high_res": (lambda s: s.pop("high_res"), ("missing key 'high_res' in top level",)),
     "substeps as text": (_set("solver", "substeps", "8"), ("solver.substeps", "'8' is not of type 'integer'")),

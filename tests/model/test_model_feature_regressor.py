@@ -120,3 +120,12 @@ def test_mean_square_of_the_chosen_frames_batch_by_batch_matches_numpy():
     expected = np.mean(np.square(targets.double().numpy()[ids.numpy()]))
     assert mean_square(targets, ids, batch_size=3) == pytest.approx(expected, rel=1e-12)
     assert mean_square(targets, ids[:0]) == 0.0
+
+
+def test_input_noise_has_the_asked_spread_in_training_and_none_otherwise():
+    torch.manual_seed(0)
+    z = torch.randn(4, 5000, 6)
+    noisy = feature_regressor.with_input_noise(z, 0.2, training=True)
+    assert abs(float((noisy - z).std()) - 0.2) < 0.005 and abs(float((noisy - z).mean())) < 0.005
+    assert feature_regressor.with_input_noise(z, 0.2, training=False) is z
+    assert feature_regressor.with_input_noise(z, 0.0, training=True) is z

@@ -41,23 +41,40 @@ def _stored(state: dict) -> dict:
     return torch.load(buffer, weights_only=True)
 
 
-def test_resumed_training_equals_uninterrupted(grid):
+@pytest.mark.parametrize("noise", [0.0, 0.3])
+def test_resumed_training_equals_uninterrupted(grid, noise):
+    """With input noise too: the checkpoint carries the noise generator's state (without it the resumed run's
+    draws start from _model's seed, and its steps differ from the uninterrupted run's)."""
     mesh, frames = _problem(grid)
     train_ids, test_ids = torch.arange(6), torch.tensor([6])
     saved, notices = [], []
     first = _model(grid)
-    fit(first, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2),
+    fit(first, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2, input_noise=noise),
         save_checkpoint=lambda state: saved.append(_stored(state)), on_notice=notices.append)
     resumed = _model(grid)
-    history = fit(resumed, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4), resume_from=saved[-1],
-                  on_notice=notices.append)
+    history = fit(resumed, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4, input_noise=noise),
+                  resume_from=saved[-1], on_notice=notices.append)
     straight = _model(grid)
-    reference = fit(straight, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4))
+    reference = fit(straight, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4, input_noise=noise))
     assert len(saved) == 2 and history.resumed_from_epoch == 2 and notices == ["resuming after epoch 2"]
     assert history.train["total"] == reference.train["total"]
     for name, value in straight.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[name], value, rtol=0, atol=0)
     assert reference.train["total"][-1] < reference.train["total"][0]
+
+
+def test_input_noise_acts_in_training_steps_only(grid):
+    """Noise changes the steps (other losses, other weights) but not what the trained model computes from a
+    frame once training ends: evaluation is deterministic."""
+    mesh, frames = _problem(grid)
+    train_ids, test_ids = torch.arange(6), torch.tensor([6])
+    clean, noisy = _model(grid), _model(grid)
+    plain = fit(clean, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2))
+    jittered = fit(noisy, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2, input_noise=0.5))
+    assert plain.train["total"][0] != jittered.train["total"][0]
+    batch = frames.store.batch(test_ids)
+    torch.testing.assert_close(noisy(batch, mesh), noisy(batch, mesh), rtol=0, atol=0)
+    assert not noisy.training and noisy.input_noise == 0.5
 
 
 def test_stale_checkpoint_starts_afresh_and_a_damaged_one_is_an_error(grid):
