@@ -31,7 +31,7 @@ def add_threads(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | None,
-                        flags_of: Callable[[dict], dict[str, Any]]) -> argparse.Namespace:
+                        flags_of: Callable[[dict], dict[str, Any]], unread: tuple[str, ...] = ()) -> argparse.Namespace:
     """Parse a stage's arguments, taking the defaults of its flags from `--settings SETTINGS.json`.
 
     The resolved scene settings (written by `python -m pipeline.config`) are read first; `flags_of(settings)`
@@ -41,7 +41,8 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
     converts with the flag's own `type`: a setting and the same value typed by hand give the same argument.
     (argparse does not check `choices` on defaults; the config schema has checked those values, as
     `pipeline.config.read_settings` does, naming first a missing setting this stage reads.) `settings` is kept out
-    of the returned namespace, so an artifact's recorded config holds the flags' values only.
+    of the returned namespace, so an artifact's recorded config holds the flags' values only. The top-level
+    settings `unread` (never used by this stage) may be absent, as in simulation.json.
     """
     parser.add_argument("--settings", metavar="SETTINGS.json",
                         help="resolved scene settings (python -m pipeline.config): the defaults of the flags")
@@ -52,7 +53,7 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
             defaults = flags_of(settings)
         except KeyError as err:
             raise PipelineError(f"{settings_path}: missing setting {err}") from None
-        require_complete_settings(settings, settings_path)
+        require_complete_settings(settings, settings_path, unread)
         parser.set_defaults(**{dest: _as_flag_text(value) for dest, value in defaults.items()})
     args = parser.parse_args(argv)
     del args.settings

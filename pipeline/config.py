@@ -239,6 +239,17 @@ def shared_settings(settings: dict) -> dict:
     return {key: value for key, value in settings.items() if key not in WORKFLOW_ONLY}
 
 
+# Read by the learning stages only (operators, train, evaluate): kept out of simulation.json, which the stages
+# that make the motion and the cloth (scene, subdivide, simulate) read, so that a change of the network or its
+# training reruns no simulation. (`dataset` stays: its `split` decides which clips the training sequences use.)
+LEARNING_ONLY = ("operators", "network", "training", "evaluation")
+
+
+def simulation_settings(settings: dict) -> dict:
+    """What simulation.json holds: settings.json's content less what only the learning stages read."""
+    return {key: value for key, value in shared_settings(settings).items() if key not in LEARNING_ONLY}
+
+
 def application_settings(settings: dict, name: str) -> dict:
     """What results/<scene>/<name>/settings.json holds for application `name` (pose, pca): the scene's
     settings.json with `applications.<name>` (less its PCA component counts, which name folders) merged over
@@ -253,12 +264,13 @@ def write_settings(settings: dict, path: str | os.PathLike) -> None:
         f.write(json.dumps(settings, indent=2, sort_keys=True, allow_nan=False).encode())
 
 
-def read_settings(path: str | os.PathLike) -> dict:
-    """Settings written by `write_settings` (the per-scene settings.json), checked as `resolve_scene` checks a
-    scene's: `load_settings`, then every key present (a hand-edited file without `solver.substeps` would
-    otherwise run with the solver's own default)."""
+def read_settings(path: str | os.PathLike, unread: tuple[str, ...] = ()) -> dict:
+    """Settings written by `write_settings` (the per-scene settings.json or simulation.json), checked as
+    `resolve_scene` checks a scene's: `load_settings`, then every key present but the top-level `unread` ones the
+    reading stage never uses (a hand-edited file without `solver.substeps` would otherwise run with the solver's
+    own default)."""
     settings = load_settings(path)
-    require_complete_settings(settings, path)
+    require_complete_settings(settings, path, unread)
     return settings
 
 
@@ -280,9 +292,10 @@ def load_settings(path: str | os.PathLike) -> dict:
     return settings
 
 
-def require_complete_settings(settings: dict, path: str | os.PathLike) -> None:
-    """Every key of a scene's settings.json is present (those only the workflow reads may be left out)."""
-    _require_complete(settings, _settings_schema(), None, str(path), optional=WORKFLOW_ONLY)
+def require_complete_settings(settings: dict, path: str | os.PathLike, unread: tuple[str, ...] = ()) -> None:
+    """Every key of a scene's settings.json is present (those only the workflow reads, and the top-level `unread`
+    ones, may be left out)."""
+    _require_complete(settings, _settings_schema(), None, str(path), optional=WORKFLOW_ONLY + tuple(unread))
 
 
 def _settings_schema() -> dict:

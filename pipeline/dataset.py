@@ -40,6 +40,7 @@ from pipeline.artifacts.h5 import check_same_mesh, source_mesh_of
 from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
+from pipeline.config import LEARNING_ONLY
 from pipeline.errors import PipelineError
 from pipeline.tasks import TASKS, task_of
 from pipeline.tasks.task import DatasetRequest, FrameMaker, SequenceRun
@@ -199,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="the learning problem: its input and predictor (pipeline/tasks)")
     parser.add_argument("--components", type=int, help="PCA components (task pca)")
     cli.add_quiet(parser)
-    args = cli.parse_with_settings(parser, argv, flags_from_settings)
+    args = cli.parse_with_settings(parser, argv, flags_from_settings, unread=LEARNING_ONLY)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
     if (args.components is not None) != (args.task == "pca") or (args.components is not None and args.components < 1):

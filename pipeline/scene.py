@@ -14,7 +14,7 @@ from typing import Sequence
 
 from pipeline import cli
 from pipeline.artifacts.scene import write_scene, write_scene_rest
-from pipeline.config import read_settings
+from pipeline.config import LEARNING_ONLY, read_settings
 from pipeline.errors import PipelineError
 from scenes.registry import build_rest, build_scene
 
@@ -26,7 +26,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--sequence", help="write this sequence (train_000, ..., held_out_000, ...) instead of "
                                            "what the sequences share")
     args = parser.parse_args(argv)
-    settings = read_settings(args.settings)
+    settings = read_settings(args.settings, unread=LEARNING_ONLY)
     where = f"scene '{settings['scene']}'" + (f" sequence '{args.sequence}'" if args.sequence else "")
     try:
         if args.sequence is None:

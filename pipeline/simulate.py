@@ -29,7 +29,7 @@ from pipeline.artifacts.h5 import check_same_mesh, mesh_fingerprint
 from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
 from pipeline.artifacts.simulation import SimulationRun, read_trajectory, write_simulation
 from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
-from pipeline.config import read_settings
+from pipeline.config import LEARNING_ONLY, read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
@@ -245,7 +245,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
     groups = sequence_groups(args.level, args.files)
-    settings = read_settings(args.settings)
+    settings = read_settings(args.settings, unread=LEARNING_ONLY)
     device = args.device or settings["device"]
     cli.check_device(device, "Warp", wp.get_cuda_device_count)
     scenes = [group[0] for group in groups]

@@ -26,6 +26,7 @@ from tqdm import tqdm
 from pipeline.artifacts.h5 import mesh_fingerprint
 from pipeline.artifacts.subdiv import Harmonics, Subdivision, write_subdiv
 from pipeline.cli import add_quiet, parse_with_settings, run
+from pipeline.config import LEARNING_ONLY
 from pipeline.errors import PipelineError
 from pipeline.meshio import load_mesh
 from geometry.harmonics import harmonic_basis, harmonic_count
@@ -99,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--vertices-per-harmonic", type=_int_in(1), default=40,
                         help="K = ceil(high-res vertices / this) harmonic test functions (paper: 40)")
     add_quiet(parser)
-    args = parse_with_settings(parser, argv, flags_from_settings)
+    args = parse_with_settings(parser, argv, flags_from_settings, unread=LEARNING_ONLY)
 
     # Loaded and costed before anything is printed, so that bad input prints nothing but its error line.
     low_vertices, low_faces = load_mesh(args.mesh)

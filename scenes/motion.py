@@ -24,7 +24,7 @@ from scenes.kinematics import (forward_kinematics, joint_angular_velocity, joint
                                rest_transforms)
 from scenes.skeleton import TORSO, Skeleton, default_skeleton, mirror_name
 
-MOTION_KINDS = ("rest", "walk", "dance", "karate", "random")
+MOTION_KINDS = ("rest", "walk", "dance", "karate", "random", "exercise")
 SOFT_LIMIT_MARGIN = 0.05  # fraction of a joint's range over which the soft clamp bends values into the limit
 GROUND_SOFTNESS = 0.005   # length (for a 1.7 body) over which the lower foot smoothly takes the weight
 GROUND_SMOOTHING = 0.05   # seconds (Gaussian sigma): the body's give when the weight passes to the other foot
@@ -405,6 +405,49 @@ def _karate(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCu
     return _keyframed(skel, np.array(times), np.stack([_pose(skel, p) for p in poses]), tau)
 
 
+# Exercises in place: what a training program needs that dance, karate and random poses lack (deep, slow and
+# held flexion of both legs, one leg lifted high or out to the side, the trunk bent and twisted over the hips).
+_STANCE = {"thigh_l": (-5, 0, 4), "shin_l": (8, 0, 0), "foot_l": (-3, 0, 0),
+           "thigh_r": (-5, 0, 4), "shin_r": (8, 0, 0), "foot_r": (-3, 0, 0)}
+_SQUAT = {"thigh_l": (-50, 0, 12), "shin_l": (72, 0, 0), "foot_l": (-22, 0, 0),
+          "thigh_r": (-50, 0, 12), "shin_r": (72, 0, 0), "foot_r": (-22, 0, 0), "spine": (15, 0, 0),
+          "upper_arm_l": (-80, 0, 0), "upper_arm_r": (-80, 0, 0)}
+_KNEE_UP_L = {**_STANCE, "thigh_l": (-80, 0, 0), "shin_l": (90, 0, 0), "foot_l": (10, 0, 0),
+              "upper_arm_l": (20, 0, 0), "upper_arm_r": (-30, 0, 0), "lower_arm_l": (-60, 0, 0),
+              "lower_arm_r": (-60, 0, 0)}
+_LEG_OUT_L = {**_STANCE, "thigh_l": (0, 0, 30), "shin_l": (5, 0, 0), "pelvis": (0, 0, -6),
+              "upper_arm_l": (0, 0, 40), "upper_arm_r": (0, 0, 40)}
+_TOE_REACH = {"spine": (35, 0, 0), "chest": (20, 0, 0), "head": (20, 0, 0), "thigh_l": (-25, 0, 4),
+              "thigh_r": (-25, 0, 4), "shin_l": (8, 0, 0), "shin_r": (8, 0, 0), "foot_l": (-3, 0, 0),
+              "foot_r": (-3, 0, 0), "upper_arm_l": (-70, 0, 0), "upper_arm_r": (-70, 0, 0)}
+_TWIST_L = {**_STANCE, "spine": (0, 25, 0), "chest": (0, 20, 0), "head": (0, 15, 0),
+            "upper_arm_l": (0, 0, 40), "upper_arm_r": (0, 0, 40), "lower_arm_l": (-20, 0, 0),
+            "lower_arm_r": (-20, 0, 0)}
+# Each exercise: (pose, seconds to reach it from the previous keyframe), ending back in the stance.
+_EXERCISES = {
+    "squat": [(_SQUAT, 0.9), (_SQUAT, 0.3), (_STANCE, 0.8)],
+    "knee_up_l": [(_KNEE_UP_L, 0.5), (_KNEE_UP_L, 0.25), (_STANCE, 0.45)],
+    "leg_out_l": [(_LEG_OUT_L, 0.5), (_LEG_OUT_L, 0.2), (_STANCE, 0.45)],
+    "toe_reach": [(_TOE_REACH, 1.0), (_TOE_REACH, 0.3), (_STANCE, 0.9)],
+    "twist_l": [(_TWIST_L, 0.6), (_TWIST_L, 0.15), (_STANCE, 0.5)],
+}
+_EXERCISES.update({name[:-1] + "r": [(_mirror_pose(pose), dt) for pose, dt in steps]
+                   for name, steps in list(_EXERCISES.items()) if name.endswith("_l")})
+
+
+def _exercise(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
+    """Exercises in place: a seeded sequence of squats, knee raises and side leg raises with either leg, forward
+    toe reaches and trunk twists either way, each from and back to a relaxed stance, at a seeded tempo."""
+    names = sorted(_EXERCISES)
+    times, poses = [0.0, 0.3], [_STANCE, _STANCE]
+    while times[-1] <= tau[-1]:
+        tempo = rng.uniform(0.8, 1.25)
+        for pose, dt in _EXERCISES[names[rng.integers(len(names))]] + [(_STANCE, 0.2)]:
+            times.append(times[-1] + dt * tempo)
+            poses.append(pose)
+    return _keyframed(skel, np.array(times), np.stack([_pose(skel, p) for p in poses]), tau)
+
+
 # Fraction of each joint's range that random poses draw from: wide for arms and head, narrow for the legs so
 # the mannequin stays standing.
 _RANDOM_REACH = {"pelvis": 0.3, "spine": 0.5, "chest": 0.5, "head": 0.6, "upper_arm": 0.7, "lower_arm": 0.7,
@@ -442,7 +485,7 @@ def _draw_clear_pose(skel: Skeleton, rng: np.random.Generator, lower: np.ndarray
 
 
 _GENERATORS: dict[str, Callable[[Skeleton, np.random.Generator, np.ndarray], ClipCurves]] = {
-    "rest": _rest, "walk": _walk, "dance": _dance, "karate": _karate, "random": _random}
+    "rest": _rest, "walk": _walk, "dance": _dance, "karate": _karate, "random": _random, "exercise": _exercise}
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,8 +9,10 @@ import pytest
 import yaml
 
 from pipeline.cli import parse_with_settings
-from pipeline.config import deep_merge, load_config, resolve_scene, shared_settings, validate_config, write_settings
+from pipeline.config import (LEARNING_ONLY, deep_merge, load_config, load_schema, read_settings, resolve_scene,
+                             shared_settings, simulation_settings, validate_config, write_settings)
 from pipeline.errors import PipelineError
+from scenes.motion import MOTION_KINDS
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
 
@@ -203,3 +205,26 @@ def test_bad_settings_file_is_one_clear_error(tmp_path, content, message):
     with pytest.raises(PipelineError, match=message) as error:
         parse_with_settings(_stage_parser(), ["o.h5", "--settings", str(path)], _flags)
     assert str(error.value).startswith(f"{path}: ")
+
+
+def test_simulation_json_leaves_out_what_only_learning_reads_and_the_data_stages_accept_it(tmp_path):
+    """simulation.json (what scene, subdivide, simulate and dataset read) is settings.json less the network, its
+    operators, training and evaluation, so a training change does not touch it; `dataset.split` stays (it picks
+    the training sequences' clips). The learning stages' full check refuses it; the data stages' accepts it."""
+    settings = resolve_scene(CONFIG, "pants")
+    simulation = simulation_settings(settings)
+    assert set(shared_settings(settings)) - set(simulation) == set(LEARNING_ONLY)
+    assert simulation["dataset"] == settings["dataset"]
+    retrained = resolve_scene(CONFIG, "pants")
+    retrained["training"] = {**retrained["training"], "epochs": 99}
+    assert simulation_settings(retrained) == simulation
+    write_settings(simulation, tmp_path / "simulation.json")
+    assert read_settings(tmp_path / "simulation.json", unread=LEARNING_ONLY) == simulation
+    with pytest.raises(PipelineError, match="missing key 'operators' in top level"):
+        read_settings(tmp_path / "simulation.json")
+
+
+def test_the_schema_names_every_procedural_motion_kind():
+    """The schema's clip enum is written by hand: a kind added to scenes.motion must be added there too."""
+    clip = load_schema()["$defs"]["clip"]
+    assert [set(option["enum"]) for option in clip["oneOf"] if "enum" in option] == [set(MOTION_KINDS)]

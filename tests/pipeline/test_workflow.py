@@ -19,7 +19,8 @@ import yaml
 REPO = Path(__file__).resolve().parents[2]
 SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 CONFIG = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
-STAGES = {"settings", "scene", "sequence", "subdivide", "simulate_low", "simulate_high", "operators", "dataset",
+SETTINGS_RULES = {"settings", "simulation_settings"}                 # write JSON in Snakemake: no shell command
+STAGES = {*SETTINGS_RULES, "scene", "sequence", "subdivide", "simulate_low", "simulate_high", "operators", "dataset",
           "train", "evaluate"}
 PER_SEQUENCE = {"sequence", "simulate_low", "simulate_high"}          # one job per sequence of the scene
 ON_DEVICE = {"simulate_low", "simulate_high", "train", "evaluate"}   # the jobs that run on the scene's device
@@ -60,7 +61,7 @@ PRODUCTS = ("settings.json", "scene.h5", "subdiv.h5", "sequences/train_000/scene
             "model.pt", "train.h5", "eval.h5", "report.md")
 
 
-def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir):
+def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir, tmp_path):
     run = snakemake(workdir, "results/patch/")
     assert run.returncode == 0, tail(run)
     out = workdir / "results" / "patch"
@@ -86,6 +87,21 @@ def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir):
     assert "rule evaluate:" in rerun.stderr and "rule train:" not in rerun.stderr
     changed = {name for name in PRODUCTS if (out / name).stat().st_mtime_ns != mtimes[name]}
     assert changed == {"eval.h5", "report.md"}
+
+    # A training setting changed: training and what follows rerun, no simulation (simulation.json is unchanged);
+    # a solver setting changed: the simulation reruns.
+    for change, reruns, untouched in (
+            ({"training": {"epochs": 3}}, {"settings", "operators", "train", "evaluate"},
+             {"simulation_settings", "scene", "sequence", "subdivide", "simulate_low", "simulate_high", "dataset"}),
+            ({"solver": {"iterations": 31}}, {"simulation_settings", "simulate_low", "simulate_high", "dataset"},
+             set())):
+        overlay = tmp_path / "overlay.yaml"
+        overlay.write_text(yaml.safe_dump({"profiles": {"cpu": {"scenes": {"patch": change}}}}))
+        plan = snakemake(workdir, "-n", "--configfile", str(REPO / "workflow_config.yaml"), str(overlay), "--",
+                         "results/patch/")
+        assert plan.returncode == 0, tail(plan)
+        planned = set(planned_jobs(plan))
+        assert reruns <= planned and not planned & untouched, (change, sorted(planned))
 
     low = snakemake(workdir, "results/patch/sequences/train_000/sim_low.h5", "--forcerun", "simulate_low")
     assert low.returncode == 0, tail(low)
@@ -240,7 +256,7 @@ def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_
         assert job["log"] == f"results/{scene}/logs/{seq}{name}.log"
         assert job["benchmark"] == f"results/{scene}/benchmarks/{seq}{name}.tsv"
         assert "mem_mb=" in job["resources"] and "gpu=1" not in job["resources"]   # the cpu profile: no GPU
-        assert name == "settings" or job["shell"].endswith(f" 2>&1 | tee {job['log']}")
+        assert name in SETTINGS_RULES or job["shell"].endswith(f" 2>&1 | tee {job['log']}")
     assert jobs["train"]["threads"] == jobs["evaluate"]["threads"] == "2"             # --cores 2
 
     other = snakemake(tmp_path, "-n", "--config", "default_scene=patch", "device=cuda:0")
@@ -263,7 +279,7 @@ def test_no_config_value_reaches_a_shell_command(tmp_path):
     assert run.returncode == 0, tail(run)
     assert "pwned" not in run.stdout + run.stderr and not (tmp_path / "pwned").exists()
     shells = {name: job["shell"] for name, job in planned_jobs(run).items() if job.get("shell", "None") != "None"}
-    assert set(shells) == STAGES - {"settings"}
+    assert set(shells) == STAGES - SETTINGS_RULES
     words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--videos", "--export",
              "--html", "--train-log", "--threads", "2", "--quiet", "--sequence", "--tradeoff-report",
              "--study-report",

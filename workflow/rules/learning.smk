@@ -17,7 +17,7 @@ rule operators:
 # The dataset gathers every sequence of the scene (their folders, in order).
 rule dataset:
     input:
-        settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", scenes=sequence_files("scene.h5"),
+        settings=f"{OUT}/simulation.json", subdiv=f"{OUT}/subdiv.h5", scenes=sequence_files("scene.h5"),
         sim_low=sequence_files("sim_low.h5"), sim_high=sequence_files("sim_high.h5"),
     output: f"{OUT}/dataset.h5"
     params: sequences=sequence_folders

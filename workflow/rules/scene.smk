@@ -1,9 +1,11 @@
 # A scene's resolved settings, what its sequences share (scene.h5: rest mesh, pins, skeleton, skinning), each
 # sequence's scene (the motion and everything it moves) and the subdivided high-res mesh. Stages get only file
-# paths and a sequence name: every value they use comes from settings.json, which is rewritten only when the
-# scene's shared settings change (the params trigger of `settings`), so a config change reruns exactly the scenes
-# it touches, and raising the number of sequences reruns none of the sequences already made.
-from pipeline.config import write_settings
+# paths and a sequence name: every value they use comes from settings.json (the learning stages) or
+# simulation.json (the same less the network, its operators, training and evaluation: what the scene, subdivide
+# and simulate stages read). Each is rewritten only when its content changes (the params trigger of its rule), so
+# a config change reruns exactly the scenes and stages it touches: a new training setting retrains without
+# simulating again, and raising the number of sequences reruns none of the sequences already made.
+from pipeline.config import simulation_settings, write_settings
 
 
 rule settings:
@@ -20,8 +22,22 @@ rule settings:
             print(f"{output[0]}: profile {params.settings['profile']}, device {params.settings['device']}", file=f)
 
 
+rule simulation_settings:
+    output: f"{OUT}/simulation.json"
+    params: settings=lambda w: simulation_settings(SETTINGS[w.scene])
+    log: log_of("simulation_settings")
+    benchmark: benchmark_of("simulation_settings")
+    localrule: True
+    threads: 1
+    resources: mem_mb=500
+    run:
+        write_settings(params.settings, output[0])
+        with open(log[0], "w") as f:
+            print(f"{output[0]}: profile {params.settings['profile']}, device {params.settings['device']}", file=f)
+
+
 rule scene:
-    input: settings=f"{OUT}/settings.json"
+    input: settings=f"{OUT}/simulation.json"
     output: f"{OUT}/scene.h5"
     log: log_of("scene")
     benchmark: benchmark_of("scene")
@@ -31,7 +47,7 @@ rule scene:
 
 
 rule sequence:
-    input: settings=f"{OUT}/settings.json", bvh=bvh_files
+    input: settings=f"{OUT}/simulation.json", bvh=bvh_files
     output: f"{SEQ}/scene.h5"
     log: log_of("sequence", per_sequence=True)
     benchmark: benchmark_of("sequence", per_sequence=True)
@@ -41,7 +57,7 @@ rule sequence:
 
 
 rule subdivide:
-    input: settings=f"{OUT}/settings.json", scene=f"{OUT}/scene.h5"
+    input: settings=f"{OUT}/simulation.json", scene=f"{OUT}/scene.h5"
     output: f"{OUT}/subdiv.h5"
     log: log_of("subdivide")
     benchmark: benchmark_of("subdivide")

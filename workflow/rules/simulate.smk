@@ -8,7 +8,7 @@ UNSHARDED = "|".join(re.escape(s) for s, settings in SETTINGS.items() if setting
 
 
 rule simulate_low:
-    input: settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5"
+    input: settings=f"{OUT}/simulation.json", scene=f"{SEQ}/scene.h5"
     output: f"{SEQ}/sim_low.h5"
     wildcard_constraints: scene=UNSHARDED
     log: log_of("simulate_low", per_sequence=True)
@@ -20,7 +20,7 @@ rule simulate_low:
 
 rule simulate_high:
     input:
-        settings=f"{OUT}/settings.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
+        settings=f"{OUT}/simulation.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
         sim_low=f"{SEQ}/sim_low.h5",
     output: f"{SEQ}/sim_high.h5"
     wildcard_constraints: scene=UNSHARDED
@@ -43,7 +43,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
 
         rule:
             name: batch_rule_name("simulate_low", _scene, _k)
-            input: settings=f"{_out}/settings.json", scenes=[f"{s}/scene.h5" for s in _seqs]
+            input: settings=f"{_out}/simulation.json", scenes=[f"{s}/scene.h5" for s in _seqs]
             output: [f"{s}/sim_low.h5" for s in _seqs]
             params: files=[p for s in _seqs for p in (f"{s}/scene.h5", f"{s}/sim_low.h5")]
             log: f"{_out}/logs/shard_{_k:03d}/simulate_low.log"
@@ -55,7 +55,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
         rule:
             name: batch_rule_name("simulate_high", _scene, _k)
             input:
-                settings=f"{_out}/settings.json", subdiv=f"{_out}/subdiv.h5",
+                settings=f"{_out}/simulation.json", subdiv=f"{_out}/subdiv.h5",
                 scenes=[f"{s}/scene.h5" for s in _seqs], sim_low=[f"{s}/sim_low.h5" for s in _seqs],
             output: [f"{s}/sim_high.h5" for s in _seqs]
             params:

@@ -55,7 +55,7 @@ def study_points(scene):
 
 rule study_dataset:
     input:
-        settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", scenes=study_sequence_files("scene.h5"),
+        settings=f"{OUT}/simulation.json", subdiv=f"{OUT}/subdiv.h5", scenes=study_sequence_files("scene.h5"),
         sim_low=study_sequence_files("sim_low.h5"), sim_high=study_sequence_files("sim_high.h5"),
     output: f"{STUDY_POINT}/dataset.h5"
     params: sequences=study_sequence_folders

@@ -27,7 +27,7 @@ TRADEOFF_SEQ = "results/{scene}/tradeoff/s{substeps}/sequences/{seq}"
 TRADEOFF_NET = "results/{scene}/tradeoff/w{width}"       # a smaller network: settings.json, model.pt, train.h5
 TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained on the budget's inputs: model.pt
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
-TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # settings.json, sequences/
+TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
 
 wildcard_constraints:
     substeps="[1-9][0-9]*",
@@ -91,9 +91,15 @@ def tradeoff_network_settings(settings, width):
             "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
 
 
+def tradeoff_point_simulation(settings, substeps):
+    """simulation.json of budget `substeps`: its settings.json less what only the learning stages read."""
+    return {key: value for key, value in tradeoff_point_settings(settings, substeps).items()
+            if key not in LEARNING_ONLY}
+
+
 def tradeoff_high_settings(settings, substeps, iterations, schedule):
-    """settings.json of a high-res run: the scene's, with that solver budget and harmonic schedule."""
-    shared = shared_settings(settings)
+    """simulation.json of a high-res run: the scene's, with that solver budget and harmonic schedule."""
+    shared = simulation_settings(settings)
     return {**shared, "solver": {**shared["solver"], "substeps": int(substeps), "iterations": int(iterations)},
             "high_res": {**shared["high_res"], "harmonic_every": schedule}}
 
@@ -180,8 +186,22 @@ rule tradeoff_settings:
             print(f"{output[0]}: the scene's settings with solver.substeps {wildcards.substeps}", file=f)
 
 
+rule tradeoff_simulation_settings:
+    output: f"{TRADEOFF_POINT}/simulation.json"
+    params: settings=lambda w: tradeoff_point_simulation(SETTINGS[w.scene], w.substeps)
+    log: f"{TRADEOFF_POINT}/logs/simulation_settings.log"
+    benchmark: f"{TRADEOFF_POINT}/benchmarks/simulation_settings.tsv"
+    localrule: True
+    threads: 1
+    resources: mem_mb=500
+    run:
+        write_settings(params.settings, output[0])
+        with open(log[0], "w") as f:
+            print(f"{output[0]}: the scene's simulation.json with solver.substeps {wildcards.substeps}", file=f)
+
+
 rule tradeoff_simulate_low:
-    input: settings=f"{TRADEOFF_POINT}/settings.json", scene=f"{SEQ}/scene.h5"
+    input: settings=f"{TRADEOFF_POINT}/simulation.json", scene=f"{SEQ}/scene.h5"
     output: f"{TRADEOFF_SEQ}/sim_low.h5"
     wildcard_constraints: scene=UNSHARDED
     log: f"{TRADEOFF_POINT}/logs/{{seq}}/simulate_low.log"
@@ -195,7 +215,7 @@ rule tradeoff_simulate_low:
 # The first sequence alone, one solver world: the low-res timing of a sharded scene's budget.
 rule tradeoff_timing_low:
     input:
-        settings=f"{TRADEOFF_POINT}/settings.json",
+        settings=f"{TRADEOFF_POINT}/simulation.json",
         scene=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/scene.h5",
     output: f"{TRADEOFF_POINT}/timing/sim_low.h5"
     log: f"{TRADEOFF_POINT}/logs/timing_low.log"
@@ -207,7 +227,7 @@ rule tradeoff_timing_low:
 
 
 rule tradeoff_high_settings:
-    output: f"{TRADEOFF_HIGH}/settings.json"
+    output: f"{TRADEOFF_HIGH}/simulation.json"
     params:
         settings=lambda w: tradeoff_high_settings(SETTINGS[w.scene], w.hsubsteps, w.hiterations, w.schedule)
     log: f"{TRADEOFF_HIGH}/logs/settings.log"
@@ -226,7 +246,7 @@ rule tradeoff_high_settings:
 # differs from the scene's high-res run).
 rule tradeoff_simulate_high:
     input:
-        settings=f"{TRADEOFF_HIGH}/settings.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
+        settings=f"{TRADEOFF_HIGH}/simulation.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
         sim_low=f"{SEQ}/sim_low.h5",
     output: f"{TRADEOFF_HIGH}/sequences/{{seq}}/sim_high.h5"
     wildcard_constraints: scene=UNSHARDED
@@ -251,7 +271,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
         rule:
             name: batch_rule_name("tradeoff_simulate_low", _scene, _k)
             input:
-                settings=f"{_point}/settings.json",
+                settings=f"{_point}/simulation.json",
                 scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names]
             output: [f"{_point}/sequences/{n}/sim_low.h5" for n in _names]
             params:
@@ -267,7 +287,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
         rule:
             name: batch_rule_name("tradeoff_simulate_high", _scene, _k)
             input:
-                settings=f"{_high}/settings.json", subdiv=f"{_out}/subdiv.h5",
+                settings=f"{_high}/simulation.json", subdiv=f"{_out}/subdiv.h5",
                 scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names],
                 sim_low=[f"{_out}/sequences/{n}/sim_low.h5" for n in _names],
             output: [f"{_high}/sequences/{n}/sim_high.h5" for n in _names]
@@ -304,7 +324,7 @@ rule tradeoff_sequence_links:
 
 rule tradeoff_dataset:
     input:
-        settings=f"{TRADEOFF_POINT}/settings.json", subdiv=f"{OUT}/subdiv.h5",
+        settings=f"{TRADEOFF_POINT}/simulation.json", subdiv=f"{OUT}/subdiv.h5",
         scenes=tradeoff_sequence_files("scene.h5"), sim_low=tradeoff_sequence_files("sim_low.h5"),
         sim_high=tradeoff_sequence_files("sim_high.h5"),
     output: f"{TRADEOFF_POINT}/dataset.h5"
