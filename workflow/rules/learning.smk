@@ -38,6 +38,10 @@ rule train:
     benchmark: benchmark_of("train")
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
+    # Ahead of the study's, trade-off's and applications' jobs when they wait for the same GPU slots (`--resources
+    # gpu=N`): the scene's own model and report are what the others compare against. (On the H100 the trade-off's
+    # evaluations took every slot first and the lease ended before the scene's report was made.)
+    priority: 1
     shell:
         "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
         "--settings {input.settings:q} --threads {threads} 2>&1 | tee {log:q}"
@@ -57,6 +61,7 @@ rule evaluate:
     benchmark: benchmark_of("evaluate")
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
+    priority: 1     # as train's
     # The scene's other reports, made by their own targets (the links work once those are built).
     params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md"
     shell:
