@@ -21,7 +21,8 @@ import torch
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
-from model.training_step import LOSS_TERMS, BatchLoss, GraphedStep, adam, eager_step
+from model.training_step import (LOSS_TERMS, BatchLoss, GraphedStep, adam, eager_step, learning_rate,
+                                 set_learning_rate)
 
 CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
 TERMS = ("total", *LOSS_TERMS)
@@ -36,6 +37,7 @@ class TrainSettings:
     seed: int = 0
     cuda_graph: bool = False     # replay each full batch's step as one CUDA graph (model.training_step)
     input_noise: float = 0.0     # std of the noise on the normalised inputs (model.feature_regressor.with_input_noise)
+    lr_schedule: str = "constant"   # or "cosine" (model.training_step.learning_rate), over all epochs' steps
 
 
 @dataclasses.dataclass
@@ -122,7 +124,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     the host wait for the GPU: read it now and then, not every step).
     """
     model.input_noise = settings.input_noise
-    optimizer = adam(model, settings.lr, settings.cuda_graph)
+    optimizer = adam(model, settings.lr, settings.cuda_graph, scheduled=settings.lr_schedule != "constant")
     step = eager_step(model, mesh, frames, optimizer, settings.weights)
     if settings.cuda_graph:
         step = GraphedStep(step, settings.batch_size, train_ids.device)
@@ -139,8 +141,13 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait for
         # the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
         totals, weighted = [], []
+        steps_per_epoch = -(-len(order) // settings.batch_size)
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
+            if settings.lr_schedule != "constant":
+                step_index = epoch * steps_per_epoch + first // settings.batch_size
+                set_learning_rate(optimizer, learning_rate(settings.lr_schedule, settings.lr, step_index,
+                                                           settings.epochs * steps_per_epoch))
             values = step(batch)
             totals.append(values[0])
             weighted.append(values * len(batch))
@@ -210,7 +217,9 @@ def _history_of(plain: dict[str, Any]) -> History:
 
 
 def _settings_key(settings: TrainSettings) -> dict[str, Any]:
-    # Not the epoch count: a checkpoint of a shorter run is a valid start for a longer one.
+    # Not the epoch count: a checkpoint of a shorter run is a valid start for a longer one, unless the rate is
+    # scheduled over all the epochs (a shorter cosine has decayed further at the same step).
     key = dataclasses.asdict(settings)
-    key.pop("epochs")
+    if settings.lr_schedule == "constant":
+        key.pop("epochs")
     return key

@@ -8,6 +8,7 @@ only the batch's frame ids change, copied into the graph's input buffer before e
 """
 from __future__ import annotations
 
+import math
 from typing import Callable, Mapping, Protocol
 
 import torch
@@ -18,6 +19,8 @@ LOSS_TERMS = ("l1", "l2", "normal")   # the terms a Problem's batch_loss returns
 WARMUP_STEPS = 3                      # eager steps on a side stream before capture (lazy initialisations)
 
 Step = Callable[[torch.Tensor], torch.Tensor]   # frame ids (B,) -> (total, l1, l2, normal) of that batch, 0-d each
+LR_SCHEDULES = ("constant", "cosine")
+COSINE_FLOOR = 0.01    # a cosine schedule ends at 1 % of the base rate, not 0: the last steps still move
 
 
 class BatchLoss(Protocol):
@@ -26,14 +29,37 @@ class BatchLoss(Protocol):
     def batch_loss(self, model, mesh, ids: torch.Tensor, weights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]: ...
 
 
-def adam(model: torch.nn.Module, lr: float, graphed: bool) -> torch.optim.Adam:
+def adam(model: torch.nn.Module, lr: float, graphed: bool, scheduled: bool = False) -> torch.optim.Adam:
     """The paper's Adam (betas 0.9/0.999, eps 1e-8). On CUDA one fused kernel updates every parameter (the
     per-tensor loop launches several kernels a tensor); a step replayed as a graph keeps its step counts on the
-    device (`capturable`)."""
+    device (`capturable`), and a scheduled rate too: a float would be baked into the graph at capture, a tensor
+    on the device is read at every replay (`set_learning_rate` writes it in place)."""
     parameters = list(model.parameters())
     fused = bool(parameters) and all(p.is_cuda for p in parameters)
-    return torch.optim.Adam(parameters, lr=lr, betas=(0.9, 0.999), eps=1e-8, fused=fused or None,
+    rate = torch.tensor(lr, device=parameters[0].device) if graphed and scheduled and parameters else lr
+    return torch.optim.Adam(parameters, lr=rate, betas=(0.9, 0.999), eps=1e-8, fused=fused or None,
                             capturable=graphed)
+
+
+def learning_rate(schedule: str, lr: float, step: int, total_steps: int) -> float:
+    """The rate of optimiser step `step` (0-based) of `total_steps`: `lr` throughout (constant, the paper's), or
+    half a cosine from `lr` at the first step to COSINE_FLOOR x `lr` at the last (cosine)."""
+    if schedule == "constant":
+        return lr
+    if schedule != "cosine":
+        raise ValueError(f"unknown learning-rate schedule '{schedule}'; choose one of {', '.join(LR_SCHEDULES)}")
+    progress = min(step / max(total_steps - 1, 1), 1.0)
+    return lr * (COSINE_FLOOR + (1 - COSINE_FLOOR) * 0.5 * (1 + math.cos(math.pi * progress)))
+
+
+def set_learning_rate(optimizer: torch.optim.Optimizer, rate: float) -> None:
+    """Every parameter group's rate; a tensor rate (a graphed step's) is written in place, where the graph reads
+    it."""
+    for group in optimizer.param_groups:
+        if isinstance(group["lr"], torch.Tensor):
+            group["lr"].fill_(rate)
+        else:
+            group["lr"] = rate
 
 
 def eager_step(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy], problem: BatchLoss,

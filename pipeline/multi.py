@@ -152,7 +152,8 @@ def _train(argv: Sequence[str]) -> None:
     loss = training["loss"]
     settings = TrainSettings(int(training["epochs"]), int(training["batch_size"]), float(training["lr"]),
                              LossWeights(float(loss["l1"]), float(loss["l2"]), float(loss["normal"])),
-                             int(training["seed"]), bool(training["cuda_graph"]), float(training["input_noise"]))
+                             int(training["seed"]), bool(training["cuda_graph"]), float(training["input_noise"]),
+                             str(training["lr_schedule"]))
     if settings.cuda_graph and device.type != "cuda":
         raise PipelineError(f"training.cuda_graph needs a CUDA device, not '{shared['device']}'")
     identity = {"garments": {name: {"dataset": datasets[name].fingerprint, "operators": meshes[name].fingerprint()}

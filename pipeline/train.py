@@ -5,7 +5,8 @@
         [--inputs position,...] [--input-frame dataset|local] [--output-frame dataset|local]
         [--frame-tangent edge|gravity] [--epochs 200]
         [--batch-size 3] [--lr 1e-3] [--loss-l1 1] [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0]
-        [--cuda-graph true|false] [--input-noise 0] [--checkpoint PATH] [--threads N] [--quiet]
+        [--cuda-graph true|false] [--input-noise 0] [--lr-schedule constant|cosine] [--checkpoint PATH]
+        [--threads N] [--quiet]
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
@@ -39,6 +40,7 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.networks import MeshNetwork, NetworkSpec, build_network
 from model.tasks import VectorRegressor, VectorSpec
 from model.training import CheckpointError, TrainSettings, fit
+from model.training_step import LR_SCHEDULES
 from pipeline import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
@@ -58,7 +60,8 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
             "epochs": training["epochs"], "batch_size": training["batch_size"], "lr": training["lr"],
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
             "loss_normal": training["loss"]["normal"], "cuda_graph": training["cuda_graph"],
-            "input_noise": training["input_noise"], "device": settings["device"]}
+            "input_noise": training["input_noise"], "lr_schedule": training["lr_schedule"],
+            "device": settings["device"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -88,6 +91,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cuda-graph", type=cli.boolean, default=False, metavar="true|false",
                         help="replay each optimiser step as one CUDA graph (a CUDA device only)")
+    parser.add_argument("--lr-schedule", default="constant", choices=LR_SCHEDULES,
+                        help="the learning rate over all epochs' steps: constant (paper), or cosine down to 1 %%")
     parser.add_argument("--input-noise", type=float, default=0.0,
                         help="std of Gaussian noise on the normalised inputs while training (0: none)")
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
@@ -131,7 +136,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     model.normalise(frames.store, train_ids, frames.targets)
     settings = TrainSettings(args.epochs, args.batch_size, args.lr,
                              LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed, args.cuda_graph,
-                             args.input_noise)
+                             args.input_noise, args.lr_schedule)
     resume_from = read_checkpoint(checkpoint)
     steps_per_epoch = -(-len(data.train) // args.batch_size)
     start = time.perf_counter()
@@ -147,7 +152,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise PipelineError(f"{checkpoint}: {err}") from None
     seconds = time.perf_counter() - start
     config = {**vars(args), "parameter_count": net.parameter_count()}
-    training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
+    training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
+                "seed": args.seed,
                 "device": str(device), "loss_weights": dataclasses.asdict(settings.weights),
                 "final_train_loss": history.train["total"][-1], "final_test_loss": history.test["total"][-1],
                 "dataset": args.dataset, "dataset_fingerprint": data.fingerprint}

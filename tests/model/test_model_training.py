@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 import torch
 
+import model.training
 from model.losses import LossWeights
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameStore
 from model.networks import NetworkSpec, build_network
 from model.training import CheckpointError, Frames, TrainSettings, fit, split_errors
+from model.training_step import learning_rate, set_learning_rate
 
 
 def _problem(grid):
@@ -41,26 +43,45 @@ def _stored(state: dict) -> dict:
     return torch.load(buffer, weights_only=True)
 
 
-@pytest.mark.parametrize("noise", [0.0, 0.3])
-def test_resumed_training_equals_uninterrupted(grid, noise):
+@pytest.mark.parametrize("noise, schedule", [(0.0, "constant"), (0.3, "constant"), (0.0, "cosine")])
+def test_resumed_training_equals_uninterrupted(grid, noise, schedule):
     """With input noise too: the checkpoint carries the noise generator's state (without it the resumed run's
-    draws start from _model's seed, and its steps differ from the uninterrupted run's)."""
+    draws start from _model's seed, and its steps differ from the uninterrupted run's). With a cosine rate the
+    resumed steps take the rates of their place in the whole run."""
     mesh, frames = _problem(grid)
     train_ids, test_ids = torch.arange(6), torch.tensor([6])
+    settings = TrainSettings(epochs=4, input_noise=noise, lr_schedule=schedule)
     saved, notices = [], []
-    first = _model(grid)
-    fit(first, mesh, frames, train_ids, test_ids, TrainSettings(epochs=2, input_noise=noise),
-        save_checkpoint=lambda state: saved.append(_stored(state)), on_notice=notices.append)
+    straight = _model(grid)     # the uninterrupted run; its checkpoint after epoch 2 stands for a killed run's
+    reference = fit(straight, mesh, frames, train_ids, test_ids, settings,
+                    save_checkpoint=lambda state: saved.append(_stored(state)))
     resumed = _model(grid)
-    history = fit(resumed, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4, input_noise=noise),
-                  resume_from=saved[-1], on_notice=notices.append)
-    straight = _model(grid)
-    reference = fit(straight, mesh, frames, train_ids, test_ids, TrainSettings(epochs=4, input_noise=noise))
-    assert len(saved) == 2 and history.resumed_from_epoch == 2 and notices == ["resuming after epoch 2"]
+    history = fit(resumed, mesh, frames, train_ids, test_ids, settings, resume_from=saved[1],
+                  on_notice=notices.append)
+    assert len(saved) == 4 and history.resumed_from_epoch == 2 and notices == ["resuming after epoch 2"]
     assert history.train["total"] == reference.train["total"]
     for name, value in straight.state_dict().items():
         torch.testing.assert_close(resumed.state_dict()[name], value, rtol=0, atol=0)
     assert reference.train["total"][-1] < reference.train["total"][0]
+
+
+def test_a_cosine_rate_changes_the_steps_and_the_checkpoint_pins_the_epoch_count(grid, monkeypatch):
+    """The schedule reaches the optimiser (each step's rate is the schedule's at its place in the whole run), and
+    a cosine run's checkpoint does not resume a run of another length (its rates would differ)."""
+    mesh, frames = _problem(grid)
+    train_ids, test_ids = torch.arange(6), torch.tensor([6])
+    rates = []
+    monkeypatch.setattr(model.training, "set_learning_rate",
+                        lambda optimizer, rate: (rates.append(rate), set_learning_rate(optimizer, rate)))
+    saved = []
+    fit(_model(grid), mesh, frames, train_ids, test_ids, TrainSettings(epochs=3, lr_schedule="cosine"),
+        save_checkpoint=lambda state: saved.append(_stored(state)))
+    steps = 3 * 2    # 6 frames in batches of 3
+    assert rates == pytest.approx([learning_rate("cosine", 1e-3, i, steps) for i in range(steps)])
+    notices = []
+    fit(_model(grid), mesh, frames, train_ids, test_ids, TrainSettings(epochs=5, lr_schedule="cosine"),
+        resume_from=saved[0], on_notice=notices.append)
+    assert "starting afresh" in notices[0]
 
 
 def test_input_noise_acts_in_training_steps_only(grid):

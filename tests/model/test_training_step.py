@@ -12,7 +12,8 @@ from model.features import FrameStore
 from model.losses import LossWeights
 from model.networks import NetworkSpec, build_network
 from model.training import Frames, TrainSettings, fit
-from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
+from model.training_step import (COSINE_FLOOR, WARMUP_STEPS, GraphedStep, adam, eager_step, learning_rate,
+                                 set_learning_rate)
 from pipeline.errors import PipelineError
 from pipeline.train import main as train_main
 
@@ -79,3 +80,26 @@ def test_graph_replay_trains_as_the_eager_step_does(grid):
     np.testing.assert_allclose(histories[1], histories[0], rtol=1e-5)
     for name, value in states[0].items():
         torch.testing.assert_close(states[1][name], value, rtol=1e-5, atol=1e-7)
+
+
+def test_cosine_rate_runs_from_lr_to_the_floor_and_constant_stays():
+    lr, total = 2e-3, 101
+    rates = [learning_rate("cosine", lr, step, total) for step in range(total)]
+    assert rates[0] == pytest.approx(lr) and rates[-1] == pytest.approx(COSINE_FLOOR * lr)
+    assert rates[50] == pytest.approx(lr * (1 + COSINE_FLOOR) / 2)          # half way: the mean of the two ends
+    assert all(a > b for a, b in zip(rates, rates[1:]))
+    assert learning_rate("constant", lr, 77, total) == lr
+    with pytest.raises(ValueError, match="unknown learning-rate schedule 'step'"):
+        learning_rate("step", lr, 0, total)
+
+
+def test_set_learning_rate_writes_a_tensor_rate_in_place():
+    """A graphed step reads its rate from the tensor it captured: the schedule must write into that tensor."""
+    parameter = torch.nn.Parameter(torch.zeros(3))
+    optimizer = torch.optim.Adam([parameter], lr=torch.tensor(1e-3))
+    captured = optimizer.param_groups[0]["lr"]
+    set_learning_rate(optimizer, 5e-4)
+    assert optimizer.param_groups[0]["lr"] is captured and float(captured) == pytest.approx(5e-4)
+    plain = torch.optim.Adam([parameter], lr=1e-3)
+    set_learning_rate(plain, 5e-4)
+    assert plain.param_groups[0]["lr"] == 5e-4
