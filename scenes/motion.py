@@ -368,6 +368,24 @@ def _keyframed(skel: Skeleton, times: np.ndarray, poses: np.ndarray, tau: np.nda
     return ClipCurves(zero, zero.copy(), spline(tau), spline.derivative()(tau), np.zeros(3))
 
 
+Moves = dict[str, list[tuple[dict[str, tuple[float, float, float]], float]]]
+
+
+def _routine(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray, moves: Moves,
+             home: dict[str, tuple[float, float, float]], lead: float, pause: float,
+             tempo: tuple[float, float]) -> ClipCurves:
+    """A seeded sequence of `moves` (each a list of (pose, seconds to reach it)), every one from and back to the
+    `home` pose, at a seeded tempo drawn from `tempo` per move: `lead` s at home first, `pause` s after each."""
+    names = sorted(moves)
+    times, poses = [0.0, lead], [home, home]
+    while times[-1] <= tau[-1]:
+        speed = rng.uniform(*tempo)
+        for pose, dt in moves[names[rng.integers(len(names))]] + [(home, pause)]:
+            times.append(times[-1] + dt * speed)
+            poses.append(pose)
+    return _keyframed(skel, np.array(times), np.stack([_pose(skel, p) for p in poses]), tau)
+
+
 _GUARD = {"thigh_l": (-30, 0, 8), "shin_l": (40, 0, 0), "foot_l": (-10, 0, 0),
           "thigh_r": (-30, 0, 8), "shin_r": (40, 0, 0), "foot_r": (-10, 0, 0), "spine": (8, 0, 0),
           "upper_arm_l": (-45, 0, -25), "lower_arm_l": (-110, 0, 0),
@@ -395,14 +413,7 @@ _TECHNIQUES.update({name[:-1] + "l": [(_mirror_pose(pose), dt) for pose, dt in s
 def _karate(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """Karate-like: from a guard stance, a seeded sequence of punches, rising blocks and front kicks with either
     side, each chambered, struck, held briefly and withdrawn to guard; seeds vary order and tempo."""
-    names = sorted(_TECHNIQUES)
-    times, poses = [0.0, 0.4], [_GUARD, _GUARD]
-    while times[-1] <= tau[-1]:
-        tempo = rng.uniform(0.85, 1.15)
-        for pose, dt in _TECHNIQUES[names[rng.integers(len(names))]] + [(_GUARD, 0.25)]:
-            times.append(times[-1] + dt * tempo)
-            poses.append(pose)
-    return _keyframed(skel, np.array(times), np.stack([_pose(skel, p) for p in poses]), tau)
+    return _routine(skel, rng, tau, _TECHNIQUES, _GUARD, lead=0.4, pause=0.25, tempo=(0.85, 1.15))
 
 
 # Exercises in place: what a training program needs that dance, karate and random poses lack (deep, slow and
@@ -438,14 +449,7 @@ _EXERCISES.update({name[:-1] + "r": [(_mirror_pose(pose), dt) for pose, dt in st
 def _exercise(skel: Skeleton, rng: np.random.Generator, tau: np.ndarray) -> ClipCurves:
     """Exercises in place: a seeded sequence of squats, knee raises and side leg raises with either leg, forward
     toe reaches and trunk twists either way, each from and back to a relaxed stance, at a seeded tempo."""
-    names = sorted(_EXERCISES)
-    times, poses = [0.0, 0.3], [_STANCE, _STANCE]
-    while times[-1] <= tau[-1]:
-        tempo = rng.uniform(0.8, 1.25)
-        for pose, dt in _EXERCISES[names[rng.integers(len(names))]] + [(_STANCE, 0.2)]:
-            times.append(times[-1] + dt * tempo)
-            poses.append(pose)
-    return _keyframed(skel, np.array(times), np.stack([_pose(skel, p) for p in poses]), tau)
+    return _routine(skel, rng, tau, _EXERCISES, _STANCE, lead=0.3, pause=0.2, tempo=(0.8, 1.25))
 
 
 # Fraction of each joint's range that random poses draw from: wide for arms and head, narrow for the legs so
