@@ -31,6 +31,22 @@ def snakemake(workdir, *args):
                            "--directory", str(workdir), *args], capture_output=True, text=True)
 
 
+# How the builds of the tiny scenes run (`build`), for time on CI's two cores; what they make is the same:
+# - the rules that take every core (`threads: workflow.cores`) take one: at these sizes they are single-threaded in
+#   practice (imports, renders, networks of a few thousand weights), so two run side by side;
+# - the `run:` rules (settings files, links) run in Snakemake's own process instead of a new Snakemake process
+#   each, which parses the Snakefile and config again (~3 s of CPU for a job of milliseconds).
+# The smoke test runs the default way.
+TINY_BUILD = ("--force-use-threads", "--set-threads", *(f"{rule}=1" for rule in (
+    "train", "evaluate", "study_train", "study_evaluate", "application_train", "application_evaluate",
+    "multi_train", "multi_evaluate", "tradeoff_train", "tradeoff_train_matched", "tradeoff_evaluate", "tradeoff")))
+
+
+def build(workdir, *args):
+    """`snakemake` for a build of the tiny scenes, run as TINY_BUILD says."""
+    return snakemake(workdir, *args, *TINY_BUILD)
+
+
 def tail(run):
     """What a failed run said: Snakemake logs on stderr, a stage's own messages come through `tee` on stdout."""
     return run.stdout[-2000:] + run.stderr[-3000:]
@@ -132,7 +148,7 @@ def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, shard=1, **mannequin) ->
         "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5, **mannequin}},
         "solver": {"substeps": 2, "iterations": 10}, "high_res": {"subdivision_levels": 1},
         "training": {"epochs": 1},
-        "evaluation": {"render_frames": 2, "video_frames": 4, "export_frames": 2, "timing_frames": 2}}
+        "evaluation": {"render_frames": 2, "video_frames": 2, "export_frames": 2, "timing_frames": 2}}
     path = tmp_path / name
     path.write_text(yaml.safe_dump(config))
     return path
@@ -144,13 +160,15 @@ def planned_counts(run) -> dict[str, int]:
     return {words[0]: int(words[1]) for words in map(str.split, table.splitlines()[3:]) if len(words) == 2}
 
 
-def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_made_ones(workdir, tmp_path):
+def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_made_ones(tiny_pants_build,
+                                                                                          tmp_path):
     """pants on the moving mannequin, shrunk to seconds: two training sequences and the held-out walk, each
     simulated with body and self collision, gathered in the torso frame; renders with the body. The default
     `make run` is the same chain at full CPU-profile size (one job per sequence; here the two training
     sequences are one batch job, `shard: 2`). A third sequence then costs its own jobs and the learning stages,
-    nothing else."""
-    run = snakemake(workdir, "results/pants/", "--configfile", str(tiny_pants(tmp_path, shard=2)))
+    nothing else. The build is conftest.py's `tiny_pants_build` (the first run in its folder), which the study
+    and trade-off tests build on."""
+    run, workdir = tiny_pants_build.run, tiny_pants_build.workdir
     assert run.returncode == 0, tail(run)
     assert "rule simulate_high_batch_pants_000:" in run.stderr and "rule simulate_high:" not in run.stderr
     out = workdir / "results" / "pants"
@@ -184,14 +202,13 @@ def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_m
     assert "seq=train_002" in more.stdout
 
 
-def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(workdir, tmp_path):
+@pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2]})
+def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(tiny_pants_build):
     """`results/pants/study/` on the tiny pants: datasets of the first 1 and 2 training sequences (each with the
-    held-out walk), both input variants trained on each for the same number of optimiser steps, one table."""
-    config = tiny_pants(tmp_path, "study.yaml")
-    overlay = yaml.safe_load(config.read_text())
-    overlay["profiles"]["cpu"]["scenes"]["pants"]["study"] = {"sequence_counts": [1, 2]}
-    config.write_text(yaml.safe_dump(overlay))
-    run = snakemake(workdir, "results/pants/study/", "--configfile", str(config))
+    held-out walk), both input variants trained on each for the same number of optimiser steps, one table. Built
+    by conftest.py's `tiny_pants_build` with the scene (the mark above: the target and its study block)."""
+    run, workdir = tiny_pants_build.run, tiny_pants_build.workdir
+    assert "results/pants/study/" in tiny_pants_build.targets
     assert run.returncode == 0, tail(run)
     out = workdir / "results" / "pants" / "study"
     with h5py.File(out / "n1" / "dataset.h5") as f:

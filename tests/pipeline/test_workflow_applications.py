@@ -7,22 +7,24 @@ import numpy as np
 import pytest
 import yaml
 
-from test_workflow import planned_counts, snakemake, tail, tiny_pants
+from test_workflow import build, planned_counts, snakemake, tail, tiny_pants
 
-DECODER = {"network": {"arch": "U32 U U32 U16 U3"}, "operators": {"levels": 5}, "training": {"epochs": 10}}
+DECODER = {"network": {"arch": "U32 U U32 U16 U3"}, "operators": {"levels": 5}, "training": {"epochs": 10},
+           "evaluation": {"render_frames": 1, "video_frames": 1}}    # a still and two one-frame videos each
 PRODUCTS = ("settings.json", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html")
 
 
 @pytest.fixture(scope="module")
 def applications(tmp_path_factory):
-    """Both targets built in one run (they share the scene's sequences)."""
+    """Both targets built in one run (they share the scene's sequences, each shard of them one batch job). In a
+    folder of their own: the scene's upsampling stages must not run."""
     workdir = tmp_path_factory.mktemp("applications")
-    config = tiny_pants(workdir)
+    config = tiny_pants(workdir, shard=2)
     overlay = yaml.safe_load(config.read_text())
     overlay["profiles"]["cpu"]["scenes"]["pants"]["applications"] = {
         "pose": DECODER, "pca": {"components": [4, 8], **DECODER}}
     config.write_text(yaml.safe_dump(overlay))
-    run = snakemake(workdir, "results/pants/pose/", "results/pants/pca/", "--configfile", str(config))
+    run = build(workdir, "results/pants/pose/", "results/pants/pca/", "--configfile", str(config))
     assert run.returncode == 0, tail(run)
     return workdir / "results" / "pants"
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from test_workflow import planned_counts, planned_jobs, snakemake, tail, tiny_pants
+from test_workflow import build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from pipeline.artifacts.evaluation import read_errors, read_parameter_count
 from pipeline.artifacts.multi_table import read_multi_table
@@ -43,7 +43,7 @@ def tiny_garments(workdir, **changes):
 def built(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("multi")
     config = tiny_garments(workdir)
-    run = snakemake(workdir, "results/multi/", "--configfile", str(config))
+    run = build(workdir, "results/multi/", "--configfile", str(config))
     assert run.returncode == 0, tail(run)
     return workdir, config
 

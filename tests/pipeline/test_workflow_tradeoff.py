@@ -35,14 +35,19 @@ def why(run):
     return tail(run) + ("" if start < 0 else "\n" + run.stderr[start:start + 3000])
 
 
+# The tests that read the built grid: conftest.py's `tiny_pants_build` builds it with the scene (shard 2), in one
+# run.
+built_grid = pytest.mark.tiny_pants_target("results/pants/tradeoff/", tradeoff=GRID)
+
+
 @pytest.fixture(scope="module")
-def tradeoff(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("tradeoff")
-    run = snakemake(workdir, "results/pants/tradeoff/", "--configfile", str(tiny_grid(workdir, shard=2)))
-    assert run.returncode == 0, why(run)
-    return workdir / "results" / "pants"
+def tradeoff(tiny_pants_build):
+    assert "results/pants/tradeoff/" in tiny_pants_build.targets
+    assert tiny_pants_build.run.returncode == 0, why(tiny_pants_build.run)
+    return tiny_pants_build.workdir / "results" / "pants"
 
 
+@built_grid
 def test_the_table_has_a_row_per_way_to_the_high_res_cloth_with_finite_positive_figures(tradeoff):
     out = tradeoff / "tradeoff"
     assert (out / "pareto.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -71,6 +76,7 @@ def test_the_table_has_a_row_per_way_to_the_high_res_cloth_with_finite_positive_
     assert len(rows) == 6 and all(row.startswith("| ") for row in rows)
 
 
+@built_grid
 def test_the_learned_rows_are_the_evaluations_and_runs_of_their_budget(tradeoff):
     """Errors are eval.h5's of the budget's own dataset, each network's and Loop subdivision's; the budget's
     low-res run is a re-simulation with its substeps (not the scene's run); the smaller network was trained at
@@ -97,6 +103,7 @@ def dataset_frame(positions, torso):
     return np.einsum("fji,fvj->fvi", torso[:, :3, :3], positions - torso[:, None, :3, 3])
 
 
+@built_grid
 def test_the_high_res_rows_score_their_runs_against_the_scenes_high_res_run_on_the_datasets_frames(tradeoff):
     """Each high-res run's errors, recomputed from the scene's dataset (its truth S x_low + target, in the torso
     frame) and the run's own positions turned into that frame with each sequence's scene.h5; the run was made with

@@ -1,0 +1,55 @@
+"""The tiny pants of test_workflow.py built once per session, in one Snakemake run, for every test that builds on
+them: `results/pants/` (the garment scene's own test reads this run) and the targets the selected tests name
+with `@pytest.mark.tiny_pants_target(TARGET, **blocks)`, each with its block of the scene's config (`study`,
+`tradeoff`: workflow-only settings, so they change none of the scene's jobs). One run lets the study's and the
+trade-off's jobs fill the cores while the scene's chain of jobs waits on its last ones."""
+from __future__ import annotations
+
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+
+from test_workflow import build, tiny_pants
+
+SCENE_TARGET = "results/pants/"
+# The longest chain of jobs, when the trade-off is asked for (its re-simulation, dataset, matched training and
+# evaluation, then the table): started first, with the study's jobs filling the other core around it.
+FIRST = {"results/pants/tradeoff/": "results/pants/tradeoff/tradeoff.h5"}
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "tiny_pants_target(target, **blocks): a target the test needs in the "
+                                       "session's tiny pants build (conftest.py), with its blocks of the scene's "
+                                       "config")
+
+
+@dataclass(frozen=True)
+class TinyPants:
+    workdir: Path                          # the Snakemake working directory: results/pants/ in it
+    config: Path                           # the config file it was built with (tiny_pants, shard 2, the blocks)
+    targets: tuple[str, ...]               # what the run built: SCENE_TARGET and the selected tests' targets
+    run: subprocess.CompletedProcess       # the run, in a folder that held nothing before
+
+
+@pytest.fixture(scope="session")
+def tiny_pants_build(request, tmp_path_factory) -> TinyPants:
+    """tiny_pants with two training sequences simulated as one batch (`shard: 2`) and the held-out walk:
+    `results/pants/` and the targets of the selected tests' `tiny_pants_target` marks, built by one run that
+    goes on past a failed job (`--keep-going`), returned as it ended: each test checks it."""
+    marks = [mark for item in request.session.items for mark in item.iter_markers("tiny_pants_target")]
+    workdir = tmp_path_factory.mktemp("tiny_pants")
+    config = tiny_pants(workdir, shard=2)
+    overlay = yaml.safe_load(config.read_text())
+    pants = overlay["profiles"]["cpu"]["scenes"]["pants"]
+    for mark in marks:
+        for key, block in mark.kwargs.items():
+            assert pants.setdefault(key, block) == block, f"tiny_pants_target marks disagree on {key}"
+    config.write_text(yaml.safe_dump(overlay))
+    targets = tuple(dict.fromkeys([SCENE_TARGET, *(mark.args[0] for mark in marks)]))
+    first = [FIRST[target] for target in targets if target in FIRST]
+    run = build(workdir, *targets, "--configfile", str(config), "--keep-going",
+                *(("--prioritize", *first) if first else ()))
+    return TinyPants(workdir, config, targets, run)
