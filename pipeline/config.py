@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import functools
 import json
 import os
 import re
@@ -32,6 +33,13 @@ SCHEMA_PATH = Path(__file__).resolve().parent.parent / "workflow" / "config.sche
 
 
 def load_schema() -> dict:
+    """The config schema, a fresh copy each call (callers build on it). Parsed once per process: resolving every
+    scene reads it twice a scene, and Snakemake resolves them all at every start."""
+    return copy.deepcopy(_parsed_schema())
+
+
+@functools.cache
+def _parsed_schema() -> dict:
     return yaml.safe_load(SCHEMA_PATH.read_text())
 
 
