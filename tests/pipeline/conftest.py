@@ -20,12 +20,6 @@ SCENE_TARGET = "results/pants/"
 FIRST = {"results/pants/tradeoff/": "results/pants/tradeoff/tradeoff.h5"}
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "tiny_pants_target(target, **blocks): a target the test needs in the "
-                                       "session's tiny pants build (conftest.py), with its blocks of the scene's "
-                                       "config")
-
-
 @dataclass(frozen=True)
 class TinyPants:
     workdir: Path                          # the Snakemake working directory: results/pants/ in it
