@@ -134,6 +134,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     if resume_from is not None:
         history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, on_notice,
                           train_ids.device)
+    steps_per_epoch = -(-len(train_ids) // settings.batch_size)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
@@ -141,7 +142,6 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait for
         # the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
         totals, weighted = [], []
-        steps_per_epoch = -(-len(order) // settings.batch_size)
         for first in range(0, len(order), settings.batch_size):
             batch = order[first:first + settings.batch_size]
             if settings.lr_schedule != "constant":

@@ -4,7 +4,7 @@ import os
 import re
 import sys
 
-from pipeline.config import LEARNING_ONLY, resolve_scene, shared_settings, simulation_settings
+from pipeline.config import resolve_scene, shared_settings, simulation_settings
 from pipeline.errors import PipelineError
 from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names, sequence_shards
 

@@ -92,9 +92,9 @@ def tradeoff_network_settings(settings, width):
 
 
 def tradeoff_point_simulation(settings, substeps):
-    """simulation.json of budget `substeps`: its settings.json less what only the learning stages read."""
-    return {key: value for key, value in tradeoff_point_settings(settings, substeps).items()
-            if key not in LEARNING_ONLY}
+    """simulation.json of budget `substeps`: the scene's, with that many low-res substeps."""
+    shared = simulation_settings(settings)
+    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
 
 
 def tradeoff_high_settings(settings, substeps, iterations, schedule):
