@@ -215,7 +215,7 @@ def main() -> None:
                 largest = (reference - subdivide(*inputs)).abs().max()
             baseline = {}
             for mode in modes:
-                torch.backends.cuda.matmul.allow_tf32 = MODES[mode][3]
+                torch.backends.cuda.matmul.fp32_precision = "tf32" if MODES[mode][3] else "ieee"
                 fns = paths(model, meshes[SIZES[size][0]], subdivision, faces, mode,
                             dict(zip(names, inputs)), device)
                 with torch.inference_mode():

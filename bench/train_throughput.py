@@ -8,12 +8,13 @@ per input variant, batch size and mode, through the training loop's own step (mo
 
     python bench/train_throughput.py DATASET.h5 OPERATORS.h5 [--device cpu|cuda] [--batch-sizes 3,16]
         [--variants positions,body_relative] [--modes eager,graph] [--conv RC9] [--width 0.25] [--steps 30]
-        [--warmup 5] [--threads N]
+        [--warmup 5] [--threads N] [--arithmetic deterministic,atomic,tf32,atomic-tf32]
 
 Torch is set up as the training stage sets it up (deterministic, seeded). Median seconds per step over `--steps`
 steps after `--warmup` (synchronised on CUDA; a graph mode captures during its warm-up), as samples/s; the ratio
-column is against the eager mode of the same variant and batch size in the same run. Also prints what the dataset
-occupies on the device (inputs + targets): the whole of it stays there during training.
+column is against the eager mode of the same variant and batch size in the same run, with the first `--arithmetic`
+listed (pipeline.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also prints
+what the dataset occupies on the device (inputs + targets): the whole of it stays there during training.
 """
 from __future__ import annotations
 
@@ -30,12 +31,14 @@ from model.training import Frames
 from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.operators import load_hierarchy
-from pipeline.torch_setup import configure_torch, frames_on
+from pipeline.torch_setup import configure_torch, frames_on, set_arithmetic
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
 VARIANTS = {"positions": FeatureSpec(("position",)),
             "body_relative": FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")}
 MODES = ("eager", "graph", "precomputed", "precomputed-graph")
+ARITHMETIC = {"deterministic": (True, False), "atomic": (False, False), "tf32": (True, True),
+              "atomic-tf32": (False, True)}           # (training.deterministic, training.tf32)
 
 
 class PrecomputedFeatures:
@@ -89,10 +92,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=30)
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--threads", type=int)
+    parser.add_argument("--arithmetic", default="deterministic", help=f"comma-separated of {', '.join(ARITHMETIC)}")
     args = parser.parse_args()
-    modes = args.modes.split(",")
+    modes, arithmetics = args.modes.split(","), args.arithmetic.split(",")
     if not set(modes) <= set(MODES):
         parser.error(f"--modes: one or more of {', '.join(MODES)}")
+    if not set(arithmetics) <= set(ARITHMETIC):
+        parser.error(f"--arithmetic: one or more of {', '.join(ARITHMETIC)}")
     if any(m.endswith("graph") for m in modes) and (args.device == "cpu" or args.warmup <= WARMUP_STEPS):
         parser.error(f"graph modes need a CUDA --device and --warmup > {WARMUP_STEPS} (capture happens in it)")
     device = configure_torch(args.device, 0, args.threads)
@@ -102,7 +108,7 @@ def main() -> None:
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     print(f"{where}; {len(data.inputs)} frames of {data.inputs.shape[1]} vertices on the device ({gib:.2f} GiB); "
           f"{ARCH} {args.conv} x{args.width:g}; median of {args.steps} steps after {args.warmup}")
-    print("| variant | batch | mode | samples/s | ms/step | x eager |\n|---|---|---|---|---|---|")
+    print("| variant | batch | mode | arithmetic | samples/s | ms/step | x eager |\n|---|---|---|---|---|---|---|")
     for batch_size in map(int, args.batch_sizes.split(",")):
         ids = torch.randperm(len(data.train), generator=torch.Generator().manual_seed(0))
         ids = torch.as_tensor(data.train, device=device)[ids.to(device)]
@@ -115,7 +121,8 @@ def main() -> None:
                 continue
             mesh = None
             eager_rate = None
-            for mode in modes:
+            for mode, arithmetic in ((m, a) for m in modes for a in arithmetics):
+                set_arithmetic(*ARITHMETIC[arithmetic])
                 torch.manual_seed(0)
                 net = build_network(NetworkSpec(ARCH, args.conv, "max", args.width, spec.channels))
                 mesh = mesh or load_hierarchy(args.operators, args.conv, net.n_levels, data.faces).to(device)
@@ -125,7 +132,8 @@ def main() -> None:
                 rate = batch_size / seconds
                 eager_rate = eager_rate or (rate if mode == "eager" else None)
                 ratio = f"{rate / eager_rate:.2f}" if eager_rate else "–"
-                print(f"| {name} | {batch_size} | {mode} | {rate:.1f} | {seconds * 1e3:.1f} | {ratio} |", flush=True)
+                print(f"| {name} | {batch_size} | {mode} | {arithmetic} | {rate:.1f} | {seconds * 1e3:.1f} | {ratio} |",
+                      flush=True)
 
 
 if __name__ == "__main__":

@@ -138,7 +138,8 @@ def _train(argv: Sequence[str]) -> None:
                         for role in ("settings", "dataset", "operators")})
     shared = shared_settings(garments)
     training = shared["training"]
-    device = configure_torch(shared["device"], training["seed"], args.threads)
+    device = configure_torch(shared["device"], training["seed"], args.threads,
+                             deterministic=bool(training["deterministic"]), tf32=bool(training["tf32"]))
     spec, features, net = _network(shared["network"], garments[0].settings)
     datasets = {g.name: load_dataset(g.dataset) for g in garments}
     meshes = {g.name: _garment_mesh(g, datasets[g.name], spec, features, net) for g in garments}

@@ -14,9 +14,11 @@ from pipeline.cli import check_device
 from pipeline.errors import PipelineError
 
 
-def configure_torch(device: str, seed: int, threads: int | None = None) -> torch.device:
-    """Deterministic, seeded torch on `device` using `threads` CPU threads (default: torch's choice); fails
-    clearly for a device that is no device (`gpu7`) or a CUDA device torch does not see."""
+def configure_torch(device: str, seed: int, threads: int | None = None, *, deterministic: bool = True,
+                    tf32: bool = False) -> torch.device:
+    """Seeded torch on `device` using `threads` CPU threads (default: torch's choice), its arithmetic as
+    `set_arithmetic` describes; fails clearly for a device that is no device (`gpu7`) or a CUDA device torch does
+    not see."""
     if threads is not None:
         if threads < 1:
             raise PipelineError(f"--threads must be >= 1, got {threads}")
@@ -24,7 +26,7 @@ def configure_torch(device: str, seed: int, threads: int | None = None) -> torch
     check_device(device, "torch", torch.cuda.device_count)
     if device.startswith("cuda"):
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")   # deterministic cuBLAS
-    torch.use_deterministic_algorithms(True)
+    set_arithmetic(deterministic, tf32)
     # Deterministic mode also fills every new tensor with NaN (a debugging aid against reads of uninitialised
     # memory, which no op here makes): one extra kernel per allocation, ~800 of the ~5,300 aten calls of an RC13
     # training step (batch 3, profiled on the CPU), on a GPU where the step is launch-bound. The arithmetic stays
@@ -33,6 +35,17 @@ def configure_torch(device: str, seed: int, threads: int | None = None) -> torch
     torch.set_flush_denormal(True)     # denormals in Adam's moments make CPU matmuls ~20x slower
     torch.manual_seed(seed)
     return torch.device(device)
+
+
+def set_arithmetic(deterministic: bool, tf32: bool) -> None:
+    """How CUDA computes (the CPU's arithmetic is the same either way).
+
+    deterministic: bit-reproducible runs; on CUDA the backward of every table gather (index_select) is then a
+    sort-based accumulation instead of atomic adds. tf32: float32 matrix products on TF32 tensor cores (10-bit
+    mantissa inputs, float32 accumulation; ~1e-3 relative per product) instead of full float32.
+    """
+    torch.use_deterministic_algorithms(deterministic)
+    torch.backends.cuda.matmul.fp32_precision = "tf32" if tf32 else "ieee"
 
 
 def frames_on(data: LearningData, device: torch.device | str) -> Frames:

@@ -61,7 +61,7 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
             "loss_normal": training["loss"]["normal"], "cuda_graph": training["cuda_graph"],
             "input_noise": training["input_noise"], "lr_schedule": training["lr_schedule"],
-            "device": settings["device"]}
+            "deterministic": training["deterministic"], "tf32": training["tf32"], "device": settings["device"]}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -95,6 +95,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="the learning rate over all epochs' steps: constant (paper), or cosine down to 1 %%")
     parser.add_argument("--input-noise", type=float, default=0.0,
                         help="std of Gaussian noise on the normalised inputs while training (0: none)")
+    parser.add_argument("--deterministic", type=cli.boolean, default=True, metavar="true|false",
+                        help="bit-reproducible on CUDA (sort-based backward of the gathers); false: atomic adds")
+    parser.add_argument("--tf32", type=cli.boolean, default=False, metavar="true|false",
+                        help="float32 matrix products on TF32 tensor cores (CUDA only)")
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
@@ -110,7 +114,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
-    device = configure_torch(args.device, args.seed, args.threads)
+    device = configure_torch(args.device, args.seed, args.threads, deterministic=args.deterministic,
+                             tf32=args.tf32)
     if args.cuda_graph and device.type != "cuda":
         raise PipelineError(f"--cuda-graph (training.cuda_graph) needs a CUDA device, not '{args.device}'")
     try:

@@ -64,22 +64,44 @@ def test_a_graph_needs_a_cuda_device():
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a CUDA device")
-def test_graph_replay_trains_as_the_eager_step_does(grid):
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_graph_replay_trains_as_the_eager_step_does(grid, schedule):
     """7 training frames at batch 3: two full batches and a partial one per epoch, so over 4 epochs the graph is
-    warmed up, captured, replayed, and interleaved with eager partial batches on the same gradient tensors."""
+    warmed up, captured, replayed, and interleaved with eager partial batches on the same gradient tensors; with
+    the cosine rate the captured step reads a rate tensor the schedule rewrites every step."""
     torch.use_deterministic_algorithms(True)
     mesh, frames = _problem(grid, "cuda")
     train, test = torch.arange(7, device="cuda"), torch.tensor([7], device="cuda")
     histories, states = [], []
     for graphed in (False, True):
         model = _model(grid, "cuda")
-        histories.append(fit(model, mesh, frames, train, test,
-                             TrainSettings(4, 3, 1e-3, LossWeights(1.0, 1.0, 0.1), 0, graphed)).batch_total)
+        settings = TrainSettings(4, 3, 1e-3, LossWeights(1.0, 1.0, 0.1), 0, graphed, lr_schedule=schedule)
+        histories.append(fit(model, mesh, frames, train, test, settings).batch_total)
         states.append(model.state_dict())
     assert len(histories[1]) == 12 and 2 * 4 > WARMUP_STEPS
     np.testing.assert_allclose(histories[1], histories[0], rtol=1e-5)
     for name, value in states[0].items():
         torch.testing.assert_close(states[1][name], value, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a CUDA device")
+def test_graphed_input_noise_draws_fresh_noise_each_replay_and_repeats_run_to_run(grid):
+    """Noise drawn inside the captured graph: each replay must draw anew, and the same seed give the same run.
+    One batch of the same 3 frames every epoch at a rate of ~0: only the noise can change the loss."""
+    torch.use_deterministic_algorithms(True)
+    mesh, frames = _problem(grid, "cuda")
+    train, test = torch.arange(3, device="cuda"), torch.tensor([7], device="cuda")
+    runs = {}
+    for noise, run in ((0.5, "a"), (0.5, "b"), (0.0, "none")):
+        torch.manual_seed(0)
+        model = _model(grid, "cuda")
+        settings = TrainSettings(WARMUP_STEPS + 8, 3, 1e-12, LossWeights(1.0, 0.0, 0.0), 0, True,
+                                 input_noise=noise)
+        runs[run] = np.asarray(fit(model, mesh, frames, train, test, settings).batch_total)
+    np.testing.assert_array_equal(runs["a"], runs["b"])
+    replayed, quiet = runs["a"][WARMUP_STEPS + 1:], runs["none"][WARMUP_STEPS + 1:]
+    assert np.isfinite(replayed).all()
+    assert np.std(quiet) < 1e-5 * np.mean(quiet) and np.std(replayed) > 1e-3 * np.mean(replayed)
 
 
 def test_cosine_rate_runs_from_lr_to_the_floor_and_constant_stays():

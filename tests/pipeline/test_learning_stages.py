@@ -267,6 +267,26 @@ def test_resume_after_kill_ends_like_an_uninterrupted_run(work, tmp_path):
         torch.testing.assert_close(a[name], b[name], rtol=1e-6, atol=1e-7)
 
 
+def test_cuda_arithmetic_keys_leave_cpu_training_unchanged(work, tmp_path):
+    """training.deterministic and training.tf32 choose CUDA kernels only: on the CPU the same weights come out,
+    and the log records what was asked for."""
+    paths, epochs = [work / "dataset.h5", work / "operators.h5"], ["--epochs", "3", "--quiet"]
+    stage(train.main, *paths, tmp_path / "a.pt", tmp_path / "a.h5", *ARCH, *epochs, "--deterministic", "false",
+          "--tf32", "true")
+    assert not torch.are_deterministic_algorithms_enabled()
+    assert torch.backends.cuda.matmul.fp32_precision == "tf32"
+    stage(train.main, *paths, tmp_path / "b.pt", tmp_path / "b.h5", *ARCH, *epochs)
+    assert torch.are_deterministic_algorithms_enabled()
+    assert torch.backends.cuda.matmul.fp32_precision == "ieee"
+    with h5py.File(tmp_path / "a.h5") as a, h5py.File(tmp_path / "b.h5") as b:
+        assert (config_of(a)["deterministic"], config_of(a)["tf32"]) == (False, True)
+        assert (config_of(b)["deterministic"], config_of(b)["tf32"]) == (True, False)
+    a = torch.load(tmp_path / "a.pt", weights_only=True)["state_dict"]
+    b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
+    for name in b:
+        torch.testing.assert_close(a[name], b[name], rtol=0, atol=0)
+
+
 def test_model_on_other_operators_is_one_clear_error(trained, tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
