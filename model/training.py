@@ -93,15 +93,35 @@ def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, 
                  batch_size: int, weights: LossWeights) -> dict[str, float]:
     """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
     `predict` maps a batch of frames to predicted displacements. Positions are S x_low + displacement."""
-    sums = []      # per batch (l1, l2², normal) × its frame count, on the device until the end (no per-batch wait)
-    with torch.no_grad():
+    def batches():
         for start in range(0, len(ids), batch_size):
             batch = ids[start:start + batch_size]
             inputs = frames.store.batch(batch)
-            predicted, truth = inputs.positions + predict(inputs), inputs.positions + frames.targets[batch]
-            sums.append(torch.stack([l1_loss(predicted, truth), l2_loss(predicted, truth) ** 2,
-                                     normal_loss(predicted, truth, frames.faces)]) * len(batch))
-    l1, l2sq, normal = (torch.stack(sums).sum(dim=0) / len(ids)).tolist()
+            yield batch, inputs.positions, predict(inputs)
+    with torch.no_grad():
+        return _errors(batches(), frames, len(ids), weights)
+
+
+def displacement_errors(displacement: torch.Tensor, frames: Frames, ids: torch.Tensor, batch_size: int,
+                        weights: LossWeights) -> dict[str, float]:
+    """`split_errors` of displacements already predicted for every frame (F, V, 3): a network run once over all
+    frames scores every split without running again."""
+    def batches():
+        for start in range(0, len(ids), batch_size):
+            batch = ids[start:start + batch_size]
+            yield batch, frames.store.positions[batch], displacement[batch]
+    with torch.no_grad():
+        return _errors(batches(), frames, len(ids), weights)
+
+
+def _errors(batches, frames: Frames, count: int, weights: LossWeights) -> dict[str, float]:
+    """The errors of (frame ids, S x_low, predicted displacement) batches over `count` frames in all."""
+    sums = []      # per batch (l1, l2², normal) × its frame count, on the device until the end (no per-batch wait)
+    for batch, positions, displacement in batches:
+        predicted, truth = positions + displacement, positions + frames.targets[batch]
+        sums.append(torch.stack([l1_loss(predicted, truth), l2_loss(predicted, truth) ** 2,
+                                 normal_loss(predicted, truth, frames.faces)]) * len(batch))
+    l1, l2sq, normal = (torch.stack(sums).sum(dim=0) / count).tolist()
     errors = {"l1": l1, "l2": l2sq ** 0.5, "normal": normal}
     errors["total"] = weights.l1 * errors["l1"] + weights.l2 * errors["l2"] + weights.normal * errors["normal"]
     return errors

@@ -41,7 +41,7 @@ from geometry.rigid import apply_rigid_inverse
 from model.features import FrameStore
 from model.inference import FastRegressor, captured_frames
 from model.losses import LossWeights
-from model.training import split_errors
+from model.training import displacement_errors, split_errors
 from pipeline import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset, read_low_res
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
@@ -313,12 +313,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
     frames = frames_of(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
-    predict = {"network": lambda inputs: model(inputs, mesh),
-               "predictor": lambda inputs: torch.zeros_like(inputs.positions)}
-    errors = {who: {split: split_errors(fn, frames, torch.as_tensor(ids, device=device), 8, weights)
-                    for split, ids in data.splits().items()}
-              for who, fn in predict.items()}
-    displacement = infer_all(model, mesh, frames.store).cpu().numpy()
+    predicted_all = infer_all(model, mesh, frames.store)      # the network runs once: every split is scored on it
+    splits = {split: torch.as_tensor(ids, device=device) for split, ids in data.splits().items()}
+    errors = {"network": {split: displacement_errors(predicted_all, frames, ids, 8, weights)
+                          for split, ids in splits.items()},
+              "predictor": {split: split_errors(lambda inputs: torch.zeros_like(inputs.positions), frames, ids, 8,
+                                                weights) for split, ids in splits.items()}}
+    displacement = predicted_all.cpu().numpy()
+    del predicted_all
     steps.update()
     timed = pick_frames(data.test, args.timing_frames)
     timer = time_inference if task.letter == "D" else time_decoder
