@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import secrets
 import shutil
@@ -448,6 +449,26 @@ def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: T
     return paths
 
 
+def _training_option_rows(training: dict) -> list[list[str]]:
+    """Report rows for the training options a model.pt records (older ones record none): each shown only when it
+    holds a value of its kind, since the file may come from anywhere."""
+    rows = []
+    if training.get("lr_schedule") in ("constant", "cosine"):
+        rows.append(["learning-rate schedule", "cosine down to 1 %" if training["lr_schedule"] == "cosine"
+                     else "constant"])
+    noise = training.get("input_noise")
+    if isinstance(noise, (int, float)) and not isinstance(noise, bool) and math.isfinite(noise):
+        rows.append(["input noise (std, normalised units)", f"{noise:g}" if noise else "none"])
+    flags = [training.get(key) for key in ("cuda_graph", "deterministic", "tf32")]
+    if all(isinstance(flag, bool) for flag in flags):
+        graph, deterministic, tf32 = flags
+        rows.append(["optimiser step", ", ".join([
+            "one CUDA graph" if graph else "eager",
+            "deterministic" if deterministic else "atomic adds (not bit-reproducible)",
+            "TF32 products" if tf32 else "float32 products"])])
+    return rows
+
+
 def _report_sections(args, state, data: LearningData, errors, times, device: str, n_low: int,
                      train_log: TrainLog | None, pictures: list[Path], plots: dict[str, Path],
                      videos: list[tuple[Path, str]], files: list[tuple[str, str]], task: Task) -> list[Section]:
@@ -469,7 +490,8 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
                      ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
                      ["seed", training["seed"]],
-                     ["loss weights L1 / L2 / Ln", f"{loss['l1']:g} / {loss['l2']:g} / {loss['normal']:g}"]]
+                     ["loss weights L1 / L2 / Ln", f"{loss['l1']:g} / {loss['l2']:g} / {loss['normal']:g}"],
+                     *_training_option_rows(training)]
     if train_log is not None:
         training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
                           ["last epoch's test loss", float(train_log.test_total[-1])]]

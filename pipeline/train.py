@@ -158,7 +158,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     seconds = time.perf_counter() - start
     config = {**vars(args), "parameter_count": net.parameter_count()}
     training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
-                "seed": args.seed,
+                "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
+                "input_noise": args.input_noise,
                 "device": str(device), "loss_weights": dataclasses.asdict(settings.weights),
                 "final_train_loss": history.train["total"][-1], "final_test_loss": history.test["total"][-1],
                 "dataset": args.dataset, "dataset_fingerprint": data.fingerprint}

@@ -164,6 +164,8 @@ def test_evaluation_errors_renders_and_exports(trained):
     assert errors["network/test/l1"] < errors["predictor/test/l1"]       # the network beats Loop subdivision
     report = (out / "report.md").read_text()
     assert "10,349 learnable parameters" in report and "Loop subdivision alone" in report
+    assert "| learning-rate schedule | constant |" in report and "| input noise (std, normalised units) | none |" in report
+    assert "| optimiser step | eager, deterministic, float32 products |" in report
     pictures = sorted((out / "renders").glob("frame_*.png"))
     assert len(pictures) == 1 and f"]({pictures[0].relative_to(out)})" in report
     obj = trimesh.load(out / "export/predicted_obj/frame_0003.obj", process=False)
@@ -285,6 +287,16 @@ def test_cuda_arithmetic_keys_leave_cpu_training_unchanged(work, tmp_path):
     b = torch.load(tmp_path / "b.pt", weights_only=True)["state_dict"]
     for name in b:
         torch.testing.assert_close(a[name], b[name], rtol=0, atol=0)
+
+
+def test_training_options_of_a_hand_made_model_file_are_shown_only_when_well_typed():
+    rows = evaluate._training_option_rows({"lr_schedule": "cosine", "input_noise": 0.2, "cuda_graph": True,
+                                           "deterministic": False, "tf32": True})
+    assert rows == [["learning-rate schedule", "cosine down to 1 %"], ["input noise (std, normalised units)", "0.2"],
+                    ["optimiser step", "one CUDA graph, atomic adds (not bit-reproducible), TF32 products"]]
+    hostile = {"lr_schedule": "<script>", "input_noise": float("nan"), "cuda_graph": 1, "deterministic": "yes",
+               "tf32": None}
+    assert evaluate._training_option_rows(hostile) == [] and evaluate._training_option_rows({}) == []
 
 
 def test_model_on_other_operators_is_one_clear_error(trained, tmp_path, capsys):
