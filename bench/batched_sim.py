@@ -8,9 +8,12 @@ garment was made, as a sequence of the stage does); the high-res rows hold every
 Per B: median ms per batch frame over measured frames after warm-up (the first frames compile and capture the
 graph), cloth-frames/s = B * 1000 / ms, and the ratio to B = 1 in the same run. `--profile` adds where one frame's
 time goes, per kernel, at the largest B (CUDA only; launched without the graph, so each kernel is timed on its
-own). Usage:
+own). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
+by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
+not installed). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
-      [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every iteration|substep] [--profile] [--out table.md]
+      [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every iteration|substep] [--profile]
+      [--peer newton] [--out table.md]
 """
 from __future__ import annotations
 
@@ -24,6 +27,7 @@ import warp as wp
 
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
+from newton_peer import newton_hanging, newton_missing, ours_hanging  # bench/ is the script's own folder
 from scenes.capsules import capsules_world
 from scenes.garments import make_garment
 from scenes.kinematics import rest_transforms
@@ -124,6 +128,28 @@ def kernel_profile(solver, harmonic_target, targets, capsules) -> list[str]:
             for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])]
 
 
+def peer_rows(levels, pins, batches, settings, args) -> list[str]:
+    """The hanging-cloth comparison with Newton (bench/newton_peer.py), as table lines."""
+    missing = newton_missing()
+    if missing:
+        print(f"peer: skipped: {missing}", flush=True)
+        return [f"\npeer: skipped: {missing}"]
+    rows = ["\nHanging from the pins, no body, no contact, this solver against Newton's XPBD (same mesh, pins, "
+            "budget; stretch: largest edge length / rest at the end)",
+            "| level | V | B | ours ms | Newton ms | ours cloth-frames/s | Newton cloth-frames/s | ours / Newton speed "
+            "| ours stretch | Newton stretch |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for level in args.levels.split(","):
+        vertices, faces = levels[level]
+        for worlds in batches:
+            ours, peer = (run(vertices, faces, pins, worlds, settings, args.device, args.frames, args.warmup)
+                          for run in (ours_hanging, newton_hanging))
+            rows.append(f"| {level} | {len(vertices)} | {worlds} | {ours.ms:.2f} | {peer.ms:.2f} | "
+                        f"{worlds * 1e3 / ours.ms:.0f} | {worlds * 1e3 / peer.ms:.0f} | {peer.ms / ours.ms:.2f} | "
+                        f"{ours.stretch:.3f} | {peer.stretch:.3f} |")
+            print(rows[-1], flush=True)
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cuda:0")
@@ -135,6 +161,7 @@ def main():
     parser.add_argument("--iterations", type=int, default=75)
     parser.add_argument("--harmonic-every", default="iteration", choices=("iteration", "substep"))
     parser.add_argument("--profile", action="store_true")
+    parser.add_argument("--peer", choices=("newton",), help="also time NVIDIA Newton's XPBD on the hanging cloth")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -168,7 +195,8 @@ def main():
                              "| kernel | launches | ms | share |", "|---|---|---|---|",
                              *kernel_profile(solver, goals, targets, capsules)]
             del solver
-    table = "\n".join(rows + profiles)
+    peers = peer_rows(levels, pins, batches, settings, args) if args.peer else []
+    table = "\n".join(rows + profiles + peers)
     print(f"\n{args.device}, {args.substeps} substeps x {args.iterations} iterations, body + self collision, harmonic "
           f"projection every {args.harmonic_every} (high), median "
           f"of {args.frames} frames after {args.warmup} warm-up frames\n{table}")
