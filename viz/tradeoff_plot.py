@@ -11,6 +11,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 MARKERS = ("o", "^", "s", "D", "v", "P", "X")
+LABEL_SIZE = 7                      # points
+# Where a label may go, in points from its point, tried in order: right of it, then above and below, then left.
+LABEL_OFFSETS = ((4, 4), (4, -11), (4, 15), (4, -22), (4, 26), (4, -33), (4, 37))
 COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 
 
@@ -31,8 +34,6 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
             mask = np.array([g == kind for g in groups])
             ax.scatter(ms[mask], error[mask], marker=MARKERS[k % len(MARKERS)], color=COLOURS[k % len(COLOURS)],
                        label=kind, zorder=3)
-        for label, x, y in zip(labels, ms, error):
-            ax.annotate(label, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
         on_front = np.flatnonzero(fronts[split])
         order = on_front[np.argsort(ms[on_front])]
         ax.step(ms[order], error[order], where="post", color="tab:red", linewidth=1.5, label="Pareto front",
@@ -45,6 +46,10 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
         ax.set_ylabel(unit)
         ax.set_title(f"{split} frames")
         ax.grid(True, which="both", alpha=0.3)
+        ax.autoscale_view()
+        anchors = ax.transData.transform(np.column_stack([ms, error])) * 72.0 / fig.dpi     # in points
+        for label, (x, y), offset in zip(labels, zip(ms, error), place_labels(anchors, labels)):
+            ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE)
     # One legend under the panels, clear of the points.
     handles, names = fig.axes[0].get_legend_handles_labels()
     fig.legend(handles, names, loc="lower center", ncol=3, fontsize=8, frameon=False)
@@ -52,3 +57,20 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
     png = io.BytesIO()
     fig.savefig(png, format="png")
     return png.getvalue()
+
+
+def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZE) -> list[tuple[float, float]]:
+    """An offset (points) per label from its anchor (N, 2), in points: the first of LABEL_OFFSETS whose box (text
+    width estimated from its length) meets no box placed before it, so that points at nearly the same place
+    (networks of two widths at one budget) keep readable labels; the last offset if every one is taken."""
+    placed: list[tuple[float, float, float, float]] = []
+    offsets = []
+    for (x, y), label in zip(anchors, labels):
+        width, height = 0.6 * size * len(label), size + 1.0
+        for dx, dy in LABEL_OFFSETS:
+            box = (x + dx, y + dy, x + dx + width, y + dy + height)
+            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
+                break
+        placed.append(box)
+        offsets.append((dx, dy))
+    return offsets

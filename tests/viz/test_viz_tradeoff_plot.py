@@ -1,0 +1,34 @@
+"""The speed-accuracy figure's labels: points at nearly one place (networks of two widths at one budget) must keep
+readable, non-overlapping labels."""
+from __future__ import annotations
+
+import numpy as np
+
+from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, place_labels, tradeoff_plot
+
+
+def _box(anchor, offset, label):
+    x, y = anchor[0] + offset[0], anchor[1] + offset[1]
+    return x, y, x + 0.6 * LABEL_SIZE * len(label), y + LABEL_SIZE + 1.0
+
+
+def _overlap(a, b) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def test_labels_of_coincident_points_do_not_overlap_and_lone_points_keep_the_first_place():
+    labels = ["1 sub, RC9 x0.125", "1 sub, RC9 x0.25", "1 sub, RC9 x0.25 (matched)", "4 sub, Loop only"]
+    anchors = np.array([[100.0, 200.0], [101.0, 200.5], [100.5, 199.0], [400.0, 50.0]])
+    offsets = place_labels(anchors, labels)
+    boxes = [_box(a, o, lab) for a, o, lab in zip(anchors, offsets, labels)]
+    assert not any(_overlap(boxes[i], boxes[j]) for i in range(3) for j in range(i + 1, 3))
+    assert offsets[0] == LABEL_OFFSETS[0] and offsets[3] == LABEL_OFFSETS[0]
+    assert len(set(offsets[:3])) == 3
+
+
+def test_the_figure_is_a_png_with_coincident_points():
+    png = tradeoff_plot(["a", "b", "c"], np.array([10.0, 10.0, 100.0]),
+                        {"test": np.array([1.0, 1.0, 0.5]), "held-out": np.array([2.0, 2.0, 1.0])},
+                        {"test": np.array([True, False, True]), "held-out": np.array([True, False, True])},
+                        ["learned", "learned", "high-res"], reference_ms=300.0)
+    assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
