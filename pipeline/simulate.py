@@ -16,7 +16,7 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -67,6 +67,28 @@ def per_frame_product(A, x: np.ndarray) -> np.ndarray:
     n_frames, n_vertices, channels = x.shape
     columns = np.ascontiguousarray(x.transpose(1, 0, 2)).reshape(n_vertices, n_frames * channels)
     return np.asarray(A @ columns).reshape(A.shape[0], n_frames, channels).transpose(1, 0, 2)
+
+
+def harmonic_targets_of(x_low: np.ndarray, S, low_content: np.ndarray, mass_basis_t: np.ndarray,
+                        clear: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+    """B^T M x per frame (F, K, 3) of x = S x_low, moved by `clear` (F, V, 3) -> (F, V, 3) where it enters the body.
+
+    As (B^T M S) x_low plus B^T M of the few vertices `clear` moved: the same sum as B^T M x over all V high-res
+    vertices, for a product with the V_low coarse ones (1/16) and one with the moved vertices. The whole (K, V)
+    product per frame was most of the high-res stage's setup for a 64-world batch (single-threaded BLAS, 2026-11-24).
+    """
+    targets = per_frame_product(low_content, x_low.astype(np.float64, copy=False))
+    if clear is None:
+        return targets
+    smooth = per_frame_product(S, x_low).astype(np.float32)    # what `clear` receives and returns (float32)
+    cleared = clear(smooth)
+    moved = np.flatnonzero((cleared != smooth).any(axis=(0, 2)))
+    # Unmoved vertices enter as S x_low in float64 (float32 before): the targets differ from the former ones by
+    # float32 rounding of those positions, ~1e-8 relative.
+    if len(moved):
+        change = cleared[:, moved].astype(np.float64) - per_frame_product(S[moved], x_low.astype(np.float64))
+        targets += per_frame_product(mass_basis_t[:, moved], change)
+    return targets
 
 
 @dataclass(frozen=True)
@@ -195,14 +217,13 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     # residual stayed at ~1e-3 on the CPU pants). With the body, the target is taken from S x_low moved clear of
     # it, the way the solver moves the cloth, so that one shape meets both constraints.
     mass_basis_t = (mass[:, None] * basis).T
+    low_content = np.asarray((S.T @ mass_basis_t.T).T)      # B^T M S (K, V_low): the target's product, factored
 
-    def smooth(x_low: np.ndarray, drive: SceneDrive) -> np.ndarray:
-        positions = per_frame_product(S, x_low)
-        if not s.body_collision:
-            return positions
+    def clear(positions: np.ndarray, drive: SceneDrive) -> np.ndarray:
         return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
 
-    harmonic_targets = [per_frame_product(mass_basis_t, smooth(x_low, drive).astype(np.float64, copy=False))
+    harmonic_targets = [harmonic_targets_of(x_low, S, low_content, mass_basis_t,
+                                            (lambda p, d=drive: clear(p, d)) if s.body_collision else None)
                         for x_low, drive in zip(x_lows, batch.drives)]
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
                          harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),

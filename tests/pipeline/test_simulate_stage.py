@@ -199,3 +199,29 @@ def test_per_frame_product_is_a_matrix_product_per_frame():
     for A in (rng.normal(size=(4, 7)), sp.random(9, 7, density=0.4, random_state=1, format="csr")):
         expected = np.stack([A @ frame for frame in x])
         np.testing.assert_allclose(per_frame_product(A, x), expected, rtol=1e-6, atol=1e-6)
+
+
+def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex():
+    """(B^T M S) x_low plus the moved vertices' part equals B^T M over the whole cleared S x_low, with and without a
+    body; and a body that moves no vertex leaves the targets those of S x_low."""
+    import scipy.sparse as sp
+    from pipeline.simulate import harmonic_targets_of
+    rng = np.random.default_rng(3)
+    S = sp.random(40, 12, density=0.3, random_state=2, format="csr")
+    x_low = rng.normal(size=(6, 12, 3)).astype(np.float32)
+    mass_basis_t = rng.normal(size=(5, 40))
+    low_content = np.asarray((S.T @ mass_basis_t.T).T)
+
+    def floor(points):            # a "body" below z = 0: moves the vertices under it up onto it
+        out = points.copy()
+        out[..., 2] = np.maximum(out[..., 2], 0.0)
+        return out
+
+    smooth = np.stack([S @ x for x in x_low.astype(np.float64)])
+    for clear in (floor, None):
+        cleared = smooth if clear is None else clear(smooth.astype(np.float32)).astype(np.float64)
+        expected = np.stack([mass_basis_t @ x for x in cleared])
+        got = harmonic_targets_of(x_low, S, low_content, mass_basis_t, clear)
+        np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+    untouched = harmonic_targets_of(x_low, S, low_content, mass_basis_t, lambda p: p.copy())
+    np.testing.assert_allclose(untouched, np.stack([mass_basis_t @ x for x in smooth]), rtol=1e-12, atol=1e-12)
