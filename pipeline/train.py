@@ -115,9 +115,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads, deterministic=args.deterministic,
-                             tf32=args.tf32)
-    if args.cuda_graph and device.type != "cuda":
-        raise PipelineError(f"--cuda-graph (training.cuda_graph) needs a CUDA device, not '{args.device}'")
+                             tf32=args.tf32, cuda_graph=args.cuda_graph)
     try:
         features = FeatureSpec(tuple(args.inputs.split(",")), args.input_frame, args.output_frame, args.frame_tangent)
     except ValueError as err:

@@ -51,6 +51,13 @@ def test_a_cuda_device_beyond_those_torch_sees_is_refused():
         configure_torch(beyond, seed=0)
 
 
+def test_a_graphed_training_on_a_device_that_is_not_cuda_is_refused():
+    """train and multi share this check: training.cuda_graph on the CPU is one clear error, not a crash later."""
+    with pytest.raises(PipelineError, match="training.cuda_graph\\) needs a CUDA device, not 'cpu'"):
+        configure_torch("cpu", seed=0, cuda_graph=True)
+    assert configure_torch("cpu", seed=0).type == "cpu"
+
+
 def test_cuda_devices_are_checked_against_the_count():
     count = lambda: 2     # noqa: E731  (two GPUs, whatever this machine has)
     for device in ("cpu", "cuda", "cuda:0", "cuda:1"):
