@@ -51,8 +51,8 @@ from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.simulation import read_solve_ms, read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
-from pipeline.artifacts.tradeoff import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, FrameOrigins, Reference,
-                                         Tradeoff, read_frame_origins, write_tradeoff)
+from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
+from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
 from pipeline.errors import PipelineError
 from pipeline.torch_setup import configure_torch
 from pipeline.tradeoff_report import groups, labels, pareto_front, plotted_errors, write_report

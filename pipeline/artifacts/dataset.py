@@ -17,11 +17,12 @@ import hashlib
 import os
 from typing import Any, Iterable, Mapping
 
+import h5py
 import numpy as np
 
 from model.features import previous_frames
 from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_indices
-from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames
+from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames, read_torso_transforms
 from pipeline.errors import PipelineError
 
 STAGE = "dataset"
@@ -343,3 +344,31 @@ def read_low_res(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     with open_artifact(path) as f:
         positions = read(f, LOW_POSITIONS, np.float64)
         return positions, read_indices(f, LOW_FACES, positions.shape[1], shape=(None, 3))
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameOrigins:
+    """Where the test and held-out frames of a dataset.h5 come from, and the frame its positions are in."""
+    names: tuple[str, ...]          # its sequences, in dataset order
+    sequence: np.ndarray            # (F,) index into `names` of each frame's sequence
+    sequence_frame: np.ndarray      # (F,) the frame's index within its sequence's runs
+    splits: dict[str, np.ndarray]   # "test" and, where the scene has a held-out motion, "held_out": frame ids
+    torso: np.ndarray | None        # (F, 4, 4) world-from-torso per frame for a dataset in the torso frame
+
+
+def read_frame_origins(path: str | os.PathLike) -> FrameOrigins:
+    with open_artifact(path) as f:
+        names = f.get(SEQUENCE_NAMES)
+        if not isinstance(names, h5py.Dataset) or names.dtype.kind != "S" or names.ndim != 1:
+            raise PipelineError(f"{path}: missing dataset '{SEQUENCE_NAMES}': not a dataset.h5 of pipeline.dataset")
+        names = tuple(name.decode() for name in names[()])
+        sequence = read_indices(f, SEQUENCE, len(names), shape=(None,))
+        n_frames = len(sequence)
+        sequence_frame = read_indices(f, SEQUENCE_FRAME, np.iinfo(np.int64).max, shape=(n_frames,))
+        splits = {"test": read_indices(f, SPLIT_TEST, n_frames, shape=(None,)),
+                  "held_out": read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))}
+        frame = str(f.attrs.get("frame", "world"))
+    torso = read_torso_transforms(path, n_frames) if frame == "torso" else None
+    if not len(splits["test"]):
+        raise PipelineError(f"{path}: '{SPLIT_TEST}' is empty")
+    return FrameOrigins(names, sequence, sequence_frame, {k: v for k, v in splits.items() if len(v)}, torso)

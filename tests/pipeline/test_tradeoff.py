@@ -15,8 +15,8 @@ from pipeline.artifacts.dataset import SEQUENCE, SEQUENCE_FRAME, SEQUENCE_NAMES,
 from pipeline.artifacts.evaluation import Evaluation, read_network_timing, write_evaluation
 from pipeline.artifacts.scene import TORSO_TRANSFORMS
 from pipeline.artifacts.simulation import SimulationRun, write_simulation
-from pipeline.artifacts.tradeoff import (COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_frame_origins,
-                                         read_tradeoff, write_tradeoff)
+from pipeline.artifacts.dataset import read_frame_origins
+from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff, write_tradeoff
 from pipeline.errors import PipelineError
 from pipeline.tradeoff import (Budget, budget_rows, high_res_errors, main, make_row, parse_grid, parse_high_res,
                                per_sequence_ms, table_of, time_subdivision)
