@@ -27,6 +27,8 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from geometry.harmonics import lumped_mass
+from geometry.mesh import unique_edges
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
 
 NEWTON_VERSION = "1.8.0"
@@ -110,19 +112,13 @@ def newton_hanging(vertices: np.ndarray, faces: np.ndarray, pins: np.ndarray, wo
     return HangingRun(ms, _checked_stretch(positions, vertices, faces, pins))
 
 
-def _edges(faces: np.ndarray) -> np.ndarray:
-    return np.unique(np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1), axis=0)
-
-
 def _stable_spring_ke(vertices: np.ndarray, faces: np.ndarray, pins: np.ndarray, density: float, h: float) -> float:
     """The stiffest spring Newton's summed Jacobi corrections keep stable (module docstring): particle masses as
     add_cloth_mesh gives them (a third of each triangle's area times the density), pins weightless."""
-    a, b, c = (vertices[faces[:, k]] for k in range(3))
-    mass = np.zeros(len(vertices))
-    np.add.at(mass, faces.ravel(), np.repeat(density * 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1) / 3, 3))
+    mass = density * lumped_mass(vertices, faces)
     inverse = np.where(mass > 0, 1.0 / np.maximum(mass, 1e-30), 0.0)
     inverse[pins] = 0.0
-    edges = _edges(faces)
+    edges = unique_edges(faces)
     valence = np.bincount(edges.ravel()).max()
     return float(1.0 / (valence * h * h * (inverse[edges[:, 0]] + inverse[edges[:, 1]]).max()))
 
@@ -130,7 +126,7 @@ def _stable_spring_ke(vertices: np.ndarray, faces: np.ndarray, pins: np.ndarray,
 def _checked_stretch(positions: np.ndarray, vertices: np.ndarray, faces: np.ndarray, pins: np.ndarray) -> float:
     """The largest edge stretch of (B, V, 3) end positions; RuntimeError unless the run hung the cloth (finite,
     pins where they were, the free vertices lower on average than at rest): a blown-up run's time means nothing."""
-    edges = _edges(faces)
+    edges = unique_edges(faces)
     rest = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1)
     free = np.setdiff1d(np.arange(len(vertices)), pins)
     if not (np.isfinite(positions).all() and np.allclose(positions[:, pins], vertices[pins], atol=1e-4)

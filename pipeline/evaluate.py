@@ -43,6 +43,7 @@ from model.features import FrameStore
 from model.inference import FastRegressor, captured_frames
 from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
+from model.training_step import LR_SCHEDULES
 from pipeline import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset, read_low_res
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
@@ -453,7 +454,7 @@ def _training_option_rows(training: dict) -> list[list[str]]:
     """Report rows for the training options a model.pt records (older ones record none): each shown only when it
     holds a value of its kind, since the file may come from anywhere."""
     rows = []
-    if training.get("lr_schedule") in ("constant", "cosine"):
+    if training.get("lr_schedule") in LR_SCHEDULES:
         rows.append(["learning-rate schedule", "cosine down to 1 %" if training["lr_schedule"] == "cosine"
                      else "constant"])
     noise = training.get("input_noise")

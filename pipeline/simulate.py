@@ -77,17 +77,18 @@ def harmonic_targets_of(x_low: np.ndarray, S, low_content: np.ndarray, mass_basi
     vertices, for a product with the V_low coarse ones (1/16) and one with the moved vertices. The whole (K, V)
     product per frame was most of the high-res stage's setup for a 64-world batch (single-threaded BLAS, 2026-11-24).
     """
-    targets = per_frame_product(low_content, x_low.astype(np.float64, copy=False))
+    x_low = x_low.astype(np.float64, copy=False)
+    targets = per_frame_product(low_content, x_low)
     if clear is None:
         return targets
-    smooth = per_frame_product(S, x_low).astype(np.float32)    # what `clear` receives and returns (float32)
-    cleared = clear(smooth)
-    moved = np.flatnonzero((cleared != smooth).any(axis=(0, 2)))
+    smooth = per_frame_product(S, x_low)
+    single = smooth.astype(np.float32)                          # what `clear` receives and returns (float32)
+    cleared = clear(single)
+    moved = np.flatnonzero((cleared != single).any(axis=(0, 2)))
     # Unmoved vertices enter as S x_low in float64 (float32 before): the targets differ from the former ones by
     # float32 rounding of those positions, ~1e-8 relative.
     if len(moved):
-        change = cleared[:, moved].astype(np.float64) - per_frame_product(S[moved], x_low.astype(np.float64))
-        targets += per_frame_product(mass_basis_t[:, moved], change)
+        targets += per_frame_product(mass_basis_t[:, moved], cleared[:, moved] - smooth[:, moved])
     return targets
 
 

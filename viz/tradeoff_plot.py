@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 MARKERS = ("o", "^", "s", "D", "v", "P", "X")
 LABEL_SIZE = 7                      # points
-# Where a label may go, in points from its point, tried in order: right of it, then above and below, then left.
+# Where a label may go, in points from its point, tried in order: up and right of it, then further below and above.
 LABEL_OFFSETS = ((4, 4), (4, -11), (4, 15), (4, -22), (4, 26), (4, -33), (4, 37))
 COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 
