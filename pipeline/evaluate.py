@@ -30,7 +30,6 @@ import os
 import secrets
 import shutil
 import tempfile
-import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -40,7 +39,6 @@ from tqdm import tqdm
 
 from geometry.rigid import apply_rigid_inverse
 from model.features import FrameStore
-from model.inference import FastRegressor, captured_frames
 from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
 from model.training_step import LR_SCHEDULES
@@ -54,6 +52,7 @@ from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.errors import PipelineError
 from pipeline.tasks import frames_of, task_of
 from pipeline.tasks.task import Task
+from pipeline.network_timing import WARMUP_RUNS, pick_frames, time_decoder, time_inference
 from pipeline.torch_setup import configure_torch
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
@@ -65,7 +64,6 @@ from viz.plots import error_over_time, figure_bytes, training_curve
 from viz.render import png_bytes, value_colors
 
 PAPER_UNIT = 1e-3          # Table 3: "error should be multiplied by 10^-3"
-WARMUP_RUNS = 3
 VIDEO_PANEL_HEIGHT = 3.6   # inches at 100 dpi; stills are 4.5 and supersampled, video frames are not (speed)
 SPLIT_NAMES = {"train": "train", "test": "test", "held_out": "held-out"}
 
@@ -77,83 +75,10 @@ def infer_all(model, mesh, store: FrameStore, batch_size: int = 8) -> torch.Tens
         return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])
 
 
-class InferenceTimes(np.ndarray):
-    """ms of each timed frame on the deployment path (the array: eval.h5's inference_ms), carrying for the report
-    the eager network's ms on the same frames (`eager`) and the deployment path in words (`path`)."""
-
-    eager: np.ndarray
-    path: str
-
-
-def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> InferenceTimes:
-    """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
-    of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
-    fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
-    on the same frames, eager PyTorch."""
-    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-    fast = FastRegressor(model, mesh).to(ids.device)
-    path = "model.inference fast path, fp32, inference_mode"
-    deployed = fast
-    if ids.is_cuda:
-        try:
-            deployed = captured_frames(fast, store.batch(ids[:1]))
-            path = "model.inference fast path, fp32, replayed as one CUDA graph"
-        except RuntimeError as err:       # a feature's kernel that cannot be captured: time it launched
-            path += f", launched kernel by kernel (no CUDA graph: {str(err).splitlines()[0]})"
-
-    def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
-        times, outputs = [], []
-        with grad_mode():
-            for i in range(-WARMUP_RUNS, len(ids)):
-                frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
-                sync()
-                start = time.perf_counter()
-                output = run(frame)
-                sync()
-                if i >= 0:
-                    times.append((time.perf_counter() - start) * 1e3)
-                    outputs.append(output.clone())
-        return np.asarray(times), torch.cat(outputs)
-
-    eager_ms, expected = per_frame(lambda frame: model(frame, mesh), torch.no_grad)
-    deployed_ms, got = per_frame(deployed, torch.inference_mode)
-    difference = float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
-    times = deployed_ms.view(InferenceTimes)
-    times.eager, times.path = eager_ms, f"{path}; within {difference:.0e} of the eager output"
-    return times
-
-
-def time_decoder(model, mesh, store, ids: torch.Tensor) -> InferenceTimes:
-    """time_inference for a decoder task (model.inference's fast path covers the encoder-decoder only): eager
-    PyTorch under inference_mode, batch of one (the input vector given), after warm-up runs; synchronised on
-    CUDA."""
-    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-    times = []
-    with torch.inference_mode():
-        for i in range(-WARMUP_RUNS, len(ids)):
-            frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
-            sync()
-            start = time.perf_counter()
-            model(frame, mesh)
-            sync()
-            if i >= 0:
-                times.append((time.perf_counter() - start) * 1e3)
-    measured = np.asarray(times).view(InferenceTimes)
-    measured.eager, measured.path = measured, "eager PyTorch, fp32, inference_mode"
-    return measured
-
-
 def per_frame_errors(displacement_error: np.ndarray) -> dict[str, np.ndarray]:
     """L1 and L2 of each frame from (F, V, 3) position errors."""
     return {"l1": np.abs(displacement_error).mean(axis=(1, 2)),
             "l2": np.sqrt(np.square(displacement_error).sum(axis=2).mean(axis=1))}
-
-
-def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
-    """`count` of `frames` (sorted ids) spread evenly: the middle one of each of `count` equal parts (so one
-    frame of a sequence is from its middle, not its first, still frame), or all of them."""
-    n = min(max(count, 0), len(frames))
-    return frames[((np.arange(n) + 0.5) * len(frames) / max(n, 1)).astype(np.int64)]
 
 
 def stretch_around_test_frames(data: LearningData, count: int) -> np.ndarray:

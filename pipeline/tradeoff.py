@@ -1,20 +1,21 @@
 """Stage `tradeoff`: the speed-accuracy trade of every way to a scene's high-res cloth: a table, a plot, a report.
 
     python -m pipeline.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
-        --point SUBSTEPS SIM_LOW.h5 [SIM_LOW.h5 ...] [--point ...] --eval SUBSTEPS EVAL.h5 [--eval ...]
-        [--matched SUBSTEPS EVAL.h5 ...] [--dataset DATASET.h5 --high-res SUBSTEPS ITERATIONS SCHEDULE
-        SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md] [--settings SETTINGS.json] [--device cpu] [--threads N]
-        [--timing-frames 30] [--substeps N] [--iterations N] [--harmonic-every substep]
+        --dataset DATASET.h5 --operators OPERATORS.h5 --point SUBSTEPS SIM_LOW.h5 [SIM_LOW.h5 ...] [--point ...]
+        --eval SUBSTEPS EVAL.h5 MODEL.pt [--eval ...] [--matched SUBSTEPS EVAL.h5 MODEL.pt ...]
+        [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md]
+        [--settings SETTINGS.json] [--device cpu] [--threads N] [--timing-frames 30] [--substeps N]
+        [--iterations N] [--harmonic-every substep]
 
 Every row is a way to get the high-res cloth, scored against the scene's high-res runs (--sim-high, one per
 sequence in the dataset's order: the ground truth, and the time to beat).
 
 * Learned path, per low-res budget (--point): the scene's sequences re-simulated at low resolution with SUBSTEPS
   substeps (SIM_LOW.h5: the runs of that budget whose solver timing counts, one solver world each), Loop-
-  subdivided and fed to networks; each --eval EVAL.h5 is the evaluate stage's measure of a network trained on the
-  scene's own budget (--substeps) fed that budget's inputs (errors against the high-res runs, the network timed on
-  the deployment path, its conv and width as recorded). The input a cheaper solver makes lies outside that
-  training data (paper Fig. 14): the errors say what the shift costs. A --matched EVAL.h5 is the same network
+  subdivided and fed to networks; each --eval EVAL.h5 MODEL.pt is the evaluate stage's measure of a network
+  trained on the scene's own budget (--substeps) fed that budget's inputs (errors against the high-res runs, its
+  conv and width as recorded) and the network itself. The input a cheaper solver makes lies outside that training
+  data (paper Fig. 14): the errors say what the shift costs. A --matched EVAL.h5 MODEL.pt is the same network
   recipe trained on the budget's own inputs: whether matching the training input to the deployed budget removes
   the shift. Each budget also gives a row for Loop subdivision alone (network "none").
 * High-res runs (--high-res): the high-res solver itself at SUBSTEPS x ITERATIONS with the harmonic projection
@@ -25,7 +26,9 @@ sequence in the dataset's order: the ground truth, and the time to beat).
 
 Times are ms per frame of one sequence: the low-res solve (the solver's own timing, median over every frame of
 the budget's runs), Loop subdivision (timed here, the deployment's gather and weighted sum, after warm-up, a
-replayed CUDA graph on a GPU), the network (eval.h5); a high-res solve is the median of its runs' solve_ms per
+replayed CUDA graph on a GPU), the network (timed here, each MODEL.pt once, one after another, on the deployment
+path as the evaluate stage times it, on test frames of --dataset: the evaluations ran side by side with whatever
+shared the device, so their own ms are not compared); a high-res solve is the median of its runs' solve_ms per
 sequence (a batch's total divided by its sequences: on a GPU, where a batch costs about one sequence, that
 understates one sequence's cost; the scene's runs and the cheaper ones alike, so their ratio is fair, and the
 learned path's speedup a lower bound). speedup = ms_sim_high / ms_total (paper Table 3's "X" columns).
@@ -38,7 +41,7 @@ import os
 import re
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,12 +51,16 @@ from geometry.rigid import apply_rigid_inverse
 from model.inference import CapturedCall, padded_stencil
 from pipeline import cli
 from pipeline.artifacts.evaluation import read_errors, read_network_timing
+from pipeline.artifacts.dataset import load_dataset
+from pipeline.artifacts.model import load_model
 from pipeline.artifacts.h5 import atomic_write
 from pipeline.artifacts.simulation import read_solve_ms, read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
 from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
 from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
 from pipeline.errors import PipelineError
+from pipeline.network_timing import pick_frames, time_inference
+from pipeline.tasks import frames_of
 from pipeline.torch_setup import configure_torch
 from pipeline.tradeoff_report import groups, labels, pareto_front, plotted_errors, write_report
 from viz.tradeoff_plot import tradeoff_plot
@@ -129,12 +136,19 @@ def high_res_errors(origins: FrameOrigins, reference: Sequence[str], runs: Seque
 
 
 @dataclasses.dataclass(frozen=True)
+class Network:
+    """A network fed a budget's inputs: its evaluation there (errors) and the model itself (timed here)."""
+    eval: str
+    model: str
+
+
+@dataclasses.dataclass(frozen=True)
 class Budget:
-    """A low-res budget of the grid: its timed runs and the evaluations of networks fed its inputs."""
+    """A low-res budget of the grid: its timed runs and the networks fed its inputs."""
     substeps: int
     low_runs: list[str]
-    evals: list[str]            # networks trained on the scene's budget, in the order given
-    matched: str | None         # the network trained on this budget's own inputs
+    evals: list[Network]        # networks trained on the scene's budget, in the order given
+    matched: Network | None     # the network trained on this budget's own inputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -161,19 +175,19 @@ def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[li
         if len(point) < 2 or n in runs:
             raise PipelineError(f"--point {' '.join(point)}: give each SUBSTEPS once, with at least one SIM_LOW.h5")
         runs[n] = point[1:]
-    evaluations: dict[int, list[str]] = {n: [] for n in runs}
-    matches: dict[int, str] = {}
-    for flag, pairs in (("--eval", evals), ("--matched", matched)):
-        for n_text, path in pairs:
+    evaluations: dict[int, list[Network]] = {n: [] for n in runs}
+    matches: dict[int, Network] = {}
+    for flag, triples in (("--eval", evals), ("--matched", matched)):
+        for n_text, path, model in triples:
             n = _positive(n_text, flag)
             if n not in runs:
                 raise PipelineError(f"{flag} {n_text} {path}: no --point {n_text} gives that budget's runs")
             if flag == "--eval":
-                evaluations[n].append(path)
+                evaluations[n].append(Network(path, model))
             elif n in matches:
                 raise PipelineError(f"--matched {n_text} {path}: budget {n} has a matched network already")
             else:
-                matches[n] = path
+                matches[n] = Network(path, model)
     missing = [n for n, paths in evaluations.items() if not paths]
     if missing:
         raise PipelineError(f"--point {missing[0]}: no --eval of that budget")
@@ -199,6 +213,10 @@ def parse_high_res(groups_: list[list[str]], reference: Reference) -> list[HighR
     return out
 
 
+def networks_of(budget: Budget) -> list[Network]:
+    return [*budget.evals, *filter(None, [budget.matched])]
+
+
 def make_row(method: str, network: str, substeps: int, iterations: int, trained_substeps: int, params: int,
              errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: float,
              ms_sim_high: float, harmonic_every: str = "", ms_sim_high_run: float = 0.0) -> dict[str, Any]:
@@ -217,22 +235,43 @@ def make_row(method: str, network: str, substeps: int, iterations: int, trained_
 
 
 def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low: float, ms_subdiv: float,
-                ms_sim_high: float) -> tuple[list[dict[str, Any]], set[str]]:
-    """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched one), then
-    Loop subdivision alone (the predictor of the budget's dataset); and the devices the networks were timed on."""
-    rows, devices = [], set()
-    trained = [(path, scene_substeps) for path in budget.evals]
+                ms_sim_high: float, ms_net: Mapping[str, float]) -> list[dict[str, Any]]:
+    """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched one; `ms_net`
+    by model path), then Loop subdivision alone (the predictor of the budget's dataset)."""
+    rows = []
+    trained = [(network, scene_substeps) for network in budget.evals]
     if budget.matched is not None:
         trained.append((budget.matched, budget.substeps))
-    for path, trained_substeps in trained:
-        timing = read_network_timing(path)
-        devices.add(timing.device)
-        rows.append(make_row(LEARNED, timing.name, budget.substeps, iterations, trained_substeps, timing.params,
-                             read_errors(path)["network"], ms_sim_low, ms_subdiv, float(np.median(timing.inference_ms)),
+    for network, trained_substeps in trained:
+        evaluated = read_network_timing(network.eval)
+        rows.append(make_row(LEARNED, evaluated.name, budget.substeps, iterations, trained_substeps, evaluated.params,
+                             read_errors(network.eval)["network"], ms_sim_low, ms_subdiv, ms_net[network.model],
                              ms_sim_high))
-    rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, iterations, 0, 0, read_errors(budget.evals[0])["predictor"],
-                         ms_sim_low, ms_subdiv, 0.0, ms_sim_high))
-    return rows, devices
+    rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, iterations, 0, 0,
+                         read_errors(budget.evals[0].eval)["predictor"], ms_sim_low, ms_subdiv, 0.0, ms_sim_high))
+    return rows
+
+
+def time_networks(networks: Sequence[Network], dataset: str, operators: str, device: torch.device,
+                  frames: int) -> dict[str, float]:
+    """Median ms per frame of each distinct model on the deployment path (pipeline.network_timing), one model
+    after another in this one process, on `frames` test frames of the dataset; each model's parameter count
+    checked against its evaluation's (an evaluation of another network would pair its errors with these ms)."""
+    data = load_dataset(dataset)
+    store = frames_of(data, device).store
+    ids = torch.as_tensor(pick_frames(data.test, frames), device=device)
+    ms = {}
+    for network in networks:
+        if network.model in ms:
+            continue
+        model, mesh, state = load_model(network.model, operators, str(device))
+        evaluated = read_network_timing(network.eval).params
+        if state["parameter_count"] != evaluated:
+            raise PipelineError(f"{network.eval}: the evaluation of a network of {evaluated:,} parameters, but "
+                                f"{network.model} has {state['parameter_count']:,}: not that model's evaluation")
+        ms[network.model] = float(np.median(time_inference(model, mesh, store, ids)))
+        del model
+    return ms
 
 
 def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequence[str],
@@ -266,14 +305,18 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="the scene's high-res runs, one per sequence in the dataset's order (the reference)")
     parser.add_argument("--point", nargs="+", action="append", required=True, metavar="SUBSTEPS SIM_LOW.h5",
                         help="a low-res budget and its timed runs")
-    parser.add_argument("--eval", nargs=2, action="append", required=True, metavar=("SUBSTEPS", "EVAL.h5"),
+    parser.add_argument("--eval", nargs=3, action="append", required=True,
+                        metavar=("SUBSTEPS", "EVAL.h5", "MODEL.pt"),
                         help="a network trained on the scene's budget, evaluated on that budget's inputs")
-    parser.add_argument("--matched", nargs=2, action="append", default=[], metavar=("SUBSTEPS", "EVAL.h5"),
+    parser.add_argument("--matched", nargs=3, action="append", default=[],
+                        metavar=("SUBSTEPS", "EVAL.h5", "MODEL.pt"),
                         help="the network trained on that budget's own inputs, evaluated on them")
     parser.add_argument("--high-res", nargs="+", action="append", default=[],
                         metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
                         help="high-res runs of another budget or schedule, one per sequence as --sim-high")
-    parser.add_argument("--dataset", help="the scene's dataset.h5: the frames --high-res runs are scored on")
+    parser.add_argument("--dataset", required=True, help="the scene's dataset.h5: the frames --high-res runs are "
+                                                         "scored on and the networks timed on")
+    parser.add_argument("--operators", required=True, help="the scene's operators.h5 (the networks' tables)")
     parser.add_argument("--scene-report", help="the scene's report.md, linked from REPORT.md (default: beside "
                                                "REPORT.md's folder)")
     parser.add_argument("--device", default="cpu", help="torch device timing Loop subdivision")
@@ -289,20 +332,21 @@ def main(argv: Sequence[str] | None = None) -> None:
     reference = Reference(args.substeps, args.iterations, args.harmonic_every)
     grid = parse_grid(args.point, args.eval, args.matched)
     high_res = parse_high_res(args.high_res, reference)
-    if high_res and not args.dataset:
-        raise PipelineError("--high-res needs --dataset (the scene's dataset.h5: which frames to score)")
     scene_report = Path(args.scene_report or Path(args.report).parent.parent / "report.md")
     cli.refuse_aliases({"TRADEOFF.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
-                       {"SUBDIV.h5": args.subdiv, **({"DATASET.h5": args.dataset} if args.dataset else {}),
+                       {"SUBDIV.h5": args.subdiv, "DATASET.h5": args.dataset, "OPERATORS.h5": args.operators,
                         **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
                         **{f"budget {b.substeps} file {i}": p for b in grid
-                           for i, p in enumerate([*b.low_runs, *b.evals, *filter(None, [b.matched])])},
+                           for i, p in enumerate([*b.low_runs, *(x for n in networks_of(b) for x in (n.eval, n.model))])},
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
                            for h in high_res for i, p in enumerate(h.runs)}})
     device = configure_torch(args.device, 0, args.threads)
+    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     S = read_subdivision(args.subdiv).S
     ms_high, high_batch = per_sequence_ms(args.sim_high)
-    rows, devices = [], set()
+    ms_net = time_networks([n for b in grid for n in networks_of(b)], args.dataset, args.operators, device,
+                           args.timing_frames)
+    rows = []
     for budget in grid:
         ms_low, _ = per_sequence_ms(budget.low_runs)
         low = read_trajectory(budget.low_runs[0]).positions
@@ -310,16 +354,11 @@ def main(argv: Sequence[str] | None = None) -> None:
             raise PipelineError(f"{budget.low_runs[0]}: {low.shape[1]} vertices, but S of {args.subdiv} takes "
                                 f"{S.shape[1]}")
         ms_subdiv = float(np.median(time_subdivision(S, low[1:], device, args.timing_frames)))
-        budget_table, timed_on = budget_rows(budget, args.substeps, args.iterations, ms_low, ms_subdiv, ms_high)
-        rows += budget_table
-        devices |= timed_on
-    if len(devices) > 1:
-        raise PipelineError(f"the networks were timed on different devices ({', '.join(sorted(devices))}): their "
-                            f"ms would not compare; evaluate them again on one")
+        rows += budget_rows(budget, args.substeps, args.iterations, ms_low, ms_subdiv, ms_high, ms_net)
     if high_res:
         origins = read_frame_origins(args.dataset)
         rows += [high_res_row(run, origins, args.sim_high, ms_high) for run in high_res]
-    table = table_of(rows, devices.pop(), torch.get_num_threads(), high_batch, reference)
+    table = table_of(rows, where, torch.get_num_threads(), high_batch, reference)
     write_tradeoff(args.table, vars(args), table)
     errors = plotted_errors(table)
     with atomic_write(args.plot) as f:

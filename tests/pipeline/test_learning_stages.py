@@ -19,8 +19,11 @@ import pytest
 import torch
 import trimesh
 
-from pipeline import cli, dataset, evaluate, operators, train
+from pipeline import cli, dataset, evaluate, network_timing as tradeoff_timing, operators, train, tradeoff
 from pipeline.artifacts.evaluation import read_errors
+from pipeline.artifacts.dataset import load_dataset
+from pipeline.errors import PipelineError
+from pipeline.tradeoff import Network
 from pipeline.artifacts.h5 import atomic_h5, config_of, read_csr, write_csr
 from pipeline.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
@@ -197,6 +200,39 @@ def test_an_evaluation_without_predictions_has_the_same_errors_and_no_positions(
 def data_uri_bytes(uri: str) -> bytes:
     assert uri.startswith("data:") and ";base64," in uri
     return base64.b64decode(uri.split(";base64,", 1)[1])
+
+
+def test_the_tradeoff_times_each_model_once_on_the_deployment_path_and_pairs_it_with_its_own_evaluation(
+        trained, tmp_path):
+    """pipeline.tradeoff.time_networks: one median per distinct model (a model fed several budgets is timed once),
+    finite and positive; an evaluation of a network of another size is refused (its errors would be paired with
+    another network's ms)."""
+    lean = trained / "lean"
+    if not (lean / "eval.h5").exists():
+        stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", lean / "eval.h5",
+              lean / "report.md", "--render-frames", "0", "--video-frames", "0", "--no-predictions", "--quiet")
+    model = str(trained / "model.pt")
+    network = Network(str(lean / "eval.h5"), model)
+    calls = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tradeoff, "time_inference", lambda *a: calls.append(a) or tradeoff_timing.time_inference(*a))
+        ms = tradeoff.time_networks([network, network], str(trained / "dataset.h5"), str(trained / "operators.h5"),
+                                    torch.device("cpu"), 4)
+    test_frames = load_dataset(trained / "dataset.h5").test
+    timed = calls[0][3].tolist()
+    assert list(ms) == [model] and len(calls) == 1
+    assert set(timed) <= set(test_frames.tolist()) and len(timed) == min(4, len(test_frames))
+    assert np.isfinite(ms[model]) and ms[model] > 0
+    with h5py.File(lean / "eval.h5") as f:
+        other = tmp_path / "other.h5"
+        with h5py.File(other, "w") as g:
+            for name in f:
+                f.copy(f[name], g)
+            g.attrs.update(f.attrs)
+            g.attrs["parameter_count"] = int(f.attrs["parameter_count"]) + 1
+    with pytest.raises(PipelineError, match="not that model's evaluation"):
+        tradeoff.time_networks([Network(str(other), model)], str(trained / "dataset.h5"),
+                               str(trained / "operators.h5"), torch.device("cpu"), 2)
 
 
 def test_evaluation_report_page_embeds_its_pictures_and_videos(trained):

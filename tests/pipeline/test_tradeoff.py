@@ -18,8 +18,8 @@ from pipeline.artifacts.simulation import SimulationRun, write_simulation
 from pipeline.artifacts.dataset import read_frame_origins
 from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff, write_tradeoff
 from pipeline.errors import PipelineError
-from pipeline.tradeoff import (Budget, budget_rows, high_res_errors, main, make_row, parse_grid, parse_high_res,
-                               per_sequence_ms, table_of, time_subdivision)
+from pipeline.tradeoff import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
+                               parse_high_res, per_sequence_ms, table_of, time_subdivision)
 from pipeline.tradeoff_report import findings, pareto_front
 
 REFERENCE = Reference(4, 30, "substep")
@@ -92,13 +92,13 @@ def test_a_budgets_rows_are_its_networks_then_the_matched_one_then_loop_alone_wi
                        width=0.125)
     matched = write_eval(tmp_path / "m.h5", {"test": (0.9, 1.1), "held_out": (1.8, 1.9)}, predictor, [3.0, 5.0],
                          1000)
-    rows, devices = budget_rows(Budget(1, ["low.h5"], [scene, small], matched), scene_substeps=4, iterations=30,
-                                ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0)
-    assert devices == {"cpu, 2 threads"}
+    budget = Budget(1, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")], Network(matched, "m.pt"))
+    rows = budget_rows(budget, scene_substeps=4, iterations=30, ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
+                       ms_net={"s.pt": 4.0, "w.pt": 1.0, "m.pt": 4.0})
     assert [(r["method"], r["network"], r["trained_substeps"], r["params"]) for r in rows] == [
         (LEARNED, "RC9 x0.25", 4, 1000), (LEARNED, "RC9 x0.125", 4, 250), (LEARNED, "RC9 x0.25", 1, 1000),
         (LOOP, "none", 0, 0)]
-    assert [r["ms_net"] for r in rows] == [4.0, 1.0, 4.0, 0.0]              # medians of the timed frames
+    assert [r["ms_net"] for r in rows] == [4.0, 1.0, 4.0, 0.0]    # each model's own timing, not its evaluation's
     assert [r["ms_total"] for r in rows] == [14.5, 11.5, 14.5, 10.5]        # 10 + 0.5 + network
     assert [r["speedup"] for r in rows] == [200 / 14.5, 200 / 11.5, 200 / 14.5, 200 / 10.5]
     assert [(r["l1_test"], r["l2_heldout"]) for r in rows] == [(1.0, 2.5), (1.2, 2.7), (0.9, 1.9), (3.0, 6.0)]
@@ -262,21 +262,24 @@ def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_meth
 
 
 @pytest.mark.parametrize("points, evals, matched, message", [
-    ([["0", "l.h5"]], [["0", "e.h5"]], [], "positive integer"),
-    ([["2"]], [["2", "e.h5"]], [], "at least one SIM_LOW"),
-    ([["2", "l.h5"], ["2", "m.h5"]], [["2", "e.h5"]], [], "once"),
-    ([["2", "l.h5"]], [["3", "e.h5"]], [], "no --point 3"),
-    ([["2", "l.h5"]], [["2", "e.h5"]], [["3", "m.h5"]], "--matched 3 m.h5: no --point 3"),
-    ([["2", "l.h5"]], [["2", "e.h5"]], [["2", "m.h5"], ["2", "n.h5"]], "matched network already"),
-    ([["2", "l.h5"], ["1", "m.h5"]], [["2", "e.h5"]], [], "--point 1: no --eval")])
+    ([["0", "l.h5"]], [["0", "e.h5", "e.pt"]], [], "positive integer"),
+    ([["2"]], [["2", "e.h5", "e.pt"]], [], "at least one SIM_LOW"),
+    ([["2", "l.h5"], ["2", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "once"),
+    ([["2", "l.h5"]], [["3", "e.h5", "e.pt"]], [], "no --point 3"),
+    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["3", "m.h5", "m.pt"]], "--matched 3 m.h5: no --point 3"),
+    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "m.h5", "m.pt"], ["2", "n.h5", "n.pt"]],
+     "matched network already"),
+    ([["2", "l.h5"], ["1", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "--point 1: no --eval")])
 def test_bad_grids_are_refused(points, evals, matched, message):
     with pytest.raises(PipelineError, match=message):
         parse_grid(points, evals, matched)
 
 
 def test_the_grid_is_in_budget_order_with_each_budgets_evaluations_in_the_order_given():
-    grid = parse_grid([["4", "a", "b"], ["1", "c"]], [["4", "e4"], ["1", "e1"], ["4", "f4"]], [["1", "m1"]])
-    assert grid == [Budget(1, ["c"], ["e1"], "m1"), Budget(4, ["a", "b"], ["e4", "f4"], None)]
+    grid = parse_grid([["4", "a", "b"], ["1", "c"]], [["4", "e4", "p"], ["1", "e1", "p"], ["4", "f4", "q"]],
+                      [["1", "m1", "r"]])
+    assert grid == [Budget(1, ["c"], [Network("e1", "p")], Network("m1", "r")),
+                    Budget(4, ["a", "b"], [Network("e4", "p"), Network("f4", "q")], None)]
 
 
 @pytest.mark.parametrize("group, message", [
@@ -297,9 +300,13 @@ def test_high_res_runs_keep_their_order_and_each_is_given_once():
         parse_high_res([["1", "10", "substep", "a"], ["1", "10", "substep", "b"]], REFERENCE)
 
 
-def test_high_res_runs_without_the_dataset_that_says_which_frames_to_score_are_refused(tmp_path):
-    with pytest.raises(PipelineError, match="--high-res needs --dataset"):
+@pytest.mark.parametrize("missing", ["--dataset", "--operators"])
+def test_without_the_dataset_or_the_operators_the_networks_cannot_be_timed_a_usage_error(tmp_path, capsys, missing):
+    given = {"--dataset": "d.h5", "--operators": "o.h5"}
+    del given[missing]
+    with pytest.raises(SystemExit) as exit_:
         main(["subdiv.h5", str(tmp_path / "t.h5"), str(tmp_path / "p.png"), str(tmp_path / "r.md"),
-              "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5",
-              "--high-res", "1", "10", "substep", "x.h5"])
+              "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5", "e.pt",
+              *[word for pair in given.items() for word in pair]])
+    assert exit_.value.code == 2 and f"required: {missing}" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())

@@ -8,7 +8,7 @@
 #   run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the dataset stage
 #   gathers them unchanged (same sequences, same seeded split). The scene's own budget reuses the scene's runs and
 #   dataset.h5 (a sharded scene still gets its timing run).
-# * Networks fed each budget's inputs (errors and deployment-path timing only): the scene's trained network; the
+# * Networks fed each budget's inputs (errors only; eval.h5 keeps its own timing for its report): the scene's trained network; the
 #   scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings with that width and
 #   `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of `tradeoff.matched` other than
 #   the scene's own, the scene's network recipe trained on that budget's own dataset (s<n>/matched/): does
@@ -17,9 +17,10 @@
 #   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
 #   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
 #   simulated as the scene's high-res runs were (per sequence, or a batch job per shard).
-# Then one table, plot and report (pipeline.tradeoff). None of this is part of `results/<scene>/`: `make run` does
-# not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by the schema)
-# reach a shell, quoted.
+# Then one table, plot and report (pipeline.tradeoff), which also times every network itself, one after another
+# on the device (the evaluations may have shared it with other jobs). None of this is part of `results/<scene>/`:
+# `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
+# the schema) reach a shell, quoted.
 
 TRADEOFF = "results/{scene}/tradeoff"
 TRADEOFF_POINT = "results/{scene}/tradeoff/s{substeps}"
@@ -104,18 +105,27 @@ def tradeoff_high_settings(settings, substeps, iterations, schedule):
             "high_res": {**shared["high_res"], "harmonic_every": schedule}}
 
 
+def scene_trained_nets(scene):
+    """The networks trained on the scene's budget: the scene's, then each smaller (folder names under s<n>/)."""
+    return ["scene", *[width_folder(w) for w in SETTINGS[scene]["tradeoff"]["widths"]]]
+
+
 def tradeoff_evals(scene, n):
-    """Every eval.h5 of budget `n` of a network trained on the scene's budget: the scene's, then each smaller."""
-    nets = ["scene", *[width_folder(w) for w in SETTINGS[scene]["tradeoff"]["widths"]]]
-    return [f"results/{scene}/tradeoff/s{n}/{net}/eval.h5" for net in nets]
+    """Every eval.h5 of budget `n` of a network trained on the scene's budget, in scene_trained_nets order."""
+    return [f"results/{scene}/tradeoff/s{n}/{net}/eval.h5" for net in scene_trained_nets(scene)]
+
+
+def network_model(scene, substeps, net):
+    """model.pt of network `net` (scene, matched or w<width>) fed budget `substeps`."""
+    if net == "scene":
+        return f"results/{scene}/model.pt"
+    if net == "matched":
+        return f"results/{scene}/tradeoff/s{substeps}/matched/model.pt"
+    return f"results/{scene}/tradeoff/{net}/model.pt"
 
 
 def tradeoff_model(wildcards):
-    if wildcards.net == "scene":
-        return f"results/{wildcards.scene}/model.pt"
-    if wildcards.net == "matched":
-        return f"results/{wildcards.scene}/tradeoff/s{wildcards.substeps}/matched/model.pt"
-    return f"results/{wildcards.scene}/tradeoff/{wildcards.net}/model.pt"
+    return network_model(wildcards.scene, wildcards.substeps, wildcards.net)
 
 
 def tradeoff_point_dataset(wildcards):
@@ -151,14 +161,15 @@ def tradeoff_matched_eval(scene, n):
 
 
 def tradeoff_arguments(wildcards):
-    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5` per network and `--matched N EVAL.h5` for each budget, and
-    `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run."""
+    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5 MODEL.pt` for
+    each budget, and `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run."""
     scene, words = wildcards.scene, []
     for n in tradeoff_budgets(scene):
         words += ["--point", n, *tradeoff_timed_runs(scene, n)]
-        words += [x for path in tradeoff_evals(scene, n) for x in ("--eval", n, path)]
+        words += [x for net in scene_trained_nets(scene)
+                  for x in ("--eval", n, f"results/{scene}/tradeoff/s{n}/{net}/eval.h5", network_model(scene, n, net))]
         if n in matched_budgets(scene):
-            words += ["--matched", n, tradeoff_matched_eval(scene, n)]
+            words += ["--matched", n, tradeoff_matched_eval(scene, n), network_model(scene, n, "matched")]
     for run in high_res_runs(scene):
         words += ["--high-res", *run, *high_res_files(scene, run)]
     return [str(word) for word in words]
@@ -168,7 +179,10 @@ def tradeoff_inputs(wildcards):
     scene = wildcards.scene
     return ([path for n in tradeoff_budgets(scene)
              for path in (*tradeoff_evals(scene, n), *tradeoff_timed_runs(scene, n))]
-            + [tradeoff_matched_eval(scene, n) for n in matched_budgets(scene)]
+            + [path for n in matched_budgets(scene)
+               for path in (tradeoff_matched_eval(scene, n), network_model(scene, n, "matched"))]
+            + list(dict.fromkeys(network_model(scene, n, net) for n in tradeoff_budgets(scene)
+                                 for net in scene_trained_nets(scene)))
             + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)])
 
 
@@ -402,16 +416,17 @@ rule tradeoff_evaluate:
 rule tradeoff:
     input:
         settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", dataset=f"{OUT}/dataset.h5",
-        sim_high=sequence_files("sim_high.h5"), points=tradeoff_inputs,
+        operators=f"{OUT}/operators.h5", sim_high=sequence_files("sim_high.h5"), points=tradeoff_inputs,
     output: table=f"{TRADEOFF}/tradeoff.h5", plot=f"{TRADEOFF}/pareto.png", report=f"{TRADEOFF}/report.md"
     params: grid=tradeoff_arguments
     log: f"{TRADEOFF}/logs/tradeoff.log"
     benchmark: f"{TRADEOFF}/benchmarks/tradeoff.tsv"
     threads: workflow.cores
-    resources: mem_mb=4000, gpu=gpus_on_device
+    resources: mem_mb=16000, gpu=gpus_on_device     # the dataset's frames on the device, to time the networks
     shell:
         "{PY:q} -m pipeline.tradeoff {input.subdiv:q} {output.table:q} {output.plot:q} {output.report:q} "
-        "--sim-high {input.sim_high:q} --dataset {input.dataset:q} {params.grid:q} --settings {input.settings:q} "
+        "--sim-high {input.sim_high:q} --dataset {input.dataset:q} --operators {input.operators:q} {params.grid:q} "
+        "--settings {input.settings:q} "
         "--threads {threads} 2>&1 | tee {log:q}"
 
 
