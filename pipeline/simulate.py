@@ -69,7 +69,44 @@ def per_frame_product(A, x: np.ndarray) -> np.ndarray:
     return np.asarray(A @ columns).reshape(A.shape[0], n_frames, channels).transpose(1, 0, 2)
 
 
-def harmonic_targets_of(x_low: np.ndarray, S, low_content: np.ndarray, mass_basis_t: np.ndarray,
+class BasisProducts:
+    """B^T M x per frame (F, K, 3) of the frames x (F, V, 3) of one garment's high-res runs (`high`), and
+    (B^T M S) x_low of its low-res ones (`low`), in float64. With `torch_device` (a CUDA run's device) both
+    matrices go to that device once and each call is one GEMM there: in single-threaded BLAS (a simulate job has
+    one thread) they cost ~0.17 s a world of the paper pants' setup and ~0.27 s a world after stepping (a replica
+    on the 2-core machine), ~28 s of a 64-world job whose stepping took 57 s on the H100. Otherwise numpy's BLAS."""
+
+    def __init__(self, mass_basis_t: np.ndarray, S, torch_device: str | None = None):
+        low_content = np.asarray((S.T @ mass_basis_t.T).T)      # B^T M S (K, V_low): the targets' product, factored
+        self.torch_device = torch_device
+        if torch_device is None:
+            self._matrices = {"high": mass_basis_t, "low": low_content}
+            return
+        import torch            # only for a CUDA run: a CPU job does not pay torch's import
+        self._torch = torch
+        self._matrices = {name: torch.as_tensor(np.ascontiguousarray(m, dtype=np.float64), device=torch_device)
+                          for name, m in (("high", mass_basis_t), ("low", low_content))}
+
+    def high(self, x: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
+        """B^T M x per frame; with `columns`, over those high-res vertices only (x then (F, len(columns), 3))."""
+        return self._product("high", x, columns)
+
+    def low(self, x_low: np.ndarray) -> np.ndarray:
+        """(B^T M S) x_low per frame: B^T M of S x_low without forming S x_low."""
+        return self._product("low", x_low, None)
+
+    def _product(self, name: str, x: np.ndarray, columns: np.ndarray | None) -> np.ndarray:
+        A = self._matrices[name]
+        if self.torch_device is None:
+            return per_frame_product(A if columns is None else A[:, columns], x.astype(np.float64, copy=False))
+        torch = self._torch
+        if columns is not None:
+            A = A[:, torch.as_tensor(columns, device=self.torch_device)]
+        frames = torch.as_tensor(np.ascontiguousarray(x), device=self.torch_device).to(torch.float64)
+        return torch.einsum("kv,fvc->fkc", A, frames).cpu().numpy()
+
+
+def harmonic_targets_of(x_low: np.ndarray, S, products: BasisProducts,
                         clear: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
     """B^T M x per frame (F, K, 3) of x = S x_low, moved by `clear` (F, V, 3) -> (F, V, 3) where it enters the body.
 
@@ -78,7 +115,7 @@ def harmonic_targets_of(x_low: np.ndarray, S, low_content: np.ndarray, mass_basi
     product per frame was most of the high-res stage's setup for a 64-world batch (single-threaded BLAS, 2026-11-24).
     """
     x_low = x_low.astype(np.float64, copy=False)
-    targets = per_frame_product(low_content, x_low)
+    targets = products.low(x_low)
     if clear is None:
         return targets
     smooth = per_frame_product(S, x_low)
@@ -88,7 +125,7 @@ def harmonic_targets_of(x_low: np.ndarray, S, low_content: np.ndarray, mass_basi
     # Unmoved vertices enter as S x_low in float64 (float32 before): the targets differ from the former ones by
     # float32 rounding of those positions, ~1e-8 relative.
     if len(moved):
-        targets += per_frame_product(mass_basis_t[:, moved], cleared[:, moved] - smooth[:, moved])
+        targets += products.high(cleared[:, moved] - smooth[:, moved], moved)
     return targets
 
 
@@ -217,13 +254,12 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     # there would pull the cloth into the body at every projection and the contacts would push it back out (the
     # residual stayed at ~1e-3 on the CPU pants). With the body, the target is taken from S x_low moved clear of
     # it, the way the solver moves the cloth, so that one shape meets both constraints.
-    mass_basis_t = (mass[:, None] * basis).T
-    low_content = np.asarray((S.T @ mass_basis_t.T).T)      # B^T M S (K, V_low): the target's product, factored
+    products = BasisProducts((mass[:, None] * basis).T, S, device if device.startswith("cuda") else None)
 
     def clear(positions: np.ndarray, drive: SceneDrive) -> np.ndarray:
         return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
 
-    harmonic_targets = [harmonic_targets_of(x_low, S, low_content, mass_basis_t,
+    harmonic_targets = [harmonic_targets_of(x_low, S, products,
                                             (lambda p, d=drive: clear(p, d)) if s.body_collision else None)
                         for x_low, drive in zip(x_lows, batch.drives)]
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
@@ -239,7 +275,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     runs = []
     for w, (drive, target) in enumerate(zip(batch.drives, harmonic_targets)):
         x = positions[:drive.n_frames, w]
-        high_content = per_frame_product(mass_basis_t, x.astype(np.float64))
+        high_content = products.high(x)
         residual = (np.linalg.norm((high_content - target).reshape(len(x), -1), axis=1)
                     / np.linalg.norm(high_content.reshape(len(x), -1), axis=1))
         runs.append(SimulationRun(x, faces, rest, pins, solve_ms[:drive.n_frames], solver.n_constraints, residual,

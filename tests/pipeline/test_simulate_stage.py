@@ -201,16 +201,18 @@ def test_per_frame_product_is_a_matrix_product_per_frame():
         np.testing.assert_allclose(per_frame_product(A, x), expected, rtol=1e-6, atol=1e-6)
 
 
-def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex():
+@pytest.mark.parametrize("torch_device", [None, "cpu"])
+def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex(torch_device):
     """(B^T M S) x_low plus the moved vertices' part equals B^T M over the whole cleared S x_low, with and without a
-    body; and a body that moves no vertex leaves the targets those of S x_low."""
+    body; and a body that moves no vertex leaves the targets those of S x_low. With numpy's BLAS (a CPU run) and
+    with the products done by torch (a CUDA run's path, here on torch's CPU device)."""
     import scipy.sparse as sp
-    from pipeline.simulate import harmonic_targets_of
+    from pipeline.simulate import BasisProducts, harmonic_targets_of
     rng = np.random.default_rng(3)
     S = sp.random(40, 12, density=0.3, random_state=2, format="csr")
     x_low = rng.normal(size=(6, 12, 3)).astype(np.float32)
     mass_basis_t = rng.normal(size=(5, 40))
-    low_content = np.asarray((S.T @ mass_basis_t.T).T)
+    products = BasisProducts(mass_basis_t, S, torch_device)
 
     def floor(points):            # a "body" below z = 0: moves the vertices under it up onto it
         out = points.copy()
@@ -221,7 +223,9 @@ def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex(
     for clear in (floor, None):
         cleared = smooth if clear is None else clear(smooth.astype(np.float32)).astype(np.float64)
         expected = np.stack([mass_basis_t @ x for x in cleared])
-        got = harmonic_targets_of(x_low, S, low_content, mass_basis_t, clear)
+        got = harmonic_targets_of(x_low, S, products, clear)
         np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
-    untouched = harmonic_targets_of(x_low, S, low_content, mass_basis_t, lambda p: p.copy())
+    np.testing.assert_allclose(products.high(cleared.astype(np.float32)),
+                               np.stack([mass_basis_t @ x for x in cleared.astype(np.float32)]), rtol=1e-12, atol=1e-12)
+    untouched = harmonic_targets_of(x_low, S, products, lambda p: p.copy())
     np.testing.assert_allclose(untouched, np.stack([mass_basis_t @ x for x in smooth]), rtol=1e-12, atol=1e-12)
