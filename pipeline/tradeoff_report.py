@@ -127,7 +127,8 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
              "budget's own inputs (matched); Loop subdivision alone is the floor; high-res: the high-res solver "
              "itself at a cheaper budget or the other harmonic schedule, held to the scene's low-res run. Errors "
              "x 1e-3 scene units (as the scene's report); times in ms per frame of one sequence: low-res solve (the "
-             "solver's own timing), Loop subdivision and network (the deployment path, median after warm-up), "
+             "solver's own timing), Loop subdivision and network (the deployment path, median after warm-up, timed by "
+             "this stage one after another), "
              "a high-res row's own solve, their sum, and the reference high-res solve"
              + (f" (a batch of {table.sim_high_batch} sequences' ms divided by {table.sim_high_batch}: a lower "
                 f"bound of one sequence's on a GPU)" if table.sim_high_batch > 1 else "")
