@@ -59,13 +59,12 @@ from pipeline.artifacts.subdiv import read_subdivision
 from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
 from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
 from pipeline.errors import PipelineError
-from pipeline.network_timing import pick_frames, time_inference
+from pipeline.network_timing import WARMUP_RUNS, pick_frames, time_inference
 from pipeline.tasks import frames_of
 from pipeline.torch_setup import configure_torch
 from pipeline.tradeoff_report import groups, labels, pareto_front, plotted_errors, write_report
 from viz.tradeoff_plot import tradeoff_plot
 
-WARMUP_RUNS = 3
 SCHEDULES = ("iteration", "substep")
 
 
