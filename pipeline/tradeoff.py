@@ -3,7 +3,8 @@
     python -m pipeline.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
         --dataset DATASET.h5 --operators OPERATORS.h5 --point SUBSTEPS SIM_LOW.h5 [SIM_LOW.h5 ...] [--point ...]
         --eval SUBSTEPS EVAL.h5 MODEL.pt [--eval ...] [--matched SUBSTEPS EVAL.h5 MODEL.pt ...]
-        [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md]
+        [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--sim-high-timing SIM_HIGH.h5 [...]]
+        [--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md]
         [--settings SETTINGS.json] [--device cpu] [--threads N] [--timing-frames 30] [--substeps N]
         [--iterations N] [--harmonic-every substep]
 
@@ -28,10 +29,12 @@ Times are ms per frame of one sequence: the low-res solve (the solver's own timi
 the budget's runs), Loop subdivision (timed here, the deployment's gather and weighted sum, after warm-up, a
 replayed CUDA graph on a GPU), the network (timed here, each MODEL.pt once, one after another, on the deployment
 path as the evaluate stage times it, on test frames of --dataset: the evaluations ran side by side with whatever
-shared the device, so their own ms are not compared); a high-res solve is the median of its runs' solve_ms per
-sequence (a batch's total divided by its sequences: on a GPU, where a batch costs about one sequence, that
-understates one sequence's cost; the scene's runs and the cheaper ones alike, so their ratio is fair, and the
-learned path's speedup a lower bound). speedup = ms_sim_high / ms_total (paper Table 3's "X" columns).
+shared the device, so their own ms are not compared); a high-res solve is the median of the solve_ms per sequence
+of its timed runs: --sim-high-timing for the reference and --high-res-timing SUBSTEPS ITERATIONS SCHEDULE for a
+high-res run (a sharded scene's workflow gives one sequence alone, one solver world, as for the low-res budgets),
+else the runs themselves (a batch's total divided by its sequences: on a GPU, where a batch costs about one
+sequence, that understates one sequence's cost, so the report says so). speedup = ms_sim_high / ms_total (paper
+Table 3's "X" columns).
 """
 from __future__ import annotations
 
@@ -152,11 +155,13 @@ class Budget:
 
 @dataclasses.dataclass(frozen=True)
 class HighResRun:
-    """A high-res run of another budget or schedule than the scene's: one SIM_HIGH.h5 per sequence."""
+    """A high-res run of another budget or schedule than the scene's: one SIM_HIGH.h5 per sequence (its errors)
+    and the runs whose solve_ms is its time (the runs themselves, or one sequence alone)."""
     substeps: int
     iterations: int
     harmonic_every: str
     runs: list[str]
+    timed: list[str]
 
 
 def _positive(text: str, flag: str, what: str = "SUBSTEPS") -> int:
@@ -193,23 +198,38 @@ def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[li
     return [Budget(n, runs[n], evaluations[n], matches.get(n)) for n in sorted(runs)]
 
 
-def parse_high_res(groups_: list[list[str]], reference: Reference) -> list[HighResRun]:
-    """The --high-res runs in the order given; the scene's own budget and schedule is the reference, refused."""
-    out, seen = [], set()
+def _high_res_key(group: list[str], flag: str) -> tuple[int, int, str]:
+    if len(group) < 4:
+        raise PipelineError(f"{flag} {' '.join(group)}: give SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...")
+    key = (_positive(group[0], flag), _positive(group[1], flag, "ITERATIONS"), group[2])
+    if key[2] not in SCHEDULES:
+        raise PipelineError(f"{flag} {' '.join(group[:3])}: SCHEDULE must be one of {', '.join(SCHEDULES)}")
+    return key
+
+
+def parse_high_res(groups_: list[list[str]], reference: Reference,
+                   timing: Sequence[list[str]] = ()) -> list[HighResRun]:
+    """The --high-res runs in the order given, each timed by its --high-res-timing runs if any (else by its own);
+    the scene's own budget and schedule is the reference, refused."""
+    runs: dict[tuple[int, int, str], list[str]] = {}
     for group in groups_:
-        if len(group) < 4:
-            raise PipelineError(f"--high-res {' '.join(group)}: give SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...")
-        key = (_positive(group[0], "--high-res"), _positive(group[1], "--high-res", "ITERATIONS"), group[2])
-        if key[2] not in SCHEDULES:
-            raise PipelineError(f"--high-res {' '.join(group[:3])}: SCHEDULE must be one of {', '.join(SCHEDULES)}")
+        key = _high_res_key(group, "--high-res")
         if key == (reference.substeps, reference.iterations, reference.harmonic_every):
             raise PipelineError(f"--high-res {' '.join(group[:3])}: that is the scene's own high-res run, the "
-                                f"reference")
-        if key in seen:
+                                f"reference (its timing is --sim-high-timing)")
+        if key in runs:
             raise PipelineError(f"--high-res {' '.join(group[:3])}: given twice")
-        seen.add(key)
-        out.append(HighResRun(*key, group[3:]))
-    return out
+        runs[key] = group[3:]
+    timed: dict[tuple[int, int, str], list[str]] = {}
+    for group in timing:
+        key = _high_res_key(group, "--high-res-timing")
+        if key not in runs:
+            raise PipelineError(f"--high-res-timing {' '.join(group[:3])}: no --high-res run of that budget and "
+                                f"schedule")
+        if key in timed:
+            raise PipelineError(f"--high-res-timing {' '.join(group[:3])}: given twice")
+        timed[key] = group[3:]
+    return [HighResRun(*key, paths, timed.get(key, paths)) for key, paths in runs.items()]
 
 
 def networks_of(budget: Budget) -> list[Network]:
@@ -276,7 +296,7 @@ def time_networks(networks: Sequence[Network], dataset: str, operators: str, dev
 def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequence[str],
                  ms_sim_high: float) -> dict[str, Any]:
     """A cheaper high-res run as a row: its errors against the reference runs, its solve as the whole time."""
-    ms, _ = per_sequence_ms(run.runs)
+    ms, _ = per_sequence_ms(run.timed)
     return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, 0, 0,
                     high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, 0.0, ms_sim_high, run.harmonic_every,
                     ms_sim_high_run=ms)
@@ -313,6 +333,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--high-res", nargs="+", action="append", default=[],
                         metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
                         help="high-res runs of another budget or schedule, one per sequence as --sim-high")
+    parser.add_argument("--sim-high-timing", nargs="+", metavar="SIM_HIGH.h5",
+                        help="the runs whose solve_ms times the reference (default: --sim-high)")
+    parser.add_argument("--high-res-timing", nargs="+", action="append", default=[],
+                        metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
+                        help="the runs whose solve_ms times that --high-res run (default: its own runs)")
     parser.add_argument("--dataset", required=True, help="the scene's dataset.h5: the frames --high-res runs are "
                                                          "scored on and the networks timed on")
     parser.add_argument("--operators", required=True, help="the scene's operators.h5 (the networks' tables)")
@@ -330,19 +355,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     reference = Reference(args.substeps, args.iterations, args.harmonic_every)
     grid = parse_grid(args.point, args.eval, args.matched)
-    high_res = parse_high_res(args.high_res, reference)
+    high_res = parse_high_res(args.high_res, reference, args.high_res_timing)
     scene_report = Path(args.scene_report or Path(args.report).parent.parent / "report.md")
     cli.refuse_aliases({"TRADEOFF.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
                        {"SUBDIV.h5": args.subdiv, "DATASET.h5": args.dataset, "OPERATORS.h5": args.operators,
                         **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
+                        **{f"--sim-high-timing {i}": p for i, p in enumerate(args.sim_high_timing or [])},
                         **{f"budget {b.substeps} file {i}": p for b in grid
                            for i, p in enumerate([*b.low_runs, *(x for n in networks_of(b) for x in (n.eval, n.model))])},
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
-                           for h in high_res for i, p in enumerate(h.runs)}})
+                           for h in high_res for i, p in enumerate([*h.runs, *h.timed])}})
     device = configure_torch(args.device, 0, args.threads)
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     S = read_subdivision(args.subdiv).S
-    ms_high, high_batch = per_sequence_ms(args.sim_high)
+    ms_high, high_batch = per_sequence_ms(args.sim_high_timing or args.sim_high)
     ms_net = time_networks([n for b in grid for n in networks_of(b)], args.dataset, args.operators, device,
                            args.timing_frames)
     rows = []

@@ -294,8 +294,23 @@ def test_bad_high_res_runs_are_refused(group, message):
 
 def test_high_res_runs_keep_their_order_and_each_is_given_once():
     runs = parse_high_res([["4", "30", "iteration", "a", "b"], ["1", "10", "substep", "c"]], REFERENCE)
-    assert [(r.substeps, r.iterations, r.harmonic_every, r.runs) for r in runs] == [
-        (4, 30, "iteration", ["a", "b"]), (1, 10, "substep", ["c"])]
+    assert [(r.substeps, r.iterations, r.harmonic_every, r.runs, r.timed) for r in runs] == [
+        (4, 30, "iteration", ["a", "b"], ["a", "b"]), (1, 10, "substep", ["c"], ["c"])]
+
+
+def test_a_high_res_run_is_timed_by_its_timing_runs_when_given():
+    runs = parse_high_res([["4", "30", "iteration", "a", "b"], ["1", "10", "substep", "c"]], REFERENCE,
+                          [["1", "10", "substep", "t"]])
+    assert [(r.runs, r.timed) for r in runs] == [(["a", "b"], ["a", "b"]), (["c"], ["t"])]
+
+
+@pytest.mark.parametrize("timing, message", [
+    ([["2", "10", "substep", "t"]], "no --high-res run of that budget"),
+    ([["1", "10", "substep", "t"], ["1", "10", "substep", "u"]], "given twice"),
+    ([["1", "10", "substep"]], "SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH")])
+def test_bad_high_res_timing_runs_are_refused(timing, message):
+    with pytest.raises(PipelineError, match=message):
+        parse_high_res([["1", "10", "substep", "c"]], REFERENCE, timing)
     with pytest.raises(PipelineError, match="given twice"):
         parse_high_res([["1", "10", "substep", "a"], ["1", "10", "substep", "b"]], REFERENCE)
 

@@ -77,6 +77,22 @@ def test_the_table_has_a_row_per_way_to_the_high_res_cloth_with_finite_positive_
 
 
 @built_grid
+def test_the_high_res_times_are_one_sequence_alone_in_a_sharded_scene(tradeoff):
+    """The scene is sharded (its runs are batches of 2): the reference's ms and each high-res row's are the median
+    solve_ms of the first sequence re-simulated alone with that budget and schedule, not a batch's over 2."""
+    table = read_tradeoff(tradeoff / "tradeoff" / "tradeoff.h5")
+    assert table.sim_high_batch == 1
+    for row, folder in ((None, "h2x10_substep"), (4, "h1x5_substep"), (5, "h2x10_iteration")):
+        with h5py.File(tradeoff / "tradeoff" / folder / "timing" / "sim_high.h5") as f:
+            assert f.attrs["batch"] == 1 and f["positions"].shape[0] == len(f["solve_ms"])
+            ms = float(np.median(f["solve_ms"][1:]))        # frame 0: the initial state, not solved
+        if row is None:
+            assert np.all(table.columns["ms_sim_high"] == ms)
+        else:
+            assert table.columns["ms_sim_high_run"][row] == ms
+
+
+@built_grid
 def test_the_learned_rows_are_the_evaluations_and_runs_of_their_budget(tradeoff):
     """Errors are eval.h5's of the budget's own dataset, each network's and Loop subdivision's; the budget's
     low-res run is a re-simulation with its substeps (not the scene's run); the smaller network was trained at
@@ -180,16 +196,24 @@ def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_
 
 def test_a_sharded_scene_simulates_by_shard_and_times_one_sequence_alone(tmp_path):
     """With `shard: 2`, each cheaper budget's low-res runs and each high-res run are a batch job per shard (as the
-    scene's), and a budget's low-res ms comes from a run of the first sequence alone, the only run the stage is
-    given for timing (the scene's own budget too: its runs are batches)."""
+    scene's), and a budget's low-res ms, a high-res run's ms and the reference's come from a run of the first
+    sequence alone, the only run the stage is given for timing (the scene's own budget too: its runs are
+    batches)."""
     grid = {**GRID, "substeps": [1, 2], "high_res_budgets": [[1, 5], [2, 10]]}
     run = run_plan(tmp_path, "results/pants/tradeoff/", "--configfile", str(tiny_grid(tmp_path, grid, shard=2)))
     counts = planned_counts(run)
     assert (counts["tradeoff_simulate_low_batch_pants_000"], counts["tradeoff_simulate_low_batch_pants_001"],
             counts["tradeoff_timing_low"]) == (1, 1, 2)        # budget 1 re-simulated; both timed
     assert (counts["tradeoff_simulate_high_batch_pants_000"], counts["tradeoff_simulate_high_batch_pants_001"],
-            counts["tradeoff_high_settings"]) == (2, 2, 2)     # 1 x 5 and the every-iteration 2 x 10
+            counts["tradeoff_timing_high"]) == (2, 2, 3)       # 1 x 5 and the every-iteration 2 x 10; + reference
+    assert counts["tradeoff_high_settings"] == 3               # the reference's, for its timing run
     assert "tradeoff_simulate_low" not in counts and "tradeoff_simulate_high" not in counts
     stage = next(line for line in run.stdout.splitlines() if "-m pipeline.tradeoff " in line)
     assert " --point 1 results/pants/tradeoff/s1/timing/sim_low.h5 --eval 1 " in stage
     assert " --point 2 results/pants/tradeoff/s2/timing/sim_low.h5 --eval 2 " in stage
+    assert " --sim-high-timing results/pants/tradeoff/h2x10_substep/timing/sim_high.h5 " in stage
+    assert " --high-res-timing 1 5 substep results/pants/tradeoff/h1x5_substep/timing/sim_high.h5 " in stage
+    assert " --high-res-timing 2 10 iteration results/pants/tradeoff/h2x10_iteration/timing/sim_high.h5 " in stage
+    timing = [line for line in run.stdout.splitlines()
+              if "-m pipeline.simulate high " in line and "/timing/sim_high.h5" in line]
+    assert len(timing) == 3 and all(" results/pants/sequences/train_000/sim_low.h5 " in line for line in timing)

@@ -16,7 +16,9 @@
 # * High-res runs beside the scene's (folder h<substeps>x<iterations>_<schedule>/): each [substeps, iterations] of
 #   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
 #   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
-#   simulated as the scene's high-res runs were (per sequence, or a batch job per shard).
+#   simulated as the scene's high-res runs were (per sequence, or a batch job per shard); a sharded scene also runs
+#   the first sequence alone for each (the reference too: folder h<own budget>_<own schedule>/), whose ms is the
+#   row's, as for the low-res budgets.
 # Then one table, plot and report (pipeline.tradeoff), which also times every network itself, one after another
 # on the device (the evaluations may have shared it with other jobs). None of this is part of `results/<scene>/`:
 # `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
@@ -59,12 +61,16 @@ def matched_budgets(scene):
     return [n for n in sorted(set(SETTINGS[scene]["tradeoff"]["matched"])) if n != own_substeps(scene)]
 
 
+def reference_run(scene):
+    """(substeps, iterations, harmonic schedule) of the scene's own high-res run: the reference."""
+    settings = SETTINGS[scene]
+    return (settings["solver"]["substeps"], settings["solver"]["iterations"], settings["high_res"]["harmonic_every"])
+
+
 def high_res_runs(scene):
     """(substeps, iterations, harmonic schedule) of each high-res run beside the scene's, in config order, the
     scene's own (the reference) left out."""
-    settings = SETTINGS[scene]
-    tradeoff, solver = settings["tradeoff"], settings["solver"]
-    own = (solver["substeps"], solver["iterations"], settings["high_res"]["harmonic_every"])
+    tradeoff, own = SETTINGS[scene]["tradeoff"], reference_run(scene)
     runs = ([(n, i, own[2]) for n, i in tradeoff["high_res_budgets"]]
             + [(own[0], own[1], schedule) for schedule in tradeoff["harmonic_every"]])
     return [run for run in dict.fromkeys(runs) if run != own]
@@ -77,6 +83,19 @@ def high_res_folder(scene, run):
 
 def high_res_files(scene, run):
     return [f"{high_res_folder(scene, run)}/sequences/{seq}/sim_high.h5" for seq in SEQUENCES[scene]]
+
+
+def high_res_timing(scene, run):
+    """A sharded scene's timing run of a high-res budget and schedule (the reference's too): one sequence alone."""
+    return f"{high_res_folder(scene, run)}/timing/sim_high.h5"
+
+
+def high_res_timings(scene):
+    """Every high-res timing run of a sharded scene, the reference's first; none with `shard: 1` (each
+    sequence's own job is timed)."""
+    if SETTINGS[scene]["shard"] == 1:
+        return []
+    return [high_res_timing(scene, run) for run in (reference_run(scene), *high_res_runs(scene))]
 
 
 def tradeoff_point_settings(settings, substeps):
@@ -172,6 +191,10 @@ def tradeoff_arguments(wildcards):
             words += ["--matched", n, tradeoff_matched_eval(scene, n), network_model(scene, n, "matched")]
     for run in high_res_runs(scene):
         words += ["--high-res", *run, *high_res_files(scene, run)]
+    if SETTINGS[scene]["shard"] > 1:
+        words += ["--sim-high-timing", high_res_timing(scene, reference_run(scene))]
+        for run in high_res_runs(scene):
+            words += ["--high-res-timing", *run, high_res_timing(scene, run)]
     return [str(word) for word in words]
 
 
@@ -183,7 +206,8 @@ def tradeoff_inputs(wildcards):
                for path in (tradeoff_matched_eval(scene, n), network_model(scene, n, "matched"))]
             + list(dict.fromkeys(network_model(scene, n, net) for n in tradeoff_budgets(scene)
                                  for net in scene_trained_nets(scene)))
-            + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)])
+            + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)]
+            + high_res_timings(scene))
 
 
 rule tradeoff_settings:
@@ -266,6 +290,25 @@ rule tradeoff_simulate_high:
     wildcard_constraints: scene=UNSHARDED
     log: f"{TRADEOFF_HIGH}/logs/{{seq}}/simulate_high.log"
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/{{seq}}/simulate_high.tsv"
+    threads: 1
+    resources: mem_mb=8000, gpu=gpus_on_device
+    shell:
+        "{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} {input.sim_low:q} "
+        "{output:q} --quiet 2>&1 | tee {log:q}"
+
+
+# The first sequence alone at high resolution, one solver world, held to the scene's low-res run of it: a sharded
+# scene's high-res ms per frame, of each high-res run and of the reference (whose folder holds only this run and its
+# simulation.json), as tradeoff_timing_low is its low-res budgets' (a batch's ms divided by its sequences would
+# flatter the high-res rows and the reference alike on a GPU, and make every speedup a loose lower bound).
+rule tradeoff_timing_high:
+    input:
+        settings=f"{TRADEOFF_HIGH}/simulation.json", subdiv=f"{OUT}/subdiv.h5",
+        scene=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/scene.h5",
+        sim_low=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/sim_low.h5",
+    output: f"{TRADEOFF_HIGH}/timing/sim_high.h5"
+    log: f"{TRADEOFF_HIGH}/logs/timing_high.log"
+    benchmark: f"{TRADEOFF_HIGH}/benchmarks/timing_high.tsv"
     threads: 1
     resources: mem_mb=8000, gpu=gpus_on_device
     shell:
