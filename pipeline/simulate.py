@@ -3,18 +3,22 @@
 CLI:
   python -m pipeline.simulate low  SETTINGS.json SCENE.h5 OUT.h5 [SCENE.h5 OUT.h5 ...] [--device D] [--quiet]
   python -m pipeline.simulate high SETTINGS.json SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5 [...] [--device D] [--quiet]
+      [--threads N]
 SCENE.h5 is one sequence's scene (results/<scene>/sequences/<name>/scene.h5), which also sets the frame count.
 Several sequences (of one garment) are stepped together as one batch, a solver world each: on a GPU a batch
 costs about what one sequence does until the device is full (the workflow's `shard` key sizes it).
 The high-res run follows the same pins (carried over through the subdivision), collides with the same body, and
 holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al.
-2011).
+2011). A batch's per-sequence work outside the solver (the harmonic targets before stepping, the residual after)
+runs on --threads threads, a sequence each: most of a 64-sequence GPU job's time besides its stepping.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -225,8 +229,10 @@ def simulate_low(settings: dict, scene_paths: Sequence[str], device: str, quiet:
 
 
 def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, low_paths: Sequence[str],
-                  device: str, quiet: bool) -> list[SimulationRun]:
-    """The high-res runs of a batch of sequences (scene file and low-res run of each), one subdivision."""
+                  device: str, quiet: bool, threads: int = 1) -> list[SimulationRun]:
+    """The high-res runs of a batch of sequences (scene file and low-res run of each), one subdivision; each
+    sequence's harmonic targets and residual computed on `threads` threads (numpy, scipy and the products release
+    the GIL; the same numbers whatever the count)."""
     start = time.perf_counter()
     s = solver_settings(settings)
     batch = read_batch(scene_paths, s.body_collision)
@@ -256,12 +262,17 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     # it, the way the solver moves the cloth, so that one shape meets both constraints.
     products = BasisProducts((mass[:, None] * basis).T, S, device if device.startswith("cuda") else None)
 
-    def clear(positions: np.ndarray, drive: SceneDrive) -> np.ndarray:
-        return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
+    warp_launches = threading.Lock()
 
-    harmonic_targets = [harmonic_targets_of(x_low, S, products,
-                                            (lambda p, d=drive: clear(p, d)) if s.body_collision else None)
-                        for x_low, drive in zip(x_lows, batch.drives)]
+    def clear(positions: np.ndarray, drive: SceneDrive) -> np.ndarray:
+        with warp_launches:     # one Warp launch at a time; the sequences' other work goes on around it
+            return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
+
+    def targets_of(x_low: np.ndarray, drive: SceneDrive) -> np.ndarray:
+        return harmonic_targets_of(x_low, S, products, (lambda p: clear(p, drive)) if s.body_collision else None)
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        harmonic_targets = list(pool.map(targets_of, x_lows, batch.drives))
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
                          harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),
                          worlds=len(scene_paths), **batch.body())
@@ -272,15 +283,18 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
 
     setup = time.perf_counter() - start
     positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet)
-    runs = []
-    for w, (drive, target) in enumerate(zip(batch.drives, harmonic_targets)):
-        x = positions[:drive.n_frames, w]
+
+    def run_of(w: int) -> SimulationRun:
+        n_frames = batch.drives[w].n_frames
+        x = positions[:n_frames, w]
         high_content = products.high(x)
-        residual = (np.linalg.norm((high_content - target).reshape(len(x), -1), axis=1)
-                    / np.linalg.norm(high_content.reshape(len(x), -1), axis=1))
-        runs.append(SimulationRun(x, faces, rest, pins, solve_ms[:drive.n_frames], solver.n_constraints, residual,
-                                  basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup))
-    return runs
+        residual = (np.linalg.norm((high_content - harmonic_targets[w]).reshape(n_frames, -1), axis=1)
+                    / np.linalg.norm(high_content.reshape(n_frames, -1), axis=1))
+        return SimulationRun(x, faces, rest, pins, solve_ms[:n_frames], solver.n_constraints, residual,
+                             basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup)
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        return list(pool.map(run_of, range(solver.worlds)))
 
 
 def sequence_groups(level: str, files: Sequence[str]) -> list[tuple[str, ...]]:
@@ -300,8 +314,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("files", nargs="+", metavar="PATH",
                         help="low: SCENE OUT [SCENE OUT ...]; high: SCENE SUBDIV SIM_LOW OUT [...]")
     parser.add_argument("--device", help="Warp device (cpu, cuda:0); default: the settings' device")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="high: sequences whose harmonic targets and residual are computed at once "
+                             "(Snakemake: the rule's threads)")
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
+    if args.threads < 1:
+        raise PipelineError(f"--threads {args.threads}: give at least 1")
     groups = sequence_groups(args.level, args.files)
     settings = read_settings(args.settings, unread=LEARNING_ONLY)
     device = args.device or settings["device"]
@@ -313,7 +332,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         subdivs = {group[1] for group in groups}
         if len(subdivs) > 1:
             raise PipelineError(f"{groups[1][1]}: a batch is one garment: every sequence takes the same SUBDIV")
-        runs = simulate_high(settings, scenes, groups[0][1], [group[2] for group in groups], device, args.quiet)
+        runs = simulate_high(settings, scenes, groups[0][1], [group[2] for group in groups], device, args.quiet,
+                             args.threads)
     source_mesh = mesh_fingerprint(*read_rest_mesh(scenes[0]))
     start = time.perf_counter()
     for group, run in zip(groups, runs):

@@ -145,8 +145,9 @@ def tiny_garment(scene: str, frames: int) -> dict:
 
 def test_a_batch_of_sequences_writes_what_each_run_alone_writes(tmp_path):
     """Two training sequences of a coarse garment (different motion programs, body and self collision) and the
-    held-out walk, stepped as one batch by the stage, against each stepped alone: the same positions, bit for
-    bit (the solver's worlds are independent and sum in the same order)."""
+    held-out walk, stepped as one batch by the stage (its per-sequence targets and residuals on two threads),
+    against each stepped alone: the same positions and harmonic residuals, bit for bit (the solver's worlds are
+    independent and sum in the same order)."""
     write_settings(tiny_garment("pants", 6), tmp_path / "settings.json")
     names = ("train_000", "train_001", "held_out_000")
     for name in names:
@@ -161,16 +162,20 @@ def test_a_batch_of_sequences_writes_what_each_run_alone_writes(tmp_path):
             high = [str(tmp_path / p) for n in group
                     for p in (f"{n}.h5", "subdiv.h5", f"{mode}_{n}_low.h5", f"{mode}_{n}_high.h5")]
             for level, files in (("low", low), ("high", high)):
-                run = stage("pipeline.simulate", level, str(tmp_path / "settings.json"), *files, "--quiet")
+                threads = ("--threads", "2") if (mode, level) == ("batch", "high") else ()
+                run = stage("pipeline.simulate", level, str(tmp_path / "settings.json"), *files, *threads, "--quiet")
                 assert run.returncode == 0, run.stderr
         for n in names:
             for level in ("low", "high"):
                 with h5py.File(tmp_path / f"{mode}_{n}_{level}.h5") as f:
                     both[mode, n, level] = f["positions"][()], f.attrs["batch"]
+                    if level == "high":
+                        both[mode, n, "residual"] = f["harmonic_residual"][()]
     for n in names:
         for level in ("low", "high"):
             np.testing.assert_array_equal(both["batch", n, level][0], both["alone", n, level][0])
             assert (both["batch", n, level][1], both["alone", n, level][1]) == (3, 1)
+        np.testing.assert_array_equal(both["batch", n, "residual"], both["alone", n, "residual"])
     assert np.abs(both["batch", "train_000", "high"][0] - both["batch", "train_001", "high"][0]).max() > 1e-3
 
 
@@ -188,6 +193,13 @@ def test_a_batch_refuses_sequences_of_another_garment(tmp_path):
     assert not (tmp_path / "a.h5").exists() and not (tmp_path / "b.h5").exists()
     run = stage("pipeline.simulate", "low", str(tmp_path / "pants.json"), str(tmp_path / "pants.h5"), "--quiet")
     assert run.returncode == 2 and "groups of SCENE OUT" in run.stderr
+
+
+def test_threads_below_one_are_refused_with_one_line(tmp_path):
+    run = stage("pipeline.simulate", "high", str(tmp_path / "settings.json"), "s.h5", "d.h5", "l.h5", "o.h5",
+                "--threads", "0", "--quiet")
+    assert run.returncode == 2 and run.stderr.strip().splitlines() == ["error: --threads 0: give at least 1"]
+    assert not (tmp_path / "o.h5").exists()
 
 
 def test_per_frame_product_is_a_matrix_product_per_frame():

@@ -202,6 +202,17 @@ def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_m
     assert "seq=train_002" in more.stdout
 
 
+@pytest.mark.parametrize("device, threads", [("cpu", 1), ("cuda:0", 2)])
+def test_a_high_res_batch_job_takes_a_thread_a_sequence_on_a_gpu(tmp_path, device, threads):
+    """The high-res batch job of two sequences: on a GPU two threads (their harmonic targets and residuals at
+    once), passed to the stage; on the CPU one (it steps on one thread for a long time)."""
+    run = snakemake(tmp_path, "-n", "-p", "results/pants/sequences/train_000/sim_high.h5", "--configfile",
+                    str(tiny_pants(tmp_path, shard=2)), "--config", f"device={device}")
+    assert run.returncode == 0, tail(run)
+    job = planned_jobs(run)["simulate_high_batch_pants_000"]
+    assert job.get("threads", "1") == str(threads) and f" --threads {threads} " in job["shell"]   # 1: not printed
+
+
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2]})
 def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(tiny_pants_build):
     """`results/pants/study/` on the tiny pants: datasets of the first 1 and 2 training sequences (each with the

@@ -53,6 +53,13 @@ def batch_rule_name(stage, scene, shard):
     return f"{stage}_batch_{re.sub(r'[^A-Za-z0-9_]', '_', scene)}_{shard:03d}"
 
 
+def high_batch_threads(scene, sequences):
+    """Threads of a high-res batch job: on a GPU one a sequence, up to 8, for the per-sequence work outside the
+    solver (harmonic targets, residual: most of a 64-sequence job's time besides stepping); a CPU batch steps on
+    one thread for hours, so it holds one core."""
+    return min(sequences, 8) if SETTINGS[scene]["device"].startswith("cuda") else 1
+
+
 def bvh_files(wildcards):
     """The motion-capture files a sequence reads: editing one remakes the sequences that play it."""
     return sequence_bvh_files(SETTINGS[wildcards.scene], wildcards.seq)

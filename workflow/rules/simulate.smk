@@ -63,6 +63,8 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
                        for p in (f"{s}/scene.h5", f"{_out}/subdiv.h5", f"{s}/sim_low.h5", f"{s}/sim_high.h5")]
             log: f"{_out}/logs/shard_{_k:03d}/simulate_high.log"
             benchmark: f"{_out}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
-            threads: 1
+            threads: high_batch_threads(_scene, len(_seqs))
             resources: mem_mb=8000 + 2000 * len(_seqs), gpu=_gpu
-            shell: "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} 2>&1 | tee {log:q}"
+            shell:
+                "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --threads {threads} "
+                "2>&1 | tee {log:q}"

@@ -356,9 +356,11 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
                         high_res_files(scene, (w.hsubsteps, w.hiterations, w.schedule))[SEQUENCES[scene].index(n)])]
             log: f"{_high}/logs/shard_{_k:03d}/simulate_high.log"
             benchmark: f"{_high}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
-            threads: 1
+            threads: high_batch_threads(_scene, len(_names))
             resources: mem_mb=8000 + 2000 * len(_names), gpu=_gpu
-            shell: "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --quiet 2>&1 | tee {log:q}"
+            shell:
+                "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --threads {threads} --quiet "
+                "2>&1 | tee {log:q}"
 
 
 # The sequence's own scene.h5 and high-res run, linked (relative) into the budget's sequence folder.
