@@ -296,6 +296,8 @@ def test_high_res_runs_keep_their_order_and_each_is_given_once():
     runs = parse_high_res([["4", "30", "iteration", "a", "b"], ["1", "10", "substep", "c"]], REFERENCE)
     assert [(r.substeps, r.iterations, r.harmonic_every, r.runs, r.timed) for r in runs] == [
         (4, 30, "iteration", ["a", "b"], ["a", "b"]), (1, 10, "substep", ["c"], ["c"])]
+    with pytest.raises(PipelineError, match="given twice"):
+        parse_high_res([["1", "10", "substep", "a"], ["1", "10", "substep", "b"]], REFERENCE)
 
 
 def test_a_high_res_run_is_timed_by_its_timing_runs_when_given():
@@ -311,8 +313,6 @@ def test_a_high_res_run_is_timed_by_its_timing_runs_when_given():
 def test_bad_high_res_timing_runs_are_refused(timing, message):
     with pytest.raises(PipelineError, match=message):
         parse_high_res([["1", "10", "substep", "c"]], REFERENCE, timing)
-    with pytest.raises(PipelineError, match="given twice"):
-        parse_high_res([["1", "10", "substep", "a"], ["1", "10", "substep", "b"]], REFERENCE)
 
 
 @pytest.mark.parametrize("missing", ["--dataset", "--operators"])

@@ -32,6 +32,10 @@ TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained o
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
 TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
 
+# One sequence's high-res run held to the scene's low-res run of it (the rule's settings say which budget).
+HIGH_RES_ALONE = ("{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} "
+                  "{input.sim_low:q} {output:q} --quiet 2>&1 | tee {log:q}")
+
 wildcard_constraints:
     substeps="[1-9][0-9]*",
     width="[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
@@ -85,17 +89,18 @@ def high_res_files(scene, run):
     return [f"{high_res_folder(scene, run)}/sequences/{seq}/sim_high.h5" for seq in SEQUENCES[scene]]
 
 
-def high_res_timing(scene, run):
-    """A sharded scene's timing run of a high-res budget and schedule (the reference's too): one sequence alone."""
-    return f"{high_res_folder(scene, run)}/timing/sim_high.h5"
-
-
 def high_res_timings(scene):
-    """Every high-res timing run of a sharded scene, the reference's first; none with `shard: 1` (each
-    sequence's own job is timed)."""
+    """A sharded scene's high-res timing runs (one sequence alone), by run, the reference's first; none with
+    `shard: 1` (each sequence's own job is timed)."""
     if SETTINGS[scene]["shard"] == 1:
-        return []
-    return [high_res_timing(scene, run) for run in (reference_run(scene), *high_res_runs(scene))]
+        return {}
+    return {run: f"{high_res_folder(scene, run)}/timing/sim_high.h5"
+            for run in (reference_run(scene), *high_res_runs(scene))}
+
+
+def first_sequence_file(name):
+    """The scene's first sequence's file `name`: what a timing run simulates alone."""
+    return lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/{name}"
 
 
 def tradeoff_point_settings(settings, substeps):
@@ -191,10 +196,10 @@ def tradeoff_arguments(wildcards):
             words += ["--matched", n, tradeoff_matched_eval(scene, n), network_model(scene, n, "matched")]
     for run in high_res_runs(scene):
         words += ["--high-res", *run, *high_res_files(scene, run)]
-    if SETTINGS[scene]["shard"] > 1:
-        words += ["--sim-high-timing", high_res_timing(scene, reference_run(scene))]
-        for run in high_res_runs(scene):
-            words += ["--high-res-timing", *run, high_res_timing(scene, run)]
+    timings = high_res_timings(scene)
+    if timings:
+        words += ["--sim-high-timing", timings[reference_run(scene)]]
+        words += [x for run in high_res_runs(scene) for x in ("--high-res-timing", *run, timings[run])]
     return [str(word) for word in words]
 
 
@@ -207,7 +212,7 @@ def tradeoff_inputs(wildcards):
             + list(dict.fromkeys(network_model(scene, n, net) for n in tradeoff_budgets(scene)
                                  for net in scene_trained_nets(scene)))
             + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)]
-            + high_res_timings(scene))
+            + list(high_res_timings(scene).values()))
 
 
 rule tradeoff_settings:
@@ -254,7 +259,7 @@ rule tradeoff_simulate_low:
 rule tradeoff_timing_low:
     input:
         settings=f"{TRADEOFF_POINT}/simulation.json",
-        scene=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/scene.h5",
+        scene=first_sequence_file("scene.h5"),
     output: f"{TRADEOFF_POINT}/timing/sim_low.h5"
     log: f"{TRADEOFF_POINT}/logs/timing_low.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/timing_low.tsv"
@@ -292,9 +297,7 @@ rule tradeoff_simulate_high:
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/{{seq}}/simulate_high.tsv"
     threads: 1
     resources: mem_mb=8000, gpu=gpus_on_device
-    shell:
-        "{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} {input.sim_low:q} "
-        "{output:q} --quiet 2>&1 | tee {log:q}"
+    shell: HIGH_RES_ALONE
 
 
 # The first sequence alone at high resolution, one solver world, held to the scene's low-res run of it: a sharded
@@ -304,16 +307,13 @@ rule tradeoff_simulate_high:
 rule tradeoff_timing_high:
     input:
         settings=f"{TRADEOFF_HIGH}/simulation.json", subdiv=f"{OUT}/subdiv.h5",
-        scene=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/scene.h5",
-        sim_low=lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/sim_low.h5",
+        scene=first_sequence_file("scene.h5"), sim_low=first_sequence_file("sim_low.h5"),
     output: f"{TRADEOFF_HIGH}/timing/sim_high.h5"
     log: f"{TRADEOFF_HIGH}/logs/timing_high.log"
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/timing_high.tsv"
     threads: 1
     resources: mem_mb=8000, gpu=gpus_on_device
-    shell:
-        "{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} {input.sim_low:q} "
-        "{output:q} --quiet 2>&1 | tee {log:q}"
+    shell: HIGH_RES_ALONE
 
 
 # Sharded scenes: a rule per shard steps its sequences together at every low-res budget (the `substeps` wildcard)
