@@ -10,12 +10,13 @@ each size (RC13, RC9, RC9 x/2, RC9 x/4 of D62 D124 D248 D D248 D_3 D248, random 
          (the paper's "DL + SubD" column, plus the features).
 Modes: eager, graph (eager replayed as one CUDA graph), eager-tf32, graph-tf32, fast, fast-graph, fast-bf16,
 fast-bf16-graph, fast-compiled, fast-bf16-compiled-graph (the fast network through torch.compile: inductor,
-max-autotune on CUDA; minutes of compiling per size), exported (the torch.export program of deploy/export.py,
-loaded back: net is not separate there), exported-graph. Graph modes copy each call's inputs into the graph's
-static buffers inside the timed call, as a tool would. The error column is the largest |whole - eager whole| over
-the largest eager displacement. --features picks the inputs: `paper` (positions, as the paper) or `body`
-(velocity, body, Laplacian, gravity in local frames: the pants scene's; 16 random capsules). Median over repeats
-after warm-up. Usage:
+max-autotune on CUDA; minutes of compiling per size), fused, fused-graph, fused-bf16, fused-bf16-graph (CUDA:
+model/fused_network.py, one Triton kernel per convolution, tuned on the first call), exported (the torch.export
+program of deploy/export.py, loaded back: net is not separate there), exported-graph. Graph modes copy each
+call's inputs into the graph's static buffers inside the timed call, as a tool would. The error column is the
+largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
+(positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
+16 random capsules). Median over repeats after warm-up. Usage:
   python bench/infer.py [--device cpu|cuda] [--cases flag-cpu,15k] [--sizes RC13,RC9,RC9x/2,RC9x/4]
       [--modes eager,fast,fast-bf16,exported] [--features paper|body] [--batch 1] [--repeats 20] [--warmup 5]
       [--threads N] [--out table.md] [--profile]
@@ -60,6 +61,10 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fast-bf16-graph": ("fast", torch.bfloat16, True, False, False),
          "fast-compiled": ("fast", torch.float32, False, False, True),
          "fast-bf16-compiled-graph": ("fast", torch.bfloat16, True, False, True),
+         "fused": ("fused", torch.float32, False, False, False),
+         "fused-graph": ("fused", torch.float32, True, False, False),
+         "fused-bf16": ("fused", torch.bfloat16, False, False, False),
+         "fused-bf16-graph": ("fused", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
          "exported-graph": ("exported", torch.float32, True, False, False)}
 # Paper Table 3, "DL + SubD" ms on an RTX 2080 Ti, by high-res vertex count.
@@ -132,8 +137,8 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
-    if kind == "fast":
-        upsampler = FastUpsampler(FastRegressor(model, mesh, dtype), subdivision).to(device)
+    if kind in ("fast", "fused"):
+        upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind == "fused"), subdivision).to(device)
         if compiled:     # inductor may fuse the elementwise passes (pad, norm, pooling) into fewer kernels
             upsampler.regressor.network = torch.compile(
                 upsampler.regressor.network, dynamic=False,
@@ -181,8 +186,10 @@ def main() -> None:
     if device.type == "cuda" and not torch.cuda.is_available():
         sys.exit(f"error: device '{args.device}' requested but torch finds no CUDA device")
     unknown = [m for m in modes if m not in MODES]
-    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] for m in modes)):
-        sys.exit(f"error: --modes {args.modes}: modes are {', '.join(MODES)}; graph and tf32 ones need CUDA")
+    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] or MODES[m][0] == "fused"
+                                                 for m in modes)):
+        sys.exit(f"error: --modes {args.modes}: modes are {', '.join(MODES)}; graph, tf32 and fused ones need "
+                 f"CUDA")
     torch.set_flush_denormal(True)
     torch.backends.cuda.matmul.allow_bf16_reduced_precision_reduction = False     # bf16 GEMMs sum in fp32
     if args.threads:

@@ -34,6 +34,7 @@ from torch import nn
 
 from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch
+from model.fused_network import FusedNetwork
 from model.layers import LEAKY_SLOPE, NORM_EPS
 from model.local_frames import to_global
 from model.mesh_hierarchy import MeshHierarchy, mesh_hierarchy
@@ -156,15 +157,19 @@ class FastRegressor(nn.Module):
     """`FeatureRegressor.forward` in the fast form: a `FrameBatch` (S x_low etc., caller's vertex order) ->
     the displacement (B, V, 3) in the dataset's frame and the caller's order."""
 
-    def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32):
+    def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32,
+                 fused: bool = False):
+        """`fused`: the network as one Triton kernel per convolution (model.fused_network; CUDA only) instead
+        of FastNetwork's gather + matmul per convolution."""
         super().__init__()
         if not isinstance(model, FeatureRegressor):
             raise ValueError(f"fast inference runs the encoder-decoder's FeatureRegressor only, got a "
                              f"{type(model).__name__}")
         mesh = mesh.truncated(model.net.n_levels).to("cpu")
         orders = locality_orders(mesh)
-        self.network = FastNetwork(model.net, reorder_hierarchy(mesh, orders), model.input_offset,
-                                   model.input_scale, float(model.output_scale), dtype)
+        kind = FusedNetwork if fused else FastNetwork
+        self.network = kind(model.net, reorder_hierarchy(mesh, orders), model.input_offset, model.input_scale,
+                            float(model.output_scale), dtype)
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()
         self.features = model.spec.features(new_of[faces], rest[order])
