@@ -127,8 +127,19 @@ _CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n, "BLOCK_K": k}, num_warps=
             for m, n, k, w, s in ((32, 64, 32, 4, 2), (64, 64, 32, 4, 3), (64, 128, 32, 4, 3),
                                   (128, 64, 32, 4, 3), (128, 128, 32, 8, 3), (64, 256, 32, 8, 3),
                                   (64, 64, 64, 4, 3), (128, 128, 64, 8, 2))]
+
+
+def _small_problems_untuned(configs, named_args, **_):
+    """A convolution of under ~64 output tiles (the coarse levels, the tests' meshes) gets the smallest tile
+    untimed: tuning it would cost seconds of compiling for microseconds."""
+    if named_args["n_vertices"] * named_args["n_out"] < 64 * 64 * 64:
+        return configs[:1]
+    return configs
+
+
 # The sums the kernel adds to are restored after each timing run, so tuning leaves the frame's result intact.
 _tuned_kernel = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
+                                prune_configs_by={"early_config_prune": _small_problems_untuned},
                                 restore_value=["stats_ptr"])(_fused_conv_kernel)
 _FIXED = {"BLOCK_M": 16, "BLOCK_N": 16, "BLOCK_K": 16}
 
