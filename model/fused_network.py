@@ -1,25 +1,24 @@
-"""The encoder-decoder as one fused kernel per convolution: what `FastNetwork` computes, in ~15 launches a frame.
+"""The encoder-decoder in ~27 launches a frame: what `FastNetwork` computes, one fused kernel per convolution.
 
 `FastNetwork` runs ~150 small kernels a frame (a gather, a matmul, norm statistics, pool and unpool copies,
 concatenations): on an H100 the frame is bound by launches and by the gathers' memory traffic, not by the
-matmuls (docs/performance.md, "Deployment path"). Here every other step is folded into the convolution that
-reads its result:
+matmuls (docs/performance.md, "Deployment path"). Here the steps between convolutions are folded into few
+launches (model.triton_conv):
 
-* **norm** -> the convolution producing the normalised tensor also sums each channel and its square over the
-  vertices (its epilogue); the reader turns the sums into mean and 1/std and applies (x - mean) / std and the
-  leaky ReLU as it loads (its prologue). The stored tensor stays the raw convolution output.
-* **pool / unpool** -> index maps composed into each input segment's `rows` (V_level, P): the P source rows whose
-  (prologue-applied) values are averaged or maxed; an unpooling is a 1-wide map, k poolings a 2^k-wide one.
-* **concat** -> a convolution reads two segments (the unpooled coarse output and the saved skip), each with its
-  own map and prologue, into consecutive weight rows.
-* **input normalisation** -> the first convolution's prologue, (x - offset) / scale; the output scale is folded
-  into the last convolution's weights.
+* **conv** -> one gather-GEMM: the table's neighbour rows are loaded straight into the matmul's tiles, never
+  written out; an unpooling (or a chain of them) is a 1-wide row map the gather reads through; a concatenation is
+  a second input segment filling the next weight rows; the conv's epilogue adds the bias and, when a norm reads
+  the output, the per-channel sums of it and of its square (atomics into one buffer).
+* **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
+  the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
+  averaged or maxed) is folded into the same kind of launch.
+* **input normalisation** -> the first convolution's prologue, (x - offset) / scale, on its few channels; the
+  output scale is folded into the last convolution's weights.
 
-The plan (`fused_plan`) is the network compiled to those convolutions; `run_plan_reference` executes it with
-PyTorch operators on any device and is the specification the Triton kernel (model.triton_conv) is tested against;
-`FusedNetwork` runs it on CUDA with that kernel. The variance is E[x^2] - E[x]^2 of fp32 sums (the only form
-that a one-pass epilogue can accumulate), so results differ from the eager two-pass norm by rounding only
-(tests/model/test_fused_network.py measures it).
+The plan (`fused_plan`) is the network compiled to those launches; `run_plan_reference` executes it with PyTorch
+operators on any device and is the specification the Triton kernels are tested against; `FusedNetwork` runs it
+on CUDA. The variance is E[x^2] - E[x]^2 of fp32 sums (the form a one-pass epilogue can accumulate), so results
+differ from the eager two-pass norm by rounding (tests/model/test_fused_network.py measures it).
 """
 from __future__ import annotations
 
@@ -34,40 +33,50 @@ from model.layers import LEAKY_SLOPE, NORM_EPS
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
 
-PROLOGUE_NONE, PROLOGUE_AFFINE, PROLOGUE_NORM = 0, 1, 2
+NETWORK_INPUT = -1          # a source id: the raw features, not a launch's output
 
 
 @dataclasses.dataclass(frozen=True)
 class Segment:
-    """A run of a fused convolution's input channels: `channels` of tensor `source` (-1: the network input,
-    else the output of plan[source]) at each table vertex's `rows` (None: the vertex itself), reduced over the
-    map's P columns by the network's pooling, after `prologue`."""
+    """A run of a convolution's input channels: `channels` of `source` (NETWORK_INPUT or a launch's index) at
+    each table vertex's row `rows[v]` (None: the vertex itself); `affine`: (x - offset) / scale on load."""
 
     source: int
     channels: int
-    rows: np.ndarray | None
-    prologue: int
+    rows: np.ndarray | None = None
+    affine: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
 class FusedConv:
-    """One launch: out = gather(segments at table) @ weight + bias, `stats` if a norm reads the output."""
+    """out = gather(segments at level's table) @ weight + bias; `stats`: also sum the output for a norm."""
 
     level: int
     segments: tuple[Segment, ...]
     weight: torch.Tensor        # (L * sum(channels), out), slot-major as model.layers.mesh_conv, fp64
     bias: torch.Tensor          # (out,), fp64
-    stats: bool
+    stats: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class Prepare:
+    """out[v] = reduce over p of f(source[rows[v, p]]), f = instance norm + leaky ReLU (from the source's sums)
+    if `normalize` else identity, reduce = the network's pooling; rows None: out = f(source)."""
+
+    source: int
+    channels: int
+    rows: np.ndarray | None
+    normalize: bool
 
 
 @dataclasses.dataclass
 class _Value:
-    """What the step list holds between convolutions: rows of a stored tensor seen through a map and prologue."""
+    """What the step list holds between launches: rows of a stored tensor, seen through a map, maybe normed."""
 
     source: int
     channels: int
     rows: np.ndarray | None = None
-    prologue: int = PROLOGUE_NONE
+    normed: bool = False
 
 
 def _compose(rows: np.ndarray | None, index: np.ndarray) -> np.ndarray:
@@ -78,33 +87,52 @@ def _compose(rows: np.ndarray | None, index: np.ndarray) -> np.ndarray:
     return np.concatenate([rows[index[:, k]] for k in range(index.shape[1])], axis=1)
 
 
-def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float) -> list[FusedConv]:
-    """The encoder-decoder's steps as fused convolutions over `mesh` (the network input's prologue is the affine
-    normalisation; its offset and scale are the executor's). Raises ValueError for a step it cannot fuse."""
+class _Planner:
+    """Turns step-list values into launches, normalising each conv output once whoever reads it."""
+
+    def __init__(self):
+        self.plan: list[FusedConv | Prepare] = []
+        self.normalised: dict[int, int] = {}
+
+    def emit(self, launch: FusedConv | Prepare) -> int:
+        self.plan.append(launch)
+        return len(self.plan) - 1
+
+    def segment(self, value: _Value) -> Segment:
+        source, rows = value.source, value.rows
+        if rows is not None and rows.shape[1] > 1:      # a pooling: reduce once, at the coarse level
+            source, rows = self.emit(Prepare(source, value.channels, rows, normalize=value.normed)), None
+        elif value.normed:
+            if source not in self.normalised:
+                self.normalised[source] = self.emit(Prepare(source, value.channels, None, normalize=True))
+            source = self.normalised[source]
+        return Segment(source, value.channels, rows, affine=source == NETWORK_INPUT)
+
+
+def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float) -> list[FusedConv | Prepare]:
+    """The encoder-decoder's steps as launches over `mesh`, the last one the output. Raises ValueError for a
+    network or step it cannot fuse."""
     if not isinstance(net, EncoderDecoder):
         raise ValueError(f"fused inference runs the encoder-decoder only, got a {type(net).__name__}")
     net.check_mesh(mesh)
     pool = [t.cpu().numpy() for t in mesh.pool]
     unpool = [t.cpu().numpy() for t in mesh.unpool]
-    plan: list[FusedConv] = []
-    value: _Value | list[_Value] = _Value(-1, net.in_channels, prologue=PROLOGUE_AFFINE)
+    planner = _Planner()
+    value: _Value | list[_Value] = _Value(NETWORK_INPUT, net.in_channels)
     skips: list[_Value] = []
     last = len(net.convs) - 1
     for step in net.steps:
         if step.op == "conv":
-            segments = value if isinstance(value, list) else [value]
             conv = net.convs[step.index]
             scale = output_scale if step.index == last else 1.0
-            plan.append(FusedConv(step.level, tuple(Segment(s.source, s.channels, s.rows, s.prologue)
-                                                    for s in segments),
-                                  conv.weight.detach().double().cpu() * scale,
-                                  conv.bias.detach().double().cpu() * scale, stats=False))
-            value = _Value(len(plan) - 1, conv.out_channels)
+            segments = tuple(planner.segment(v) for v in (value if isinstance(value, list) else [value]))
+            value = _Value(planner.emit(FusedConv(step.level, segments, conv.weight.detach().double().cpu() * scale,
+                                                  conv.bias.detach().double().cpu() * scale)), conv.out_channels)
         elif step.op == "norm":
-            if isinstance(value, list) or value.rows is not None or value.source < 0:
+            if isinstance(value, list) or value.rows is not None or value.source == NETWORK_INPUT:
                 raise ValueError("a norm must directly follow a convolution to be fused")
-            plan[value.source] = dataclasses.replace(plan[value.source], stats=True)
-            value = dataclasses.replace(value, prologue=PROLOGUE_NORM)
+            planner.plan[value.source] = dataclasses.replace(planner.plan[value.source], stats=True)
+            value = dataclasses.replace(value, normed=True)
         elif step.op == "save":
             skips.append(value)
         elif step.op in ("pool", "unpool"):
@@ -114,58 +142,65 @@ def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float) ->
             value = [value, skips.pop()]
         else:
             raise ValueError(f"no fused form of the step '{step.op}'")
-    return plan
+    if not isinstance(planner.plan[-1], FusedConv) or value.source != len(planner.plan) - 1:
+        raise ValueError("the network must end with a convolution to be fused")
+    return planner.plan
 
 
-def _sums(x: torch.Tensor) -> torch.Tensor:
-    """(B, 2, C) per-channel sums of x and x^2 over the vertices, in fp32: what the kernel's epilogue adds up."""
+def sums_of(x: torch.Tensor) -> torch.Tensor:
+    """(B, 2, C) per-channel sums of x and x^2 over the vertices in fp32: what a conv's epilogue adds up."""
     wide = x.float()
     return torch.stack([wide.sum(dim=1), (wide * wide).sum(dim=1)], dim=1)
 
 
 def norm_from_sums(sums: torch.Tensor, n_vertices: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(mean, 1/std) (B, C) of an instance norm from `_sums`."""
+    """(mean, 1/std) (B, C) of an instance norm from `sums_of`."""
     mean = sums[:, 0] / n_vertices
     var = torch.clamp(sums[:, 1] / n_vertices - mean * mean, min=0.0)
     return mean, torch.rsqrt(var + NORM_EPS)
 
 
-def run_plan_reference(plan: list[FusedConv], tables: list[torch.Tensor], x: torch.Tensor,
+def run_plan_reference(plan: list[FusedConv | Prepare], tables: list[torch.Tensor], x: torch.Tensor,
                        input_offset: torch.Tensor, input_scale: torch.Tensor, pool_max: bool) -> torch.Tensor:
-    """Execute `plan` with PyTorch operators in fp64-free fp32: x (B, V_0, C_in) raw -> (B, V_0, out).
-    `tables[l]` is level l's (V_l, L) convolution table with +1 ids."""
+    """Execute `plan` with PyTorch operators in fp32: x (B, V_0, C_in) raw -> (B, V_0, out). `tables[l]` is
+    level l's (V_l, L) convolution table with +1 ids."""
     outputs: list[torch.Tensor] = []
-    sums: list[torch.Tensor | None] = []
-    for conv in plan:
-        parts = []
-        for segment in conv.segments:
-            source = x if segment.source < 0 else outputs[segment.source]
-            values = source.float()
-            if segment.prologue == PROLOGUE_AFFINE:
-                values = (values - input_offset) / input_scale
-            elif segment.prologue == PROLOGUE_NORM:
-                mean, inv_std = norm_from_sums(sums[segment.source], source.shape[1])
-                values = torch.nn.functional.leaky_relu((values - mean[:, None]) * inv_std[:, None], LEAKY_SLOPE)
-            if segment.rows is not None:
-                rows = torch.as_tensor(segment.rows, device=x.device)
-                picked = values.index_select(1, rows.reshape(-1)).reshape(x.shape[0], *rows.shape, -1)
+    sums: dict[int, torch.Tensor] = {}
+    source_of = lambda index: x.float() if index == NETWORK_INPUT else outputs[index]  # noqa: E731
+    through = lambda values, rows: values if rows is None else values.index_select(  # noqa: E731
+        1, torch.as_tensor(rows, device=x.device).reshape(-1)).reshape(x.shape[0], *rows.shape, -1)
+    for launch in plan:
+        if isinstance(launch, Prepare):
+            values = source_of(launch.source)
+            if launch.normalize:
+                mean, inv_std = norm_from_sums(sums[launch.source], values.shape[1])
+                values = nn.functional.leaky_relu((values - mean[:, None]) * inv_std[:, None], LEAKY_SLOPE)
+            if launch.rows is not None:
+                picked = through(values, launch.rows)
                 values = picked.amax(dim=2) if pool_max else picked.mean(dim=2)
-            parts.append(values)
-        joined = torch.cat(parts, dim=-1)
-        padded = torch.nn.functional.pad(joined, (0, 0, 1, 0))
-        table = tables[conv.level]
+            outputs.append(values)
+            continue
+        parts = []
+        for segment in launch.segments:
+            values = source_of(segment.source)
+            if segment.affine:
+                values = (values - input_offset) / input_scale
+            parts.append(values if segment.rows is None else through(values, segment.rows)[:, :, 0])
+        padded = nn.functional.pad(torch.cat(parts, dim=-1), (0, 0, 1, 0))
+        table = tables[launch.level]
         gathered = padded.index_select(1, table.reshape(-1)).reshape(x.shape[0], table.shape[0], -1)
-        out = gathered @ conv.weight.float().to(x.device) + conv.bias.float().to(x.device)
+        out = gathered @ launch.weight.float().to(x.device) + launch.bias.float().to(x.device)
+        if launch.stats:
+            sums[len(outputs)] = sums_of(out)
         outputs.append(out)
-        sums.append(_sums(out) if conv.stats else None)
     return outputs[-1]
 
 
 class FusedNetwork(nn.Module):
     """`FastNetwork`'s function (raw features (B, V_0, C) in the level-0 order of `mesh` -> scaled displacement
-    (B, V_0, out) fp32) as one Triton kernel per convolution, on CUDA. `dtype` is the hidden layers' storage
-    and matmul type (bf16: fp32 accumulation and fp32 norm statistics); the first and last convolutions are
-    fp32 in full precision, as FastNetwork's, since raw positions and the answer itself lose too much in bf16."""
+    (B, V_0, out) fp32) in the plan's launches, on CUDA. `dtype` is the hidden layers' storage and matmul type
+    (bf16: fp32 accumulation and fp32 norm statistics); the first and last convolutions stay fp32 in full
+    precision, as FastNetwork's, since raw positions and the answer itself lose too much in bf16."""
 
     def __init__(self, net: EncoderDecoder, mesh: MeshHierarchy, input_offset: torch.Tensor,
                  input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32):
@@ -174,47 +209,51 @@ class FusedNetwork(nn.Module):
         self.plan = fused_plan(net, mesh, output_scale)
         self.pool_max = net.pool_kind == "max"
         self.dtype = dtype
-        self.vertex_counts = mesh.vertex_counts
-        last = len(self.plan) - 1
+        convs = [i for i, launch in enumerate(self.plan) if isinstance(launch, FusedConv)]
+        self.full_precision = {convs[0], convs[-1]}
         for level, table in enumerate(mesh.conv):
             self.register_buffer(f"table_{level}", table.to(torch.int32).contiguous())
-        for index, conv in enumerate(self.plan):
-            kind = torch.float32 if index in (0, last) else dtype
-            self.register_buffer(f"weight_{index}", conv.weight.to(kind).contiguous())
-            self.register_buffer(f"bias_{index}", conv.bias.float())
-            for number, segment in enumerate(conv.segments):
-                if segment.rows is not None:
+        for index, launch in enumerate(self.plan):
+            if isinstance(launch, FusedConv):
+                kind = torch.float32 if index in self.full_precision else dtype
+                self.register_buffer(f"weight_{index}", launch.weight.to(kind).contiguous())
+                self.register_buffer(f"bias_{index}", launch.bias.float())
+                rows = [segment.rows for segment in launch.segments]
+            else:
+                rows = [launch.rows]
+            for number, map_rows in enumerate(rows):
+                if map_rows is not None:
                     self.register_buffer(f"rows_{index}_{number}",
-                                         torch.as_tensor(segment.rows, dtype=torch.int32).contiguous())
-        self.register_buffer("affine", torch.stack([input_offset.detach().float().cpu(),
-                                                    1.0 / input_scale.detach().float().cpu()]))
-        widths = [conv.weight.shape[1] if conv.stats else 0 for conv in self.plan]
-        self.stats_offsets = np.concatenate([[0], np.cumsum(widths)]).tolist()
+                                         torch.as_tensor(map_rows, dtype=torch.int32).contiguous())
+        self.register_buffer("affine", torch.cat([input_offset.detach().float().cpu(),
+                                                  1.0 / input_scale.detach().float().cpu()]))
+        widths = [launch.weight.shape[1] if isinstance(launch, FusedConv) and launch.stats else 0
+                  for launch in self.plan]
+        self.sums_offsets = np.concatenate([[0], np.cumsum(widths)]).tolist()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not (x.is_cuda or os.environ.get("TRITON_INTERPRET") == "1"):
             raise ValueError("the fused network runs on CUDA (FastNetwork is the CPU path)")
         # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install.
-        from model.triton_conv import SegmentArgs, SumsArgs, fused_conv
-        batch, total = x.shape[0], self.stats_offsets[-1]
+        from model.triton_conv import Sums, fused_conv, prepare
+
+        batch, total = x.shape[0], self.sums_offsets[-1]
         # One buffer for every norm's sums, zeroed once a frame: one memset node in a captured graph.
         sums = torch.zeros(batch * 2 * total + 1, device=x.device, dtype=torch.float32)
-        affine = self.affine.reshape(-1)
+        sums_at = lambda index: Sums(sums[self.sums_offsets[index]:], 2 * total, total)  # noqa: E731
         outputs: list[torch.Tensor] = []
-        last = len(self.plan) - 1
-        for index, conv in enumerate(self.plan):
-            segments = []
-            for number, segment in enumerate(conv.segments):
-                source = x.float().contiguous() if segment.source < 0 else outputs[segment.source]
-                if segment.prologue == PROLOGUE_NORM:
-                    par = (sums[self.stats_offsets[segment.source]:], 2 * total, total)
-                else:
-                    par = (affine, 0, segment.channels)
-                segments.append(SegmentArgs(source, getattr(self, f"rows_{index}_{number}", None),
-                                            segment.prologue, *par))
-            weight = getattr(self, f"weight_{index}")
-            out_dtype = torch.float32 if index >= last - 1 else weight.dtype
-            target = SumsArgs(sums[self.stats_offsets[index]:], 2 * total, total) if conv.stats else None
-            outputs.append(fused_conv(getattr(self, f"table_{conv.level}"), segments, weight,
-                                      getattr(self, f"bias_{index}"), out_dtype, target, self.pool_max))
+        source_of = lambda index: x.float().contiguous() if index == NETWORK_INPUT else outputs[index]  # noqa: E731
+        for index, launch in enumerate(self.plan):
+            if isinstance(launch, Prepare):
+                outputs.append(prepare(source_of(launch.source), getattr(self, f"rows_{index}_0", None),
+                                       sums_at(launch.source) if launch.normalize else None, self.dtype,
+                                       self.pool_max))
+                continue
+            segments = [(source_of(segment.source), getattr(self, f"rows_{index}_{number}", None))
+                        for number, segment in enumerate(launch.segments)]
+            affine = self.affine if launch.segments[0].affine else None
+            out_dtype = self.dtype if index < len(self.plan) - 1 else torch.float32
+            outputs.append(fused_conv(getattr(self, f"table_{launch.level}"), segments, affine,
+                                      getattr(self, f"weight_{index}"), getattr(self, f"bias_{index}"), out_dtype,
+                                      sums_at(index) if launch.stats else None))
         return outputs[-1]

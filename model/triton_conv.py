@@ -1,16 +1,19 @@
-"""One fused mesh convolution as a Triton kernel: gather through the table (and each segment's pool/unpool map),
-the reader's prologue (input affine or instance norm + leaky ReLU), the matmul on tensor cores, the bias, and the
-norm statistics of the output, in one launch (model.fused_network describes the plan it runs).
+"""The fused network's two Triton kernels (model.fused_network describes the plan that launches them).
 
-Each program computes a BLOCK_M x BLOCK_N tile of one frame's output. The A operand (vertices x gathered inputs)
-never exists in memory: for each table slot and chunk of input channels the program loads the neighbours' rows
-straight into registers, applies the prologue, and feeds `tl.dot`; the weights stream through in the same
-slot-major order as model.layers.mesh_conv. The output tile's columns are summed (and squared) and added
-atomically into the norm buffer, so the fp32 sums - and hence the last bits of later layers - depend on the
-order the programs finish in: results are reproducible to rounding, not bit for bit.
+* `fused_conv`: one mesh convolution as a gather-GEMM. Each program computes a BLOCK_M x BLOCK_N tile of one
+  frame's output; for each (table slot, chunk of input channels) it loads the neighbours' rows - through the
+  segment's unpooling map, if any - straight into registers and feeds `tl.dot`, so the (V, L * C) gathered
+  matrix never exists in memory; the weights stream through in model.layers.mesh_conv's slot-major order. The
+  loop over (slot, chunk) is one flat loop so Triton can software-pipeline its loads. Convolutions with few
+  input channels (the network input, the output head) take rank-1 fp32 updates instead: `tl.dot` would pad
+  their K to 16 and round fp32 to tf32. The epilogue adds the bias and, for a norm, the output's per-channel
+  sums and sums of squares, atomically: the fp32 sums, and hence later layers' last bits, depend on the order
+  the programs finish in (reproducible to rounding, not bit for bit).
+* `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
+  per value instead of once per gather.
 
-Set TRITON_INTERPRET=1 before importing this module to run the kernel on the CPU with Triton's interpreter (the
-tests do); there the configuration is fixed instead of tuned.
+Set TRITON_INTERPRET=1 before importing this module to run the kernels on the CPU with Triton's interpreter (the
+tests do); there the tile sizes are fixed instead of tuned.
 """
 from __future__ import annotations
 
@@ -24,37 +27,122 @@ import triton.language as tl
 from model.layers import LEAKY_SLOPE, NORM_EPS
 
 INTERPRETED = os.environ.get("TRITON_INTERPRET") == "1"
+OUTER_CHANNELS = 32         # a one-segment conv with at most this many input channels takes rank-1 updates
+
+
+class Sums(NamedTuple):
+    """Per-channel sums of a conv output: buffer[frame * batch_stride + c] and buffer[frame * batch_stride +
+    second + c] hold the sum and the sum of squares (a flat fp32 view starting at this output's first column)."""
+
+    buffer: torch.Tensor
+    batch_stride: int
+    second: int
 
 
 @triton.jit
-def _segment_tile(src_ptr, rows_ptr, par_ptr, par_second, src_vertices, channels, entry, valid, cols,
-                  P: tl.constexpr, MAPPED: tl.constexpr, PROLOGUE: tl.constexpr, POOL_MAX: tl.constexpr,
-                  EPS: tl.constexpr, SLOPE: tl.constexpr):
-    """(BLOCK_M, BLOCK_K) fp32 inputs of one segment: the table entries `entry` (0-based, `valid` where the
-    table does not pad) seen through the map, channels `cols`; 0 at padding and past the last channel."""
-    col_ok = cols < channels
-    mask = valid[:, None] & col_ok[None, :]
-    if PROLOGUE != 0:
-        # par: PROLOGUE 1 = (offset, 1/scale) of the network input; 2 = the source's (sum, sum of squares).
-        first = tl.load(par_ptr + cols, mask=col_ok, other=0.0)
-        second = tl.load(par_ptr + par_second + cols, mask=col_ok, other=0.0)
-        if PROLOGUE == 2:
-            shift = first / src_vertices
-            factor = 1.0 / tl.sqrt(tl.maximum(second / src_vertices - shift * shift, 0.0) + EPS)
+def _neighbours(table_ptr, map_ptr, rows, row_ok, slot, L: tl.constexpr, MAPPED: tl.constexpr):
+    """Source rows of table slot `slot` of `rows` (through the map if MAPPED) and where the table pads."""
+    entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids: -1 is the padding
+    valid = entry >= 0
+    entry = tl.maximum(entry, 0)
+    if MAPPED:
+        entry = tl.load(map_ptr + entry, mask=valid, other=0)
+    return entry.to(tl.int64), valid
+
+
+@triton.jit
+def _dot_segment(acc, src_ptr, map_ptr, table_ptr, weight_ptr, affine_ptr, rows, row_ok, outs, out_ok,
+                 channels, row_offset, width, n_out, L: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
+                 IEEE: tl.constexpr, BLOCK_K: tl.constexpr):
+    """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`)."""
+    chunks = tl.cdiv(channels, BLOCK_K)
+    for step in range(L * chunks):
+        slot = step // chunks
+        cols = (step - slot * chunks) * BLOCK_K + tl.arange(0, BLOCK_K)
+        col_ok = cols < channels
+        entry, valid = _neighbours(table_ptr, map_ptr, rows, row_ok, slot, L, MAPPED)
+        mask = valid[:, None] & col_ok[None, :]
+        a = tl.load(src_ptr + entry[:, None] * channels + cols[None, :], mask=mask, other=0.0)
+        if AFFINE:
+            shift = tl.load(affine_ptr + cols, mask=col_ok, other=0.0)
+            factor = tl.load(affine_ptr + channels + cols, mask=col_ok, other=0.0)
+            a = tl.where(mask, (a.to(tl.float32) - shift[None, :]) * factor[None, :], 0.0)
+        w = tl.load(weight_ptr + (slot * width + row_offset + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
+                    mask=col_ok[:, None] & out_ok[None, :], other=0.0)
+        if IEEE:
+            acc = tl.dot(a.to(tl.float32), w, acc, input_precision="ieee")
         else:
-            shift = first
-            factor = second
-    result = tl.zeros(mask.shape, dtype=tl.float32)
+            acc = tl.dot(a.to(w.dtype), w, acc)
+    return acc
+
+
+@triton.jit
+def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
+                 n_vertices, n_out, src1_ptr, map1_ptr, src1_vertices, c1, src2_ptr, map2_ptr, src2_vertices, c2,
+                 L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
+                 AFFINE: tl.constexpr, STATS: tl.constexpr, IEEE: tl.constexpr, OUTER: tl.constexpr,
+                 BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
+    frame = tl.program_id(2).to(tl.int64)
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
+    row_ok, out_ok = rows < n_vertices, outs < n_out
+    src1 = src1_ptr + frame * src1_vertices * c1
+    width = c1 + c2
+    acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
+    if OUTER:
+        for step in range(L * c1):
+            slot = step // c1
+            channel = step - slot * c1
+            entry, valid = _neighbours(table_ptr, map1_ptr, rows, row_ok, slot, L, MAPPED1)
+            a = tl.load(src1 + entry * c1 + channel, mask=valid, other=0.0).to(tl.float32)
+            if AFFINE:
+                a = tl.where(valid, (a - tl.load(affine_ptr + channel)) * tl.load(affine_ptr + c1 + channel), 0.0)
+            w = tl.load(weight_ptr + (slot * width + channel) * n_out + outs, mask=out_ok, other=0.0)
+            acc += a[:, None] * w.to(tl.float32)[None, :]
+    else:
+        acc = _dot_segment(acc, src1, map1_ptr, table_ptr, weight_ptr, affine_ptr, rows, row_ok, outs, out_ok,
+                           c1, 0, width, n_out, L, MAPPED1, AFFINE, IEEE, BLOCK_K)
+        if TWO:
+            acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, map2_ptr, table_ptr, weight_ptr,
+                               affine_ptr, rows, row_ok, outs, out_ok, c2, c1, width, n_out, L, MAPPED2, False,
+                               IEEE, BLOCK_K)
+    acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
+    keep = row_ok[:, None] & out_ok[None, :]
+    tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
+             acc.to(out_ptr.dtype.element_ty), mask=keep)
+    if STATS:
+        kept = tl.where(keep, acc, 0.0)
+        sums = sums_ptr + frame * sums_batch_stride
+        tl.atomic_add(sums + outs, tl.sum(kept, axis=0), mask=out_ok)
+        tl.atomic_add(sums + sums_second + outs, tl.sum(kept * kept, axis=0), mask=out_ok)
+
+
+@triton.jit
+def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums_second, n_rows, src_vertices,
+                    channels, P: tl.constexpr, MAPPED: tl.constexpr, NORMALIZE: tl.constexpr,
+                    POOL_MAX: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
+                    BLOCK_M: tl.constexpr, BLOCK_C: tl.constexpr):
+    frame = tl.program_id(2).to(tl.int64)
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    cols = tl.program_id(1) * BLOCK_C + tl.arange(0, BLOCK_C)
+    row_ok, col_ok = rows < n_rows, cols < channels
+    mask = row_ok[:, None] & col_ok[None, :]
+    src = src_ptr + frame * src_vertices * channels
+    if NORMALIZE:
+        sums = sums_ptr + frame * sums_batch_stride
+        mean = tl.load(sums + cols, mask=col_ok, other=0.0) / src_vertices
+        squares = tl.load(sums + sums_second + cols, mask=col_ok, other=0.0) / src_vertices
+        factor = 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
+    result = tl.zeros((BLOCK_M, BLOCK_C), dtype=tl.float32)
     for p in tl.static_range(P):
         if MAPPED:
-            row = tl.load(rows_ptr + entry * P + p, mask=valid, other=0)
+            source_rows = tl.load(map_ptr + rows * P + p, mask=row_ok, other=0)
         else:
-            row = entry
-        x = tl.load(src_ptr + row[:, None].to(tl.int64) * channels + cols[None, :], mask=mask, other=0.0)
+            source_rows = rows
+        x = tl.load(src + source_rows[:, None].to(tl.int64) * channels + cols[None, :], mask=mask, other=0.0)
         x = x.to(tl.float32)
-        if PROLOGUE != 0:
-            x = (x - shift[None, :]) * factor[None, :]
-        if PROLOGUE == 2:
+        if NORMALIZE:
+            x = (x - mean[None, :]) * factor[None, :]
             x = tl.where(x > 0, x, x * SLOPE)
         if p == 0:
             result = x
@@ -64,138 +152,74 @@ def _segment_tile(src_ptr, rows_ptr, par_ptr, par_second, src_vertices, channels
             result = result + x
     if not POOL_MAX and P > 1:
         result = result * (1.0 / P)
-    return tl.where(mask, result, 0.0)
-
-
-@triton.jit
-def _fused_conv_kernel(out_ptr, stats_ptr, stats_batch_stride, stats_second,
-                       table_ptr, weight_ptr, bias_ptr, n_vertices, n_out,
-                       src1_ptr, rows1_ptr, par1_ptr, par1_batch_stride, par1_second, src1_vertices, c1,
-                       src2_ptr, rows2_ptr, par2_ptr, par2_batch_stride, par2_second, src2_vertices, c2,
-                       L: tl.constexpr, P1: tl.constexpr, MAPPED1: tl.constexpr, PROLOGUE1: tl.constexpr,
-                       P2: tl.constexpr, MAPPED2: tl.constexpr, PROLOGUE2: tl.constexpr, TWO: tl.constexpr,
-                       POOL_MAX: tl.constexpr, STATS: tl.constexpr, IEEE: tl.constexpr,
-                       EPS: tl.constexpr, SLOPE: tl.constexpr,
-                       BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
-    row_ok, out_ok = rows < n_vertices, outs < n_out
-    src1 = src1_ptr + frame * src1_vertices * c1
-    par1 = par1_ptr + frame * par1_batch_stride
-    src2 = src2_ptr + frame * src2_vertices * c2
-    par2 = par2_ptr + frame * par2_batch_stride
-    width = c1 + c2
-    acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
-    for slot in range(L):
-        entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1   # +1 ids: -1 is padding
-        valid = entry >= 0
-        entry = tl.maximum(entry, 0)
-        for start in range(0, c1, BLOCK_K):
-            cols = start + tl.arange(0, BLOCK_K)
-            a = _segment_tile(src1, rows1_ptr, par1, par1_second, src1_vertices, c1, entry, valid, cols,
-                              P1, MAPPED1, PROLOGUE1, POOL_MAX, EPS, SLOPE)
-            w = tl.load(weight_ptr + (slot * width + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
-                        mask=(cols < c1)[:, None] & out_ok[None, :], other=0.0)
-            if IEEE:
-                acc = tl.dot(a, w, acc, input_precision="ieee")
-            else:
-                acc = tl.dot(a.to(w.dtype), w, acc)
-        if TWO:
-            for start in range(0, c2, BLOCK_K):
-                cols = start + tl.arange(0, BLOCK_K)
-                a = _segment_tile(src2, rows2_ptr, par2, par2_second, src2_vertices, c2, entry, valid, cols,
-                                  P2, MAPPED2, PROLOGUE2, POOL_MAX, EPS, SLOPE)
-                w = tl.load(weight_ptr + (slot * width + c1 + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
-                            mask=(cols < c2)[:, None] & out_ok[None, :], other=0.0)
-                if IEEE:
-                    acc = tl.dot(a, w, acc, input_precision="ieee")
-                else:
-                    acc = tl.dot(a.to(w.dtype), w, acc)
-    acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
-    keep = row_ok[:, None] & out_ok[None, :]
-    tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
-             acc.to(out_ptr.dtype.element_ty), mask=keep)
-    if STATS:
-        kept = tl.where(keep, acc, 0.0)
-        stats = stats_ptr + frame * stats_batch_stride
-        tl.atomic_add(stats + outs, tl.sum(kept, axis=0), mask=out_ok)
-        tl.atomic_add(stats + stats_second + outs, tl.sum(kept * kept, axis=0), mask=out_ok)
+    tl.store(out_ptr + frame * n_rows * channels + rows[:, None].to(tl.int64) * channels + cols[None, :],
+             result.to(out_ptr.dtype.element_ty), mask=mask)
 
 
 _CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n, "BLOCK_K": k}, num_warps=w, num_stages=s)
-            for m, n, k, w, s in ((32, 64, 32, 4, 2), (64, 64, 32, 4, 3), (64, 128, 32, 4, 3),
-                                  (128, 64, 32, 4, 3), (128, 128, 32, 8, 3), (64, 256, 32, 8, 3),
-                                  (64, 64, 64, 4, 3), (128, 128, 64, 8, 2))]
+            for m, n, k, w, s in ((32, 64, 32, 4, 2), (64, 64, 64, 4, 3), (64, 128, 64, 4, 3),
+                                  (128, 64, 64, 4, 3), (128, 128, 64, 8, 3), (64, 256, 64, 8, 3),
+                                  (128, 128, 32, 8, 4), (128, 256, 64, 8, 3))]
 
 
 def _small_problems_untuned(configs, named_args, **_):
-    """A convolution of under ~64 output tiles (the coarse levels, the tests' meshes) gets the smallest tile
-    untimed: tuning it would cost seconds of compiling for microseconds."""
-    if named_args["n_vertices"] * named_args["n_out"] < 64 * 64 * 64:
+    """A convolution of under ~64 output tiles (the coarse levels, the tests' meshes) or of few input channels
+    gets the first tile untimed: tuning it would cost seconds of compiling for microseconds."""
+    if named_args["n_vertices"] * named_args["n_out"] < 64 * 64 * 64 or named_args["c1"] <= OUTER_CHANNELS:
         return configs[:1]
     return configs
 
 
 # The sums the kernel adds to are restored after each timing run, so tuning leaves the frame's result intact.
-_tuned_kernel = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
-                                prune_configs_by={"early_config_prune": _small_problems_untuned},
-                                restore_value=["stats_ptr"])(_fused_conv_kernel)
+_tuned_conv = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
+                              prune_configs_by={"early_config_prune": _small_problems_untuned},
+                              restore_value=["sums_ptr"])(_conv_kernel)
 _FIXED = {"BLOCK_M": 16, "BLOCK_N": 16, "BLOCK_K": 16}
 
 
-class SegmentArgs(NamedTuple):
-    """One input segment of a launch (model.fused_network.Segment, resolved to tensors)."""
-
-    source: torch.Tensor            # (B, V_src, C) contiguous
-    rows: torch.Tensor | None       # (V, P) int32 source rows of each table vertex; None: the vertex itself
-    prologue: int
-    par: torch.Tensor               # fp32, flat: the prologue's two rows at [0, C) and [second, second + C)
-    par_batch_stride: int           # elements between frames' rows (0: shared by all frames)
-    par_second: int
-
-
-class SumsArgs(NamedTuple):
-    """Where a launch adds its output's per-channel sums: buffer[frame * batch_stride + c] and
-    buffer[frame * batch_stride + second + c] (a flat fp32 view starting at this output's first column)."""
-
-    buffer: torch.Tensor
-    batch_stride: int
-    second: int
-
-
-def _segment_args(segment: SegmentArgs, placeholder: torch.Tensor) -> list:
-    return [segment.source, placeholder if segment.rows is None else segment.rows, segment.par,
-            segment.par_batch_stride, segment.par_second, segment.source.shape[1], segment.source.shape[2]]
-
-
-def fused_conv(table: torch.Tensor, segments: list[SegmentArgs], weight: torch.Tensor, bias: torch.Tensor,
-               out_dtype: torch.dtype, sums: SumsArgs | None, pool_max: bool) -> torch.Tensor:
-    """Launch one fused convolution: table (V, L) int32 +1 ids, one or two segments whose channels fill the
-    weight's (L * sum C, N) rows slot by slot, bias (N,) fp32. Returns (B, V, N) of `out_dtype`."""
+def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Tensor | None]],
+               affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
+               sums: Sums | None) -> torch.Tensor:
+    """One convolution: table (V, L) int32 +1 ids; one or two segments (source (B, V_src, C) contiguous, map
+    (V_src_table, 1) int32 or None) filling the weight's (L * sum C, N) rows slot by slot; `affine` (2 C_1,)
+    = (offset, 1/scale) applied to the first segment on load, or None; bias (N,) fp32. Returns (B, V, N)."""
     if not 1 <= len(segments) <= 2:
         raise ValueError(f"a fused convolution reads one or two segments, got {len(segments)}")
     n_vertices, size = table.shape
     n_out = weight.shape[1]
-    batch = segments[0].source.shape[0]
+    (src1, map1), (src2, map2) = segments[0], segments[-1]
+    batch, c1, c2 = src1.shape[0], src1.shape[2], src2.shape[2] if len(segments) == 2 else 0
     out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
-    first = segments[0]
-    second = segments[1] if len(segments) == 2 else first
-    args = _segment_args(first, table) + _segment_args(second, table)
-    if len(segments) == 1:
-        args[-1] = 0                # c2 = 0: the placeholder second segment's loop never runs
     sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
-    constants = dict(L=size, P1=1 if first.rows is None else first.rows.shape[1], MAPPED1=first.rows is not None,
-                     PROLOGUE1=first.prologue, P2=1 if second.rows is None else second.rows.shape[1],
-                     MAPPED2=second.rows is not None, PROLOGUE2=second.prologue, TWO=len(segments) == 2,
-                     POOL_MAX=pool_max, STATS=sums is not None, IEEE=weight.dtype == torch.float32,
-                     EPS=NORM_EPS, SLOPE=LEAKY_SLOPE)
-    launch_args = (out, *sums_args, table, weight, bias, n_vertices, n_out, *args)
+    args = (out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out,
+            src1, table if map1 is None else map1, src1.shape[1], c1,
+            src2, table if map2 is None else map2, src2.shape[1], c2)
+    constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(segments) == 2,
+                     AFFINE=affine is not None, STATS=sums is not None, IEEE=weight.dtype == torch.float32,
+                     OUTER=len(segments) == 1 and c1 <= OUTER_CHANNELS)
     if INTERPRETED:
         grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
-        _fused_conv_kernel[grid](*launch_args, **constants, **_FIXED)
+        _conv_kernel[grid](*args, **constants, **_FIXED)
     else:
         grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
                              triton.cdiv(n_out, meta["BLOCK_N"]), batch)
-        _tuned_kernel[grid](*launch_args, **constants)
+        _tuned_conv[grid](*args, **constants)
+    return out
+
+
+def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: Sums | None, out_dtype: torch.dtype,
+            pool_max: bool) -> torch.Tensor:
+    """source (B, V_src, C) -> (B, V, C): normalised (instance norm from `sums` + leaky ReLU) if sums is given,
+    then reduced over each row of `rows` (V, P) int32 (mean, or max if pool_max), or row by row if None."""
+    batch, src_vertices, channels = source.shape
+    n_rows = src_vertices if rows is None else rows.shape[0]
+    out = torch.empty(batch, n_rows, channels, device=source.device, dtype=out_dtype)
+    block_c = min(triton.next_power_of_2(channels), 128)
+    block_m = 16 if INTERPRETED else max(16, 4096 // block_c)
+    grid = (triton.cdiv(n_rows, block_m), triton.cdiv(channels, block_c), batch)
+    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (source, 0, 0)
+    _prepare_kernel[grid](out, source, source if rows is None else rows, *sums_args, n_rows, src_vertices,
+                          channels, P=1 if rows is None else rows.shape[1], MAPPED=rows is not None,
+                          NORMALIZE=sums is not None, POOL_MAX=pool_max, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE,
+                          BLOCK_M=block_m, BLOCK_C=block_c, num_warps=4)
     return out
