@@ -4,9 +4,9 @@
   frame's output; for each (table slot, chunk of input channels) it loads the neighbours' rows - through the
   segment's unpooling map, if any - straight into registers and feeds `tl.dot`, so the (V, L * C) gathered
   matrix never exists in memory; the weights stream through in model.layers.mesh_conv's slot-major order. The
-  loop over (slot, chunk) is one flat loop so Triton can software-pipeline its loads. Convolutions with few
-  input channels (the network input, the output head) take rank-1 fp32 updates instead: `tl.dot` would pad
-  their K to 16 and round fp32 to tf32. The epilogue adds the bias and, for a norm, the output's per-channel
+  table rows (and the unpooling map) of a program's vertices are loaded once, into registers, and the loop over
+  (slot, chunk) is one flat loop, so no load in it waits on another and Triton software-pipelines it. fp32
+  weights (the first and last convolutions) multiply as three tf32 products, fp32-accurate. The epilogue adds the bias and, for a norm, the output's per-channel
   sums and sums of squares, atomically: the fp32 sums, and hence later layers' last bits, depend on the order
   the programs finish in (reproducible to rounding, not bit for bit).
 * `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
@@ -27,7 +27,6 @@ import triton.language as tl
 from model.layers import LEAKY_SLOPE, NORM_EPS
 
 INTERPRETED = os.environ.get("TRITON_INTERPRET") == "1"
-OUTER_CHANNELS = 32         # a one-segment conv with at most this many input channels takes rank-1 updates
 
 
 class Sums(NamedTuple):
@@ -40,28 +39,31 @@ class Sums(NamedTuple):
 
 
 @triton.jit
-def _neighbours(table_ptr, map_ptr, rows, row_ok, slot, L: tl.constexpr, MAPPED: tl.constexpr):
-    """Source rows of table slot `slot` of `rows` (through the map if MAPPED) and where the table pads."""
-    entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids: -1 is the padding
-    valid = entry >= 0
-    entry = tl.maximum(entry, 0)
-    if MAPPED:
-        entry = tl.load(map_ptr + entry, mask=valid, other=0)
-    return entry.to(tl.int64), valid
+def _slot_rows(table_ptr, rows, row_ok, L: tl.constexpr, SLOTS: tl.constexpr):
+    """(BLOCK_M, SLOTS) 0-based table entries of `rows` and where they are real (not padding or past L): loaded
+    once per program, so no load in the main loop waits on another."""
+    slots = tl.arange(0, SLOTS)
+    inside = row_ok[:, None] & (slots[None, :] < L)
+    entry = tl.load(table_ptr + rows[:, None] * L + slots[None, :], mask=inside, other=0) - 1   # +1 ids
+    return tl.maximum(entry, 0), entry >= 0
 
 
 @triton.jit
-def _dot_segment(acc, src_ptr, map_ptr, table_ptr, weight_ptr, affine_ptr, rows, row_ok, outs, out_ok,
-                 channels, row_offset, width, n_out, L: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
-                 IEEE: tl.constexpr, BLOCK_K: tl.constexpr):
-    """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`)."""
+def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, outs, out_ok, channels, row_offset, width,
+                 n_out, L: tl.constexpr, SLOTS: tl.constexpr, AFFINE: tl.constexpr, PRECISE: tl.constexpr,
+                 BLOCK_K: tl.constexpr):
+    """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`). The loop
+    over (slot, channel chunk) is flat and its gather addresses come from registers, so Triton pipelines it."""
     chunks = tl.cdiv(channels, BLOCK_K)
+    slots = tl.arange(0, SLOTS)
     for step in range(L * chunks):
         slot = step // chunks
         cols = (step - slot * chunks) * BLOCK_K + tl.arange(0, BLOCK_K)
         col_ok = cols < channels
-        entry, valid = _neighbours(table_ptr, map_ptr, rows, row_ok, slot, L, MAPPED)
-        mask = valid[:, None] & col_ok[None, :]
+        pick = slots[None, :] == slot                       # this slot's column of the register tiles
+        entry = tl.sum(tl.where(pick, entries, 0), axis=1).to(tl.int64)
+        real = tl.sum(tl.where(pick & valid, 1, 0), axis=1) > 0
+        mask = real[:, None] & col_ok[None, :]
         a = tl.load(src_ptr + entry[:, None] * channels + cols[None, :], mask=mask, other=0.0)
         if AFFINE:
             shift = tl.load(affine_ptr + cols, mask=col_ok, other=0.0)
@@ -69,8 +71,8 @@ def _dot_segment(acc, src_ptr, map_ptr, table_ptr, weight_ptr, affine_ptr, rows,
             a = tl.where(mask, (a.to(tl.float32) - shift[None, :]) * factor[None, :], 0.0)
         w = tl.load(weight_ptr + (slot * width + row_offset + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
                     mask=col_ok[:, None] & out_ok[None, :], other=0.0)
-        if IEEE:
-            acc = tl.dot(a.to(tl.float32), w, acc, input_precision="ieee")
+        if PRECISE:     # three tf32 products: fp32 accuracy on tensor cores
+            acc = tl.dot(a.to(tl.float32), w, acc, input_precision="tf32x3")
         else:
             acc = tl.dot(a.to(w.dtype), w, acc)
     return acc
@@ -79,33 +81,27 @@ def _dot_segment(acc, src_ptr, map_ptr, table_ptr, weight_ptr, affine_ptr, rows,
 @triton.jit
 def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
                  n_vertices, n_out, src1_ptr, map1_ptr, src1_vertices, c1, src2_ptr, map2_ptr, src2_vertices, c2,
-                 L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
-                 AFFINE: tl.constexpr, STATS: tl.constexpr, IEEE: tl.constexpr, OUTER: tl.constexpr,
-                 BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
+                 L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr,
+                 TWO: tl.constexpr, AFFINE: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr,
+                 BLOCK_K: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame = tl.program_id(2).to(tl.int64)
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
     row_ok, out_ok = rows < n_vertices, outs < n_out
-    src1 = src1_ptr + frame * src1_vertices * c1
+    entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
-    if OUTER:
-        for step in range(L * c1):
-            slot = step // c1
-            channel = step - slot * c1
-            entry, valid = _neighbours(table_ptr, map1_ptr, rows, row_ok, slot, L, MAPPED1)
-            a = tl.load(src1 + entry * c1 + channel, mask=valid, other=0.0).to(tl.float32)
-            if AFFINE:
-                a = tl.where(valid, (a - tl.load(affine_ptr + channel)) * tl.load(affine_ptr + c1 + channel), 0.0)
-            w = tl.load(weight_ptr + (slot * width + channel) * n_out + outs, mask=out_ok, other=0.0)
-            acc += a[:, None] * w.to(tl.float32)[None, :]
-    else:
-        acc = _dot_segment(acc, src1, map1_ptr, table_ptr, weight_ptr, affine_ptr, rows, row_ok, outs, out_ok,
-                           c1, 0, width, n_out, L, MAPPED1, AFFINE, IEEE, BLOCK_K)
-        if TWO:
-            acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, map2_ptr, table_ptr, weight_ptr,
-                               affine_ptr, rows, row_ok, outs, out_ok, c2, c1, width, n_out, L, MAPPED2, False,
-                               IEEE, BLOCK_K)
+    mapped = entries
+    if MAPPED1:                                             # an unpooling: the coarse vertex of each neighbour
+        mapped = tl.load(map1_ptr + entries, mask=valid, other=0)
+    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, mapped, valid, weight_ptr, affine_ptr, outs,
+                       out_ok, c1, 0, width, n_out, L, SLOTS, AFFINE, PRECISE, BLOCK_K)
+    if TWO:
+        mapped = entries
+        if MAPPED2:
+            mapped = tl.load(map2_ptr + entries, mask=valid, other=0)
+        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr, outs,
+                           out_ok, c2, c1, width, n_out, L, SLOTS, False, PRECISE, BLOCK_K)
     acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
     keep = row_ok[:, None] & out_ok[None, :]
     tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
@@ -134,9 +130,12 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums
         squares = tl.load(sums + sums_second + cols, mask=col_ok, other=0.0) / src_vertices
         factor = 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
     result = tl.zeros((BLOCK_M, BLOCK_C), dtype=tl.float32)
+    paths = tl.arange(0, P)
+    if MAPPED:      # all P source rows at once (P is a power of two), so the P gathers below overlap
+        sources = tl.load(map_ptr + rows[:, None] * P + paths[None, :], mask=row_ok[:, None], other=0)
     for p in tl.static_range(P):
         if MAPPED:
-            source_rows = tl.load(map_ptr + rows * P + p, mask=row_ok, other=0)
+            source_rows = tl.sum(tl.where(paths[None, :] == p, sources, 0), axis=1)
         else:
             source_rows = rows
         x = tl.load(src + source_rows[:, None].to(tl.int64) * channels + cols[None, :], mask=mask, other=0.0)
@@ -156,25 +155,26 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums
              result.to(out_ptr.dtype.element_ty), mask=mask)
 
 
-_CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n, "BLOCK_K": k}, num_warps=w, num_stages=s)
-            for m, n, k, w, s in ((32, 64, 32, 4, 2), (64, 64, 64, 4, 3), (64, 128, 64, 4, 3),
-                                  (128, 64, 64, 4, 3), (128, 128, 64, 8, 3), (64, 256, 64, 8, 3),
-                                  (128, 128, 32, 8, 4), (128, 256, 64, 8, 3))]
+_CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n}, num_warps=w, num_stages=s)
+            for m, n, w, s in ((64, 64, 4, 3), (64, 128, 4, 3), (128, 64, 4, 3), (128, 128, 8, 3),
+                               (64, 256, 8, 3), (128, 128, 8, 4), (128, 256, 8, 3))]
+# Coarse levels have few rows: small tiles keep more SMs busy.
+_SMALL_CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n}, num_warps=4, num_stages=s)
+                  for m, n, s in ((16, 32, 3), (16, 64, 3), (32, 32, 3), (32, 64, 3), (64, 64, 3))]
 
 
-def _small_problems_untuned(configs, named_args, **_):
-    """A convolution of under ~64 output tiles (the coarse levels, the tests' meshes) or of few input channels
-    gets the first tile untimed: tuning it would cost seconds of compiling for microseconds."""
-    if named_args["n_vertices"] * named_args["n_out"] < 64 * 64 * 64 or named_args["c1"] <= OUTER_CHANNELS:
-        return configs[:1]
+def _configs_for(configs, named_args, **_):
+    """The small tiles for a convolution of under ~64 large output tiles, the large ones otherwise."""
+    if named_args["n_vertices"] * named_args["n_out"] < 64 * 64 * 64:
+        return _SMALL_CONFIGS
     return configs
 
 
 # The sums the kernel adds to are restored after each timing run, so tuning leaves the frame's result intact.
 _tuned_conv = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
-                              prune_configs_by={"early_config_prune": _small_problems_untuned},
+                              prune_configs_by={"early_config_prune": _configs_for},
                               restore_value=["sums_ptr"])(_conv_kernel)
-_FIXED = {"BLOCK_M": 16, "BLOCK_N": 16, "BLOCK_K": 16}
+_FIXED = {"BLOCK_M": 16, "BLOCK_N": 16}
 
 
 def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Tensor | None]],
@@ -194,9 +194,11 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
     args = (out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out,
             src1, table if map1 is None else map1, src1.shape[1], c1,
             src2, table if map2 is None else map2, src2.shape[1], c2)
-    constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(segments) == 2,
-                     AFFINE=affine is not None, STATS=sums is not None, IEEE=weight.dtype == torch.float32,
-                     OUTER=len(segments) == 1 and c1 <= OUTER_CHANNELS)
+    # K chunks as wide as the narrower segment allows (tl.dot needs 16): few-channel convs waste little.
+    block_k = min(64, max(16, triton.next_power_of_2(min(c1, c2) if c2 else c1)))
+    constants = dict(L=size, SLOTS=triton.next_power_of_2(size), MAPPED1=map1 is not None,
+                     MAPPED2=map2 is not None, TWO=len(segments) == 2, AFFINE=affine is not None,
+                     STATS=sums is not None, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
     if INTERPRETED:
         grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
         _conv_kernel[grid](*args, **constants, **_FIXED)

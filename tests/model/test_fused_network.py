@@ -26,7 +26,7 @@ from model_meshes import build_hierarchy, grid_mesh
 
 FP32_TOLERANCE = 1e-5      # of the largest |output|: sums-based variance and summation order, nothing else
 # Two pooling chains and three unpoolings in a row in the second: the maps the Table 3 networks need (D_3);
-# its 40-channel layers take the kernel's matmul path, the narrower ones its rank-1 path.
+# its 40-channel layers span several K chunks of the kernel, the narrower ones one.
 ARCHS = ["D8 D16 D D16", "D8 D40 D D40 D_2 D8"]
 CASES = [(pool, arch) for pool in ("max", "avg") for arch in ARCHS]
 
