@@ -4,10 +4,10 @@
   frame's output; for each (table slot, chunk of input channels) it loads the neighbours' rows - through the
   segment's unpooling map, if any - straight into registers and feeds `tl.dot`, so the (V, L * C) gathered
   matrix never exists in memory; the weights stream through in model.layers.mesh_conv's slot-major order. The
-  table slots are unrolled inside the loop over channel chunks, so a chunk's L gathers (table entry, unpooling
-  map, neighbour row) are independent and in flight together. fp32 weights (the first and last convolutions)
-  multiply as three tf32 products, fp32-accurate. The epilogue adds the bias and, for a norm, the output's
-  per-channel sums and sums of squares, atomically: the fp32 sums, and hence later layers' last bits, depend on the order
+  table rows (and the unpooling map) of a program's vertices are loaded once, into registers, and the loop over
+  (slot, chunk) is one flat loop, so no load in it waits on another and Triton software-pipelines it. fp32
+  weights (the first and last convolutions) multiply as three tf32 products, fp32-accurate. The epilogue adds the bias and, for a norm, the output's per-channel
+  sums and sums of squares, atomically: the fp32 sums, and hence later layers' last bits, depend on the order
   the programs finish in (reproducible to rounding, not bit for bit).
 * `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
   per value instead of once per gather.
@@ -39,55 +39,69 @@ class Sums(NamedTuple):
 
 
 @triton.jit
-def _dot_segment(acc, src_ptr, map_ptr, table_ptr, weight_ptr, affine_ptr, rows, row_ok, outs, out_ok, channels,
-                 row_offset, width, n_out, L: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
-                 PRECISE: tl.constexpr, BLOCK_K: tl.constexpr):
-    """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`). The slots
-    are unrolled inside the loop over channel chunks: their table, map and neighbour loads are independent of
-    each other, so all L gathers of a chunk are in flight at once instead of one round trip after another."""
-    for chunk in range(tl.cdiv(channels, BLOCK_K)):
-        cols = chunk * BLOCK_K + tl.arange(0, BLOCK_K)
+def _slot_rows(table_ptr, rows, row_ok, L: tl.constexpr, SLOTS: tl.constexpr):
+    """(BLOCK_M, SLOTS) 0-based table entries of `rows` and where they are real (not padding or past L): loaded
+    once per program, so no load in the main loop waits on another."""
+    slots = tl.arange(0, SLOTS)
+    inside = row_ok[:, None] & (slots[None, :] < L)
+    entry = tl.load(table_ptr + rows[:, None] * L + slots[None, :], mask=inside, other=0) - 1   # +1 ids
+    return tl.maximum(entry, 0), entry >= 0
+
+
+@triton.jit
+def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, outs, out_ok, channels, row_offset, width,
+                 n_out, L: tl.constexpr, SLOTS: tl.constexpr, AFFINE: tl.constexpr, PRECISE: tl.constexpr,
+                 BLOCK_K: tl.constexpr):
+    """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`). The loop
+    over (slot, channel chunk) is flat and its gather addresses come from registers, so Triton pipelines it."""
+    chunks = tl.cdiv(channels, BLOCK_K)
+    slots = tl.arange(0, SLOTS)
+    for step in range(L * chunks):
+        slot = step // chunks
+        cols = (step - slot * chunks) * BLOCK_K + tl.arange(0, BLOCK_K)
         col_ok = cols < channels
+        pick = slots[None, :] == slot                       # this slot's column of the register tiles
+        entry = tl.sum(tl.where(pick, entries, 0), axis=1).to(tl.int64)
+        real = tl.sum(tl.where(pick & valid, 1, 0), axis=1) > 0
+        mask = real[:, None] & col_ok[None, :]
+        a = tl.load(src_ptr + entry[:, None] * channels + cols[None, :], mask=mask, other=0.0)
         if AFFINE:
             shift = tl.load(affine_ptr + cols, mask=col_ok, other=0.0)
             factor = tl.load(affine_ptr + channels + cols, mask=col_ok, other=0.0)
-        for slot in tl.static_range(L):
-            entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids: -1 pads
-            real = entry >= 0
-            entry = tl.maximum(entry, 0)
-            if MAPPED:                                      # an unpooling: the neighbour's coarse vertex
-                entry = tl.load(map_ptr + entry, mask=real, other=0)
-            mask = real[:, None] & col_ok[None, :]
-            a = tl.load(src_ptr + entry.to(tl.int64)[:, None] * channels + cols[None, :], mask=mask, other=0.0)
-            if AFFINE:
-                a = tl.where(mask, (a.to(tl.float32) - shift[None, :]) * factor[None, :], 0.0)
-            w = tl.load(weight_ptr + (slot * width + row_offset + cols)[:, None].to(tl.int64) * n_out
-                        + outs[None, :], mask=col_ok[:, None] & out_ok[None, :], other=0.0)
-            if PRECISE:     # three tf32 products: fp32 accuracy on tensor cores
-                acc = tl.dot(a.to(tl.float32), w, acc, input_precision="tf32x3")
-            else:
-                acc = tl.dot(a.to(w.dtype), w, acc)
+            a = tl.where(mask, (a.to(tl.float32) - shift[None, :]) * factor[None, :], 0.0)
+        w = tl.load(weight_ptr + (slot * width + row_offset + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
+                    mask=col_ok[:, None] & out_ok[None, :], other=0.0)
+        if PRECISE:     # three tf32 products: fp32 accuracy on tensor cores
+            acc = tl.dot(a.to(tl.float32), w, acc, input_precision="tf32x3")
+        else:
+            acc = tl.dot(a.to(w.dtype), w, acc)
     return acc
 
 
 @triton.jit
 def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
                  n_vertices, n_out, src1_ptr, map1_ptr, src1_vertices, c1, src2_ptr, map2_ptr, src2_vertices, c2,
-                 L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
-                 AFFINE: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr,
-                 BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+                 L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr,
+                 TWO: tl.constexpr, AFFINE: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr,
+                 BLOCK_K: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame = tl.program_id(2).to(tl.int64)
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
     row_ok, out_ok = rows < n_vertices, outs < n_out
+    entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
-    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, map1_ptr, table_ptr, weight_ptr, affine_ptr,
-                       rows, row_ok, outs, out_ok, c1, 0, width, n_out, L, MAPPED1, AFFINE, PRECISE, BLOCK_K)
+    mapped = entries
+    if MAPPED1:                                             # an unpooling: the coarse vertex of each neighbour
+        mapped = tl.load(map1_ptr + entries, mask=valid, other=0)
+    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, mapped, valid, weight_ptr, affine_ptr, outs,
+                       out_ok, c1, 0, width, n_out, L, SLOTS, AFFINE, PRECISE, BLOCK_K)
     if TWO:
-        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, map2_ptr, table_ptr, weight_ptr,
-                           affine_ptr, rows, row_ok, outs, out_ok, c2, c1, width, n_out, L, MAPPED2, False,
-                           PRECISE, BLOCK_K)
+        mapped = entries
+        if MAPPED2:
+            mapped = tl.load(map2_ptr + entries, mask=valid, other=0)
+        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr, outs,
+                           out_ok, c2, c1, width, n_out, L, SLOTS, False, PRECISE, BLOCK_K)
     acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
     keep = row_ok[:, None] & out_ok[None, :]
     tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
@@ -182,7 +196,7 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
             src2, table if map2 is None else map2, src2.shape[1], c2)
     # K chunks as wide as the narrower segment allows (tl.dot needs 16): few-channel convs waste little.
     block_k = min(64, max(16, triton.next_power_of_2(min(c1, c2) if c2 else c1)))
-    constants = dict(L=size, MAPPED1=map1 is not None,
+    constants = dict(L=size, SLOTS=triton.next_power_of_2(size), MAPPED1=map1 is not None,
                      MAPPED2=map2 is not None, TWO=len(segments) == 2, AFFINE=affine is not None,
                      STATS=sums is not None, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
     if INTERPRETED:
