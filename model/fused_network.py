@@ -1,4 +1,4 @@
-"""The encoder-decoder in ~27 launches a frame: what `FastNetwork` computes, one fused kernel per convolution.
+"""The encoder-decoder in ~28 launches a frame: what `FastNetwork` computes, one fused kernel per convolution.
 
 `FastNetwork` runs ~150 small kernels a frame (a gather, a matmul, norm statistics, pool and unpool copies,
 concatenations): on an H100 the frame is bound by launches and by the gathers' memory traffic, not by the
