@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from model.layers import LEAKY_SLOPE, NORM_EPS
+from model.layers import LEAKY_SLOPE, NORM_EPS, mesh_conv
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
 
@@ -186,10 +186,8 @@ def run_plan_reference(plan: list[FusedConv | Prepare], tables: list[torch.Tenso
             if segment.affine:
                 values = (values - input_offset) / input_scale
             parts.append(values if segment.rows is None else through(values, segment.rows)[:, :, 0])
-        padded = nn.functional.pad(torch.cat(parts, dim=-1), (0, 0, 1, 0))
-        table = tables[launch.level]
-        gathered = padded.index_select(1, table.reshape(-1)).reshape(x.shape[0], table.shape[0], -1)
-        out = gathered @ launch.weight.float().to(x.device) + launch.bias.float().to(x.device)
+        out = mesh_conv(torch.cat(parts, dim=-1), tables[launch.level], launch.weight.float().to(x.device),
+                        launch.bias.float().to(x.device))
         if launch.stats:
             sums[len(outputs)] = sums_of(out)
         outputs.append(out)
@@ -210,12 +208,12 @@ class FusedNetwork(nn.Module):
         self.pool_max = net.pool_kind == "max"
         self.dtype = dtype
         convs = [i for i, launch in enumerate(self.plan) if isinstance(launch, FusedConv)]
-        self.full_precision = {convs[0], convs[-1]}
+        full_precision = {convs[0], convs[-1]}
         for level, table in enumerate(mesh.conv):
             self.register_buffer(f"table_{level}", table.to(torch.int32).contiguous())
         for index, launch in enumerate(self.plan):
             if isinstance(launch, FusedConv):
-                kind = torch.float32 if index in self.full_precision else dtype
+                kind = torch.float32 if index in full_precision else dtype
                 self.register_buffer(f"weight_{index}", launch.weight.to(kind).contiguous())
                 self.register_buffer(f"bias_{index}", launch.bias.float())
                 rows = [segment.rows for segment in launch.segments]
