@@ -76,6 +76,8 @@ class SelfContacts:
     vertex_count: wp.array(dtype=int)
     face_contacts: wp.array2d(dtype=int)    # (F, capacity): a triangle's list of the vertices touching it
     face_count: wp.array(dtype=int)
+    corner_count: wp.array(dtype=int)      # (V,) entries in the lists of the triangles around vertex i: the
+                                            # iterations skip those lists where it is 0 (most vertices)
     thickness: float
     reach: float                       # pairs within this distance at the prediction become candidates
     world_vertices: int                # vertices per world
@@ -462,6 +464,7 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     x = sub.x
     x_prev = sub.x_prev
     count = int(0)
+    sc.corner_count[i] = 0  # sort_face_lists counts the lists of i's triangles (a later launch)
     if sub.inv_mass[i] > 0.0:
         n_old = sc.vertex_count[i]
         for a in range(n_old):
@@ -511,11 +514,15 @@ def sort_list(lists: wp.array2d(dtype=int), row: int, n: int):
 @wp.kernel
 def sort_face_lists(sc: SelfContacts):
     """Sort each triangle's list by vertex, so that the iterations sum the corrections in an order that does not
-    depend on which thread took which slot."""
+    depend on which thread took which slot; count the entries at each corner (an integer sum: deterministic)."""
     t = wp.tid()
     n = wp.min(sc.face_count[t], sc.face_contacts.shape[1])
     sc.face_count[t] = n
     sort_list(sc.face_contacts, t, n)
+    if n > 0:
+        tri = sc.faces[t]
+        for k in range(3):
+            wp.atomic_add(sc.corner_count, tri[k], n)
 
 
 @wp.kernel
@@ -542,7 +549,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
             if on:
                 contact = contact + (wi * dl * float(wp.sign(code))) * n
                 active += 1
-    if wi > 0.0:
+    if wi > 0.0 and sc.corner_count[i] > 0:
         for f in range(sc.face_offsets[i], sc.face_offsets[i + 1]):
             t = sc.vertex_faces[f]
             if sc.face_count[t] > 0:

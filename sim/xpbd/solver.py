@@ -305,6 +305,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         total = self.worlds * n
         sc = collision.SelfContacts()
         sc.vertex_count = self._array(np.zeros(total), int)
+        sc.corner_count = self._array(np.zeros(total), int)
         if not s.self_collision:  # no lists and no triangles around any vertex: the iterations find no contact
             sc.face_offsets = self._array(np.zeros(total + 1), int)
             return sc
