@@ -18,22 +18,6 @@ def unique_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.sort(directed, axis=1), axis=0).astype(np.int64)
 
 
-def locality_order(n_vertices: int, pairs: np.ndarray) -> np.ndarray:
-    """Reverse Cuthill-McKee order of the graph with these (E, 2) edges, order[new] = old id: linked vertices get
-    nearby ids (the bandwidth is minimised), so a kernel that gathers a vertex's neighbours reads nearby memory."""
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    graph = scipy.sparse.csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n_vertices,) * 2)
-    return np.asarray(scipy.sparse.csgraph.reverse_cuthill_mckee((graph + graph.T).tocsr(), symmetric_mode=True),
-                      dtype=np.int64)
-
-
-def inverse_order(order: np.ndarray) -> np.ndarray:
-    """inverse[old] = new for order[new] = old."""
-    inverse = np.empty_like(order)
-    inverse[order] = np.arange(len(order))
-    return inverse
-
-
 def edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Edges (E, 2) and, for each, the faces on either side (E, 2); -1 where the edge is on the boundary.
 

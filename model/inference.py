@@ -29,9 +29,9 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 import torch.nn.functional as F
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 from torch import nn
 
-from geometry.mesh import inverse_order, locality_order
 from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch
 from model.fused_network import FusedNetwork
@@ -50,8 +50,17 @@ def locality_orders(mesh: MeshHierarchy) -> list[np.ndarray]:
         rows = np.repeat(np.arange(len(table)), table.shape[1] - 1)
         cols = table[:, 1:].ravel() - 1
         real = cols >= 0                                   # slot 0 of the +1 ids is the padding
-        orders.append(locality_order(len(table), np.stack([rows[real], cols[real]], axis=1)))
+        graph = sp.csr_matrix((np.ones(int(real.sum())), (rows[real], cols[real])), shape=(len(table),) * 2)
+        orders.append(np.asarray(reverse_cuthill_mckee((graph + graph.T).tocsr(), symmetric_mode=True),
+                                 dtype=np.int64))
     return orders
+
+
+def inverse_order(order: np.ndarray) -> np.ndarray:
+    """inverse[old] = new for order[new] = old."""
+    inverse = np.empty_like(order)
+    inverse[order] = np.arange(len(order))
+    return inverse
 
 
 def reorder_hierarchy(mesh: MeshHierarchy, orders: list[np.ndarray]) -> MeshHierarchy:

@@ -15,7 +15,6 @@ holds (B V, 3) positions, and a per-world input is (B, ...) (or, with one world,
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
 from dataclasses import dataclass
@@ -24,47 +23,35 @@ import numpy as np
 import warp as wp
 
 from geometry.harmonics import lumped_mass
-from geometry.mesh import inverse_order, locality_order, unique_edges
+from geometry.mesh import unique_edges
 from sim.solver import Solver
 from sim.xpbd import collision, kernels
-from sim.xpbd.constraints import DistancePairs, HarmonicConstraint, cloth_constraints, vertex_incidence
+from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
 from sim.xpbd.settings import SolverSettings
 
 
 @dataclass(frozen=True, eq=False)
 class ClothState:
     """What a frame advances: the positions and velocities of the vertices of every world, (B V,) vec3 device
-    arrays, world after world, each world's rows in the solver's storage order (row r is the caller's vertex
-    vertex_order[r]). Made by ClothSolver (`solver.state`); stepping updates the arrays in place, so they are the
-    same every frame. The read and write methods take and give the caller's order."""
+    arrays, world after world. Made by ClothSolver (`solver.state`); stepping updates the arrays in place, so they
+    are the same every frame."""
     positions: wp.array
     velocities: wp.array
-    vertex_order: np.ndarray
     worlds: int = 1
-
-    def _caller_order(self, stored: wp.array) -> np.ndarray:
-        """(B, V, 3) host copy of a device array, each world's rows in the caller's order."""
-        rows = stored.numpy().reshape(self.worlds, -1, 3)
-        caller = np.empty_like(rows)
-        caller[:, self.vertex_order] = rows
-        return caller
 
     def read_positions(self) -> np.ndarray:
         """(B V, 3) float64 copy on the host (world w's vertices are rows w V .. w V + V - 1)."""
-        return self._caller_order(self.positions).reshape(-1, 3).astype(np.float64)
+        return self.positions.numpy().astype(np.float64)
 
     def read_world_positions(self) -> np.ndarray:
         """(B, V, 3) float32 copy on the host."""
-        return self._caller_order(self.positions)
+        return self.positions.numpy().reshape(self.worlds, -1, 3)
 
     def read_velocities(self) -> np.ndarray:
-        """(B V, 3) float64 copy on the host."""
-        return self._caller_order(self.velocities).reshape(-1, 3).astype(np.float64)
+        return self.velocities.numpy().astype(np.float64)
 
     def write_velocities(self, velocities: np.ndarray) -> None:
-        """Set the velocities from (B V, 3) (or (V, 3) with one world) in the caller's order."""
-        rows = np.asarray(velocities, dtype=np.float32).reshape(self.worlds, -1, 3)[:, self.vertex_order]
-        self.velocities.assign(np.ascontiguousarray(rows.reshape(-1, 3)))
+        self.velocities.assign(np.asarray(velocities, dtype=np.float32))
 
 
 @dataclass(frozen=True)
@@ -113,16 +100,14 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     the same mesh, settings and pinned vertices. The state starts at `initial_positions` ((V, 3) for every world,
     or (B, V, 3); default: the rest positions) with zero velocities; the pins start where the state has them, and
     `harmonic_target` (B, K, 3) and `capsules` (B, N, 2, 3) give the other inputs at frame 0, `capsule_radii`
-    (N, 2) the capsules' radii at a and b (one body shape for every world). Every per-vertex argument and result
-    is in the caller's vertex order; `reorder=False` also keeps it on the device (the same physics, summed in
-    another order: for comparisons).
+    (N, 2) the capsules' radii at a and b (one body shape for every world).
     """
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
                  pinned: np.ndarray, initial_positions: np.ndarray | None = None,
                  harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
                  capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1,
-                 contact_capacity: int = CONTACT_CAPACITY, reorder: bool = True):
+                 contact_capacity: int = CONTACT_CAPACITY):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         self.settings = settings
@@ -131,38 +116,18 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self.world_vertices = n = len(rest_vertices)
         s = settings
         h = s.dt / s.substeps
+        mass = s.density * lumped_mass(rest_vertices, faces)
+        pinned = np.asarray(pinned, dtype=np.int64)
+        inv_mass = 1.0 / mass
+        inv_mass[pinned] = 0.0
         x0 = rest_vertices if initial_positions is None else np.asarray(initial_positions, dtype=np.float64)
         if x0.shape == (n, 3):
             x0 = np.broadcast_to(x0, (worlds, n, 3))
         x0 = self._per_world(x0, (n, 3), "initial_positions")
-        # The device stores the vertices in the mesh's locality order: Loop subdivision lists a fine mesh's edge
-        # midpoints after its coarse vertices, which put a vertex's neighbours thousands of rows away, and every
-        # gather of a sweep missed the cache. Faces follow their lowest vertex; the caller's order is unchanged (the
-        # state reads and writes through `vertex_order`). Constraints and masses are made on the caller's mesh and
-        # relabelled, so each vertex sums its constraints in the same order either way: the same motion bit for bit
-        # without self-contact and harmonic projection (whose sums follow the storage order).
-        order = locality_order(n, unique_edges(faces)) if reorder else np.arange(n)
-        rank = inverse_order(order)
-        con = cloth_constraints(rest_vertices, faces, s)
-        con = dataclasses.replace(con, pairs=rank[con.pairs])
-        mass = s.density * lumped_mass(rest_vertices, faces)[order]
-        rest_vertices = np.asarray(rest_vertices, dtype=np.float64)[order]
-        faces = rank[np.asarray(faces, dtype=np.int64)]
-        if reorder:
-            faces = faces[np.argsort(faces.min(axis=1), kind="stable")]
-        pinned = rank[np.asarray(pinned, dtype=np.int64)]  # the pins keep the caller's order (their targets' rows)
-        x0 = x0.reshape(worlds, n, 3)[:, order].reshape(worlds * n, 3)
-        if harmonic is not None:
-            if harmonic.mass_basis.shape[0] != n or harmonic.correction_basis.shape != harmonic.mass_basis.shape:
-                raise ValueError(f"the harmonic constraint's bases must have one row per vertex ({n}); got "
-                                 f"{harmonic.mass_basis.shape} and {harmonic.correction_basis.shape}")
-            harmonic = HarmonicConstraint(harmonic.mass_basis[order], harmonic.correction_basis[order])
-        inv_mass = 1.0 / mass
-        inv_mass[pinned] = 0.0
 
         arr = self._array
         self.state = ClothState(positions=arr(x0, wp.vec3), velocities=arr(np.zeros((worlds * n, 3)), wp.vec3),
-                                vertex_order=order, worlds=worlds)
+                                worlds=worlds)
         x_prev = arr(x0, wp.vec3)
         x_work = arr(x0, wp.vec3)
         # Per world one flag per substep (blow-up) and a last one for overflowing self-contact lists.
@@ -170,7 +135,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self._substeps = self._substep_structs(h, x_prev, arr(np.tile(inv_mass, worlds), float))
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
-        self.constraints, self.n_constraints = self._distance_constraints(con, h, n)
+        self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n)
         entries = self.constraints.neighbor.shape[0]
         lambdas = (arr(np.zeros(entries), float), arr(np.zeros(entries), float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
@@ -185,7 +150,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
-            arr(x0, wp.vec3), arr(np.zeros((worlds * n, 3)), wp.vec3), order, worlds)
+            arr(x0, wp.vec3), arr(np.zeros((worlds * n, 3)), wp.vec3), worlds)
         self._graph = None
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -237,10 +202,12 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         pins.start, pins.end = self._array(start, wp.vec3), self._array(start, wp.vec3)
         return pins
 
-    def _distance_constraints(self, con: DistancePairs, h: float, n: int) -> tuple[kernels.DistanceConstraints, int]:
+    def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
+                              n: int) -> tuple[kernels.DistanceConstraints, int]:
         """The cloth's constraints listed per vertex in slot-major order (every world's, world after world; see
         kernels.DistanceConstraints), and how many one world has."""
         s = self.settings
+        con = cloth_constraints(rest_vertices, faces, s)
         total = self.worlds * n
         offsets, neighbor, constraint = vertex_incidence(self._tile_ids(con.pairs, n), total)
         count = np.diff(offsets)

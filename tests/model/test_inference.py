@@ -8,10 +8,9 @@ import pytest
 import torch
 
 from geometry.loop_subdivision import loop_subdivide
-from geometry.mesh import inverse_order
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameBatch
-from model.inference import (FastNetwork, FastRegressor, FastUpsampler, UPSAMPLER_INPUTS,
+from model.inference import (FastNetwork, FastRegressor, FastUpsampler, UPSAMPLER_INPUTS, inverse_order,
                              locality_orders, needed_inputs, padded_stencil, reorder_hierarchy)
 from model.networks import NetworkSpec, build_network
 from model_meshes import build_hierarchy, grid_mesh
