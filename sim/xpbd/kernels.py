@@ -58,21 +58,20 @@ class PinDrive:
 
 @wp.struct
 class DistanceConstraints:
-    """Constraints rest_min <= |x_i - x_j| <= rest_max, listed per vertex for a Jacobi gather in slot-major order:
-    vertex i's entry a is row a N + i of the per-entry arrays (N = the vertices of every world), so the threads of
-    a warp, which take consecutive vertices, read consecutive rows (coalesced loads on a GPU; a vertex's own list,
-    CSR, put its entries ~12 rows apart from its neighbour's). A constraint appears twice, once per endpoint."""
-    count: wp.array(dtype=int)       # (N,) entries of vertex i
-    neighbor: wp.array(dtype=int)    # (slots N,) the other endpoint of each entry
-    limits: wp.array(dtype=wp.vec4)  # (slots N,) rest_min, rest_max, alpha_tilde = compliance / h^2, and scale =
-                                     # relaxation / max(n_i, n_j), see distance_correction
+    """Constraints rest_min[c] <= |x_i - x_j| <= rest_max[c], listed per vertex (CSR) for a Jacobi gather."""
+    offsets: wp.array(dtype=int)     # (V + 1,) vertex i's entries are offsets[i] .. offsets[i + 1] - 1
+    neighbor: wp.array(dtype=int)    # the other endpoint of each entry
+    constraint: wp.array(dtype=int)  # the constraint id c of each entry
+    rest_min: wp.array(dtype=float)  # (C,)
+    rest_max: wp.array(dtype=float)  # (C,)
+    alpha_tilde: wp.array(dtype=float)  # (C,) compliance / h^2
+    scale: wp.array(dtype=float)     # (C,) relaxation / max(n_i, n_j), see distance_correction
 
 
 @wp.struct
 class JacobiSweep:
     """The buffers of one Jacobi iteration: it reads x_in and lambda_in and writes x_out and lambda_out (the next
-    iteration swaps them), so no thread reads what another writes. Multipliers are per entry of
-    DistanceConstraints: both endpoints of a constraint hold its multiplier and update it identically."""
+    iteration swaps them), so no thread reads what another writes."""
     x_in: wp.array(dtype=wp.vec3)
     x_out: wp.array(dtype=wp.vec3)
     lambda_in: wp.array(dtype=float)
@@ -126,35 +125,29 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     Stretch constraints have rest_min = allowance * L, rest_max = L (compression down to 75 % is free, which lets
     wrinkles form); bending links across an edge have rest_min = rest_max. Each vertex gathers the corrections of
     its incident constraints; a constraint's Lagrange update is scaled by `scale` = relaxation / max(n_i, n_j)
-    (symmetric, so momentum is conserved). Both endpoints compute the same update from the same operands (the
-    difference vector negated, the masses summed in either order: bitwise equal), so each keeps its own copy of
-    the multiplier in its entry and no thread reads what another writes. An inequality constraint inside its
-    range is inactive and its multiplier is released (lambda = 0). A constraint without compliance (alpha = 0,
-    stretch by default) needs no multiplier: its update does not depend on it, so it is neither read nor written.
-    `lambda_carry` is 0 on a substep's first iteration, which resets the multipliers without a separate launch.
+    (symmetric, so momentum is conserved and both endpoints agree on lambda). The endpoint with the lower index
+    owns the constraint's lambda and writes it, so no two threads write the same slot. An inequality constraint
+    inside its range is inactive and its multiplier is released (lambda = 0). `lambda_carry` is 0 on a substep's
+    first iteration, which resets the multipliers without a separate launch.
     """
     wi = sub.inv_mass[i]
-    rows = constraints.count.shape[0]
     dx = wp.vec3(0.0)
-    for a in range(constraints.count[i]):
-        e = a * rows + i
-        j = constraints.neighbor[e]
-        limits = constraints.limits[e]
+    for a in range(constraints.offsets[i], constraints.offsets[i + 1]):
+        j = constraints.neighbor[a]
+        c = constraints.constraint[a]
         d = xi - sweep.x_in[j]
         dist = wp.length(d)
-        err = dist - wp.clamp(dist, limits[0], limits[1])
+        err = dist - wp.clamp(dist, constraints.rest_min[c], constraints.rest_max[c])
         w_sum = wi + sub.inv_mass[j]
-        alpha = limits[2]
-        lam = float(0.0)
-        if alpha != 0.0:
-            lam = sweep.lambda_in[e] * sweep.lambda_carry
+        lam = sweep.lambda_in[c] * sweep.lambda_carry
         lam_new = float(0.0)
         if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
-            d_lambda = limits[3] * (-err - alpha * lam) / (w_sum + alpha)
+            alpha = constraints.alpha_tilde[c]
+            d_lambda = constraints.scale[c] * (-err - alpha * lam) / (w_sum + alpha)
             dx = dx + (wi * d_lambda / dist) * d
             lam_new = lam + d_lambda
-        if alpha != 0.0:
-            sweep.lambda_out[e] = lam_new
+        if i < j:
+            sweep.lambda_out[c] = lam_new
     return dx
 
 

@@ -136,8 +136,8 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
         self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n)
-        entries = self.constraints.neighbor.shape[0]
-        lambdas = (arr(np.zeros(entries), float), arr(np.zeros(entries), float))
+        total = worlds * self.n_constraints
+        lambdas = (arr(np.zeros(total), float), arr(np.zeros(total), float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
         self.harmonic_projection = (None if harmonic is None
                                     else self._harmonic_projection(harmonic, harmonic_target, n))
@@ -204,25 +204,18 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
 
     def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
                               n: int) -> tuple[kernels.DistanceConstraints, int]:
-        """The cloth's constraints listed per vertex in slot-major order (every world's, world after world; see
-        kernels.DistanceConstraints), and how many one world has."""
+        """The cloth's constraints listed per vertex (every world's, world after world), and how many one world has."""
         s = self.settings
         con = cloth_constraints(rest_vertices, faces, s)
-        total = self.worlds * n
-        offsets, neighbor, constraint = vertex_incidence(self._tile_ids(con.pairs, n), total)
-        count = np.diff(offsets)
-        entry_vertex = np.repeat(np.arange(total), count)
-        rows = (np.arange(len(neighbor)) - offsets[entry_vertex]) * total + entry_vertex
-        entries = max(int(count.max(initial=0)), 1) * total
-        scale = s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]])
-        limits = np.stack([con.rest_min, con.rest_max, con.compliance / (h * h), scale], axis=1)
-        ell_neighbor = np.zeros(entries)
-        ell_neighbor[rows] = neighbor
-        ell_limits = np.zeros((entries, 4))
-        ell_limits[rows] = np.tile(limits, (self.worlds, 1))[constraint]
+        offsets, neighbor, constraint = vertex_incidence(self._tile_ids(con.pairs, n), self.worlds * n)
+        count = np.diff(offsets)[:n]
+        arr = self._array
         dc = kernels.DistanceConstraints()
-        dc.count = self._array(count, int)
-        dc.neighbor, dc.limits = self._array(ell_neighbor, int), self._array(ell_limits, wp.vec4)
+        dc.offsets, dc.neighbor, dc.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
+        tile = lambda per_constraint: arr(np.tile(per_constraint, self.worlds), float)  # noqa: E731
+        dc.rest_min, dc.rest_max = tile(con.rest_min), tile(con.rest_max)
+        dc.alpha_tilde = tile(con.compliance / (h * h))
+        dc.scale = tile(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]))
         return dc, len(con.pairs)
 
     def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
