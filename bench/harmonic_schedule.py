@@ -29,13 +29,13 @@ def run(vertices, faces, settings, device, pins, targets, capsules, radii, world
     extra = {} if harmonic is None else dict(harmonic=harmonic, harmonic_target=goals[0])
     solver = ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
                          worlds=worlds, initial_positions=initial, **extra)
-    positions, times = [solver.state.read_world_positions().copy()], []
+    positions, times = [solver.state.read_world_positions()], []
     for f in range(1, frames):
         inputs = FrameInputs(pin_targets=targets[:worlds, f], capsules=capsules[:worlds, f],
                              harmonic_target=None if harmonic is None else goals[f])
         start = time.perf_counter()
         solver.step(solver.state, inputs)
-        positions.append(solver.state.read_world_positions().copy())
+        positions.append(solver.state.read_world_positions())
         times.append((time.perf_counter() - start) * 1e3)
     return np.stack(positions).astype(np.float64), np.array(times)
 

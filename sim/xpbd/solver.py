@@ -44,8 +44,9 @@ class ClothState:
         return self.positions.numpy().astype(np.float64)
 
     def read_world_positions(self) -> np.ndarray:
-        """(B, V, 3) float32 copy on the host."""
-        return self.positions.numpy().reshape(self.worlds, -1, 3)
+        """(B, V, 3) float32 copy on the host (on the CPU device `numpy()` is a view of the live array, which the
+        next step would overwrite)."""
+        return self.positions.numpy().reshape(self.worlds, -1, 3).copy()
 
     def read_velocities(self) -> np.ndarray:
         return self.velocities.numpy().astype(np.float64)

@@ -186,3 +186,15 @@ def test_a_solver_steps_only_the_state_it_made():
     other = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int)).state
     with pytest.raises(ValueError, match="state it made"):
         solver.step(other)
+
+
+def test_reads_are_copies_that_stepping_leaves_alone(hanging_cloth):
+    # On the CPU device a Warp array's numpy() is a view of the live array: a read kept across steps must not be.
+    rest, faces, pins = hanging_cloth
+    solver = ClothSolver(rest, faces, SolverSettings(substeps=1, iterations=2), "cpu", pins)
+    reads = [solver.state.read_world_positions(), solver.state.read_positions(), solver.state.read_velocities()]
+    kept = [r.copy() for r in reads]
+    solver.step(solver.state, FrameInputs(pin_targets=rest[pins]))
+    assert np.abs(solver.state.read_positions() - kept[1]).max() > 1e-4   # the cloth did move
+    for read, before in zip(reads, kept):
+        np.testing.assert_array_equal(read, before)
