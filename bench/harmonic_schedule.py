@@ -6,7 +6,8 @@ each schedule. Per schedule: median ms per batch frame after warm-up, the harmon
 |B^T M (x - S x_low)| / |B^T M x| over all frames and worlds (median, max: the simulate stage's measure), and how
 far the positions move from those of the first row (mean and max vertex distance, mm). `--rounds` adds rows
 of the every-substep schedule with other numbers of contact rounds (`high_res.contact_rounds`: friction, then
-rounds of clearing the body and projecting, at the end of each substep). Usage:
+rounds of clearing the body and projecting, at the end of each substep; "3+9": 9 more after each frame's last
+substep, `frame_end_rounds`). Usage:
   python bench/harmonic_schedule.py [--device cuda:0] [--worlds 8] [--frames 60] [--warmup 3]
       [--schedules iteration,substep] [--rounds 3] [--out table.md]
 """
@@ -48,7 +49,8 @@ def main():
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--schedules", default="iteration,substep")
     parser.add_argument("--rounds", default=str(SolverSettings.contact_rounds),
-                        help="contact rounds of the every-substep rows, comma-separated")
+                        help="contact rounds of the every-substep rows, comma-separated; R+E adds E rounds at the "
+                             "end of each frame (frame_end_rounds)")
     parser.add_argument("--out")
     args = parser.parse_args()
     levels, pins, targets, capsules, radii = pants(args.frames + 1, args.worlds)
@@ -65,10 +67,11 @@ def main():
             "residual max | mean move (mm) | max move (mm) |", "|---|---|---|---|---|---|---|---|"]
     reference = None
     cases = [(every, rounds) for every in args.schedules.split(",")
-             for rounds in ([SolverSettings.contact_rounds] if every == "iteration"
-                            else [int(r) for r in args.rounds.split(",")])]
+             for rounds in ([str(SolverSettings.contact_rounds)] if every == "iteration" else args.rounds.split(","))]
     for every, rounds in cases:
-        settings = SolverSettings(**base, harmonic_every=every, contact_rounds=rounds)
+        per_substep, _, frame_end = rounds.partition("+")
+        settings = SolverSettings(**base, harmonic_every=every, contact_rounds=int(per_substep),
+                                  frame_end_rounds=int(frame_end or 0))
         x, ms = run(high, high_faces, settings, args.device, pins, targets, capsules, radii, args.worlds,
                     args.frames, constraint, goals, S @ low)
         content = np.einsum("kv,fbvc->fbkc", mass_basis_t, x)

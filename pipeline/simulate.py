@@ -47,7 +47,8 @@ def solver_settings(settings: dict) -> SolverSettings:
         return SolverSettings(**solver, bending=physics["bending"], body_collision=physics["body_collision"],
                               self_collision=physics["self_collision"],
                               harmonic_every=settings["high_res"]["harmonic_every"],
-                              contact_rounds=settings["high_res"]["contact_rounds"])
+                              contact_rounds=settings["high_res"]["contact_rounds"],
+                              frame_end_rounds=settings["high_res"]["frame_end_rounds"])
     except ValueError as err:
         raise PipelineError(f"scene '{settings['scene']}': {err}") from None
 

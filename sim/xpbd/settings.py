@@ -31,6 +31,8 @@ class SolverSettings:
     contact_rounds: int = 3              # with the harmonic constraint and the body: rounds of clearing the body
                                          # and projecting that end a substep (friction first), which hold both;
                                          # 0: friction and clearance after the last projection only
+    frame_end_rounds: int = 0            # more such rounds after a frame's last substep only, where the frame is
+                                         # stored (the alternation converges linearly: each round costs 5 launches)
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
@@ -49,6 +51,7 @@ class SolverSettings:
             "relaxation": 0 < self.relaxation < 2, "max_speed": self.max_speed > 0,
             "collision_thickness": self.collision_thickness > 0, "friction": self.friction >= 0,
             "self_thickness": self.self_thickness > 0, "contact_rounds": self.contact_rounds >= 0,
+            "frame_end_rounds": self.frame_end_rounds >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:

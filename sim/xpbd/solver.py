@@ -445,7 +445,8 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             rounds = self.harmonic_projection is not None and s.body_collision and s.contact_rounds > 0
             if rounds:
                 wp.launch(collision.body_friction, dim=n, device=dev, inputs=[sub, solved, self.capsules])
-                for _ in range(s.contact_rounds):
+                last = sub is self._substeps[-1]
+                for _ in range(s.contact_rounds + (s.frame_end_rounds if last else 0)):
                     wp.launch(collision.clear_of_body, dim=n, device=dev, inputs=[sub, solved, self.capsules])
                     self._launch_projection(solved, sub.f1)
             if collide:
