@@ -58,9 +58,11 @@ class PinDrive:
 
 @wp.struct
 class DistanceConstraints:
-    """Constraints rest_min[c] <= |x_i - x_j| <= rest_max[c], listed per vertex (CSR) for a Jacobi gather."""
+    """Constraints rest_min[c] <= |x_i - x_j| <= rest_max[c], listed per vertex (CSR) for a Jacobi gather. One
+    world's: every world has the same mesh, so its vertices find theirs by their id within the world (a batch
+    reads the same small tables, which stay in cache, instead of B copies that streamed from memory)."""
     offsets: wp.array(dtype=int)     # (V + 1,) vertex i's entries are offsets[i] .. offsets[i + 1] - 1
-    neighbor: wp.array(dtype=int)    # the other endpoint of each entry
+    neighbor: wp.array(dtype=int)    # the other endpoint of each entry, within the world
     constraint: wp.array(dtype=int)  # the constraint id c of each entry
     rest_min: wp.array(dtype=float)  # (C,)
     rest_max: wp.array(dtype=float)  # (C,)
@@ -74,7 +76,7 @@ class JacobiSweep:
     iteration swaps them), so no thread reads what another writes."""
     x_in: wp.array(dtype=wp.vec3)
     x_out: wp.array(dtype=wp.vec3)
-    lambda_in: wp.array(dtype=float)
+    lambda_in: wp.array(dtype=float)   # (B C,) world w's multipliers are w C .. w C + C - 1
     lambda_out: wp.array(dtype=float)
     lambda_carry: float              # 0 on a substep's first iteration: resets the multipliers without a launch
 
@@ -127,27 +129,36 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     its incident constraints; a constraint's Lagrange update is scaled by `scale` = relaxation / max(n_i, n_j)
     (symmetric, so momentum is conserved and both endpoints agree on lambda). The endpoint with the lower index
     owns the constraint's lambda and writes it, so no two threads write the same slot. An inequality constraint
-    inside its range is inactive and its multiplier is released (lambda = 0). `lambda_carry` is 0 on a substep's
-    first iteration, which resets the multipliers without a separate launch.
+    inside its range is inactive and its multiplier is released (lambda = 0). A constraint without compliance
+    (alpha = 0: stretch, by default) needs no multiplier, its update being the same whatever lambda is, so its
+    multiplier is neither read nor written (memory traffic, not arithmetic, bounds a batched sweep).
+    `lambda_carry` is 0 on a substep's first iteration, which resets the multipliers without a separate launch.
     """
     wi = sub.inv_mass[i]
+    n = sub.world_vertices
+    world = i // n
+    first = world * n                         # world's first vertex
+    multipliers = world * constraints.rest_min.shape[0]
+    own = i - first
     dx = wp.vec3(0.0)
-    for a in range(constraints.offsets[i], constraints.offsets[i + 1]):
-        j = constraints.neighbor[a]
+    for a in range(constraints.offsets[own], constraints.offsets[own + 1]):
+        j = first + constraints.neighbor[a]
         c = constraints.constraint[a]
         d = xi - sweep.x_in[j]
         dist = wp.length(d)
         err = dist - wp.clamp(dist, constraints.rest_min[c], constraints.rest_max[c])
         w_sum = wi + sub.inv_mass[j]
-        lam = sweep.lambda_in[c] * sweep.lambda_carry
+        alpha = constraints.alpha_tilde[c]
+        lam = float(0.0)
+        if alpha != 0.0:
+            lam = sweep.lambda_in[multipliers + c] * sweep.lambda_carry
         lam_new = float(0.0)
         if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
-            alpha = constraints.alpha_tilde[c]
             d_lambda = constraints.scale[c] * (-err - alpha * lam) / (w_sum + alpha)
             dx = dx + (wi * d_lambda / dist) * d
             lam_new = lam + d_lambda
-        if i < j:
-            sweep.lambda_out[c] = lam_new
+        if i < j and alpha != 0.0:
+            sweep.lambda_out[multipliers + c] = lam_new
     return dx
 
 

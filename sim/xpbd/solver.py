@@ -205,18 +205,17 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
 
     def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
                               n: int) -> tuple[kernels.DistanceConstraints, int]:
-        """The cloth's constraints listed per vertex (every world's, world after world), and how many one world has."""
+        """The cloth's constraints listed per vertex, one world's (kernels.DistanceConstraints), and their count."""
         s = self.settings
         con = cloth_constraints(rest_vertices, faces, s)
-        offsets, neighbor, constraint = vertex_incidence(self._tile_ids(con.pairs, n), self.worlds * n)
-        count = np.diff(offsets)[:n]
+        offsets, neighbor, constraint = vertex_incidence(con.pairs, n)
+        count = np.diff(offsets)
         arr = self._array
         dc = kernels.DistanceConstraints()
         dc.offsets, dc.neighbor, dc.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
-        tile = lambda per_constraint: arr(np.tile(per_constraint, self.worlds), float)  # noqa: E731
-        dc.rest_min, dc.rest_max = tile(con.rest_min), tile(con.rest_max)
-        dc.alpha_tilde = tile(con.compliance / (h * h))
-        dc.scale = tile(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]))
+        dc.rest_min, dc.rest_max = arr(con.rest_min, float), arr(con.rest_max, float)
+        dc.alpha_tilde = arr(con.compliance / (h * h), float)
+        dc.scale = arr(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]), float)
         return dc, len(con.pairs)
 
     def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
