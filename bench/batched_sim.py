@@ -75,7 +75,7 @@ def harmonic_targets(constraint, S, x_low, capsules, radii, settings, device):
     subdivided = (S @ x_low.transpose(2, 0, 1, 3).reshape(v, -1)).reshape(-1, f, b, 3).transpose(1, 2, 0, 3)
     clear = np.stack([outside_body(subdivided[:, w], capsules[w, :f], radii, settings.collision_thickness, device)
                       for w in range(b)], axis=1)
-    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, clear.astype(np.float64))
+    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, clear.astype(np.float64), optimize=True)  # BLAS
 
 
 def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n_frames):

@@ -74,7 +74,7 @@ def main():
                                   frame_end_rounds=int(frame_end or 0))
         x, ms = run(high, high_faces, settings, args.device, pins, targets, capsules, radii, args.worlds,
                     args.frames, constraint, goals, S @ low)
-        content = np.einsum("kv,fbvc->fbkc", mass_basis_t, x)
+        content = np.einsum("kv,fbvc->fbkc", mass_basis_t, x, optimize=True)  # BLAS, not a C loop
         residual = (np.linalg.norm((content - goals).reshape(*x.shape[:2], -1), axis=2)
                     / np.linalg.norm(content.reshape(*x.shape[:2], -1), axis=2))[1:]
         reference = x if reference is None else reference
