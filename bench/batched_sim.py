@@ -8,16 +8,18 @@ garment was made, as a sequence of the stage does); the high-res rows hold every
 Per B: median ms per batch frame over measured frames after warm-up (the first frames compile and capture the
 graph), cloth-frames/s = B * 1000 / ms, and the ratio to B = 1 in the same run. `--profile` adds where one frame's
 time goes, per kernel, at the largest B (CUDA only; launched without the graph, so each kernel is timed on its
-own). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
+own). `--contacts` adds the low-res batches with body and self collision each switched off (what the contacts
+cost). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
 by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
 not installed). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every iteration|substep] [--profile]
-      [--peer newton] [--out table.md]
+      [--contacts] [--peer newton] [--out table.md]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -91,19 +93,20 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
 
 def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start):
     extra = {} if constraint is None else dict(harmonic=constraint, harmonic_target=goals[0], initial_positions=start)
-    return ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
-                       worlds=worlds, **extra)
+    if settings.body_collision:
+        extra.update(capsules=capsules[:worlds, 0], capsule_radii=radii)
+    return ClothSolver(vertices, faces, settings, device, pins, worlds=worlds, **extra)
 
 
-def frame_inputs(f, worlds, targets, capsules, goals):
-    return FrameInputs(pin_targets=targets[:worlds, f], capsules=capsules[:worlds, f],
+def frame_inputs(f, worlds, targets, capsules, goals, body=True):
+    return FrameInputs(pin_targets=targets[:worlds, f], capsules=capsules[:worlds, f] if body else None,
                        harmonic_target=None if goals is None else goals[f])
 
 
 def time_batch(solver, harmonic_target, targets, capsules, frames, warmup) -> float:
     times = []
     for f in range(1, warmup + frames + 1):
-        inputs = frame_inputs(f, solver.worlds, targets, capsules, harmonic_target)
+        inputs = frame_inputs(f, solver.worlds, targets, capsules, harmonic_target, solver.settings.body_collision)
         start = time.perf_counter()
         solver.step(solver.state, inputs)
         solver.state.positions.numpy()  # what a stage stores each frame; also synchronises the device
@@ -126,6 +129,21 @@ def kernel_profile(solver, harmonic_target, targets, capsules) -> list[str]:
     whole = sum(totals.values())
     return [f"| {name} | {counts[name]} | {ms:.2f} | {100 * ms / whole:.0f} % |"
             for name, ms in sorted(totals.items(), key=lambda kv: -kv[1])]
+
+
+def contact_rows(levels, pins, targets, capsules, radii, batches, settings, args) -> list[str]:
+    """The low-res batch with body and self collision each switched off: what the contacts cost."""
+    rows = ["\nLow-res, contacts switched off (ms per batch frame)", "| B | body + self | body only | self only | "
+            "neither |", "|---|---|---|---|---|"]
+    for worlds in batches:
+        cells = []
+        for body, self_contact in ((True, True), (True, False), (False, True), (False, False)):
+            variant = dataclasses.replace(settings, body_collision=body, self_collision=self_contact)
+            solver = make_solver(*levels["low"], variant, args.device, pins, capsules, radii, worlds, None, None, None)
+            cells.append(f"{time_batch(solver, None, targets, capsules, args.frames, args.warmup):.2f}")
+        rows.append(f"| {worlds} | {' | '.join(cells)} |")
+        print(rows[-1], flush=True)
+    return rows
 
 
 def peer_rows(levels, pins, batches, settings, args) -> list[str]:
@@ -162,6 +180,8 @@ def main():
     parser.add_argument("--harmonic-every", default="iteration", choices=("iteration", "substep"))
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--peer", choices=("newton",), help="also time NVIDIA Newton's XPBD on the hanging cloth")
+    parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
+                        "collision switched off")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -196,7 +216,8 @@ def main():
                              *kernel_profile(solver, goals, targets, capsules)]
             del solver
     peers = peer_rows(levels, pins, batches, settings, args) if args.peer else []
-    table = "\n".join(rows + profiles + peers)
+    contacts = contact_rows(levels, pins, targets, capsules, radii, batches, settings, args) if args.contacts else []
+    table = "\n".join(rows + profiles + contacts + peers)
     print(f"\n{args.device}, {args.substeps} substeps x {args.iterations} iterations, body + self collision, harmonic "
           f"projection every {args.harmonic_every} (high), median "
           f"of {args.frames} frames after {args.warmup} warm-up frames\n{table}")
