@@ -32,7 +32,7 @@ class SolverSettings:
                                          # and projecting that end a substep (friction first), which hold both;
                                          # 0: friction and clearance after the last projection only
     frame_end_rounds: int = 0            # more such rounds after a frame's last substep only, where the frame is
-                                         # stored (the alternation converges linearly: each round costs 5 launches)
+                                         # stored (the alternation converges linearly; a round is 4 launches)
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
