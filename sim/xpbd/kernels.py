@@ -27,6 +27,12 @@ import warp as wp
 
 wp.config.quiet = True
 
+# CUDA: approximate division and square root (--use_fast_math: ~2 ulp instead of IEEE rounding, denormals
+# flushed to zero). The Jacobi sweeps are bound by their IEEE div/sqrt sequences: fast math cut a batched
+# frame by a quarter on an H100 (docs/performance.md). No transcendental function is used here, and
+# comparisons with NaN stay IEEE, so the blow-up flags still fire. The CPU build ignores the option.
+wp.set_module_options({"fast_math": True})
+
 
 @wp.struct
 class Substep:
