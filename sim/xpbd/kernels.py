@@ -65,15 +65,14 @@ class PinDrive:
 @wp.struct
 class DistanceConstraints:
     """Constraints rest_min[c] <= |x_i - x_j| <= rest_max[c], listed per vertex (CSR) for a Jacobi gather. One
-    world's: every world has the same mesh, so its vertices find theirs by their id within the world (a batch
-    reads the same small tables, which stay in cache, instead of B copies that streamed from memory)."""
+    world's: every world has the same mesh and pins, so its vertices find theirs by their id within the world (a
+    batch reads the same small tables, which stay in cache, instead of B copies that streamed from memory). An
+    entry's two ids and a constraint's four parameters are packed, so each is one load."""
     offsets: wp.array(dtype=int)     # (V + 1,) vertex i's entries are offsets[i] .. offsets[i + 1] - 1
-    neighbor: wp.array(dtype=int)    # the other endpoint of each entry, within the world
-    constraint: wp.array(dtype=int)  # the constraint id c of each entry
-    rest_min: wp.array(dtype=float)  # (C,)
-    rest_max: wp.array(dtype=float)  # (C,)
-    alpha_tilde: wp.array(dtype=float)  # (C,) compliance / h^2
-    scale: wp.array(dtype=float)     # (C,) relaxation / max(n_i, n_j), see distance_correction
+    entries: wp.array(dtype=wp.vec2i)  # per entry: the other endpoint (within the world), the constraint id c
+    params: wp.array(dtype=wp.vec4)  # (C,) rest_min, rest_max, alpha_tilde = compliance / h^2, and scale =
+                                     # relaxation / max(n_i, n_j) (see distance_correction)
+    inv_mass: wp.array(dtype=float)  # (V,) the inverse masses of one world (the same in every world)
 
 
 @wp.struct
@@ -140,27 +139,29 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     multiplier is neither read nor written (memory traffic, not arithmetic, bounds a batched sweep).
     `lambda_carry` is 0 on a substep's first iteration, which resets the multipliers without a separate launch.
     """
-    wi = sub.inv_mass[i]
     n = sub.world_vertices
     world = i // n
     first = world * n                         # world's first vertex
-    multipliers = world * constraints.rest_min.shape[0]
+    multipliers = world * constraints.params.shape[0]
     own = i - first
+    wi = constraints.inv_mass[own]
     dx = wp.vec3(0.0)
     for a in range(constraints.offsets[own], constraints.offsets[own + 1]):
-        j = first + constraints.neighbor[a]
-        c = constraints.constraint[a]
+        entry = constraints.entries[a]
+        j = first + entry[0]
+        c = entry[1]
+        p = constraints.params[c]             # rest_min, rest_max, alpha_tilde, scale
         d = xi - sweep.x_in[j]
         dist = wp.length(d)
-        err = dist - wp.clamp(dist, constraints.rest_min[c], constraints.rest_max[c])
-        w_sum = wi + sub.inv_mass[j]
-        alpha = constraints.alpha_tilde[c]
+        err = dist - wp.clamp(dist, p[0], p[1])
+        w_sum = wi + constraints.inv_mass[entry[0]]
+        alpha = p[2]
         lam = float(0.0)
         if alpha != 0.0:
             lam = sweep.lambda_in[multipliers + c] * sweep.lambda_carry
         lam_new = float(0.0)
         if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
-            d_lambda = constraints.scale[c] * (-err - alpha * lam) / (w_sum + alpha)
+            d_lambda = p[3] * (-err - alpha * lam) / (w_sum + alpha)
             dx = dx + (wi * d_lambda / dist) * d
             lam_new = lam + d_lambda
         if i < j and alpha != 0.0:

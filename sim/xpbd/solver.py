@@ -136,7 +136,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self._substeps = self._substep_structs(h, x_prev, arr(np.tile(inv_mass, worlds), float))
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
-        self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n)
+        self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n, inv_mass)
         total = worlds * self.n_constraints
         lambdas = (arr(np.zeros(total), float), arr(np.zeros(total), float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
@@ -170,7 +170,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         return (ids[None] + offsets).reshape(self.worlds * len(ids), *ids.shape[1:])
 
     def _array(self, data: np.ndarray, dtype) -> wp.array:
-        np_dtype = np.int32 if dtype in (int, wp.vec3i) else np.float32
+        np_dtype = np.int32 if dtype in (int, wp.vec2i, wp.vec3i) else np.float32
         return wp.array(np.ascontiguousarray(data, dtype=np_dtype), dtype=dtype, device=self.device)
 
     def _substep_structs(self, h: float, x_prev: wp.array, inv_mass: wp.array) -> list[kernels.Substep]:
@@ -203,8 +203,8 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         pins.start, pins.end = self._array(start, wp.vec3), self._array(start, wp.vec3)
         return pins
 
-    def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float,
-                              n: int) -> tuple[kernels.DistanceConstraints, int]:
+    def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float, n: int,
+                              inv_mass: np.ndarray) -> tuple[kernels.DistanceConstraints, int]:
         """The cloth's constraints listed per vertex, one world's (kernels.DistanceConstraints), and their count."""
         s = self.settings
         con = cloth_constraints(rest_vertices, faces, s)
@@ -212,10 +212,11 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         count = np.diff(offsets)
         arr = self._array
         dc = kernels.DistanceConstraints()
-        dc.offsets, dc.neighbor, dc.constraint = arr(offsets, int), arr(neighbor, int), arr(constraint, int)
-        dc.rest_min, dc.rest_max = arr(con.rest_min, float), arr(con.rest_max, float)
-        dc.alpha_tilde = arr(con.compliance / (h * h), float)
-        dc.scale = arr(s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]]), float)
+        dc.offsets = arr(offsets, int)
+        dc.entries = arr(np.stack([neighbor, constraint], axis=1), wp.vec2i)
+        scale = s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]])
+        dc.params = arr(np.stack([con.rest_min, con.rest_max, con.compliance / (h * h), scale], axis=1), wp.vec4)
+        dc.inv_mass = arr(inv_mass, float)
         return dc, len(con.pairs)
 
     def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
