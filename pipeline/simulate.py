@@ -124,7 +124,10 @@ def harmonic_targets_of(x_low: np.ndarray, S, products: BasisProducts,
     if clear is None:
         return targets
     smooth = per_frame_product(S, x_low)
-    single = smooth.astype(np.float32)                          # what `clear` receives and returns (float32)
+    # What `clear` receives and returns, float32 and C-contiguous here in the sequence's own thread: `clear` runs
+    # under the lock the batch's threads share, and there a strided copy (~0.1 s a paper-pants world) serialised
+    # most of a 64-world job's setup (cProfile on the H100, 2026-11-24).
+    single = np.ascontiguousarray(smooth, dtype=np.float32)
     cleared = clear(single)
     moved = np.flatnonzero((cleared != single).any(axis=(0, 2)))
     # Unmoved vertices enter as S x_low in float64 (float32 before): the targets differ from the former ones by
