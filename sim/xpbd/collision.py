@@ -307,15 +307,17 @@ def triangle_normal(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
 
 
 @wp.func
-def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, t: int, x: wp.array(dtype=wp.vec3),
-                 x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts) -> int:
+def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, own_faces: wp.vec2i, t: int,
+                 x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts) -> int:
     """+1 or -1 (the side of t that vertex i was on at the substep start) if (i, t) is a contact candidate, else 0.
 
     Candidates: t not within one edge of i in the mesh (pairs that close are neighbours at rest, and bending holds
     them apart), and at the prediction i projects into t (down to -DETECT_SLACK) and lies within `reach` of its
     plane, or on the other side than at the start by no more than its motion relative to t (it crossed during the
-    prediction). `neighbors` holds i's mesh neighbours (a local copy: this runs for every candidate)."""
-    if t // sc.world_faces != i // sc.world_vertices:
+    prediction). `neighbors` holds i's mesh neighbours (a local copy: this runs for every candidate), `own_faces`
+    the range of triangle ids of i's world (two comparisons, not two integer divisions, per candidate: most
+    candidates are i's own neighbourhood, rejected within a few instructions)."""
+    if t < own_faces[0] or t >= own_faces[1]:
         return 0
     tri = sc.faces[t]
     for k in range(3):
@@ -480,11 +482,13 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
         n_neighbors = sc.edge_offsets[i + 1] - first
         for a in range(n_neighbors):
             neighbors[a] = sc.vertex_neighbors[first + a]
-        offset = world_offset(i // sc.world_vertices, sc)
+        world = i // sc.world_vertices
+        own_faces = wp.vec2i(world * sc.world_faces, (world + 1) * sc.world_faces)
+        offset = world_offset(world, sc)
         query = wp.bvh_query_aabb(sc.face_bvh, wp.min(x_prev[i], x[i]) + offset, wp.max(x_prev[i], x[i]) + offset)
         t = int(0)
         while wp.bvh_query_next(query, t):
-            side = contact_side(i, neighbors, n_neighbors, t, x, x_prev, sc)
+            side = contact_side(i, neighbors, n_neighbors, own_faces, t, x, x_prev, sc)
             if side != 0:
                 for a in range(n_old):
                     if wp.abs(sc.previous[i, a]) == t + 1:
