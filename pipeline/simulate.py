@@ -246,6 +246,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
     basis, mass = harmonics.basis, harmonics.mass
     x_lows = [read_trajectory(path).positions for path in low_paths]
+    read_done = time.perf_counter()
     for x_low, low_path, drive, scene_path in zip(x_lows, low_paths, batch.drives, scene_paths):
         if S.shape != (len(rest), x_low.shape[1]):
             raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
@@ -277,6 +278,7 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
         harmonic_targets = list(pool.map(targets_of, x_lows, batch.drives))
+    targets_done = time.perf_counter()
     solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
                          harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),
                          worlds=len(scene_paths), **batch.body())
@@ -285,8 +287,13 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
         return FrameInputs(pin_targets=batch.stack(targets, f), harmonic_target=batch.stack(harmonic_targets, f),
                            capsules=batch.capsules(f))
 
-    setup = time.perf_counter() - start
+    setup_done = time.perf_counter()
+    setup = setup_done - start
+    if not quiet:   # where the setup goes (issue 12: a batch job's wall against its stepping)
+        print(f"high-res setup: reading {read_done - start:.1f} s, harmonic targets {targets_done - read_done:.1f} "
+              f"s ({threads} thread(s)), solver {setup_done - targets_done:.1f} s", file=sys.stderr)
     positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet)
+    residuals_start = time.perf_counter()
 
     def run_of(w: int) -> SimulationRun:
         n_frames = batch.drives[w].n_frames
@@ -298,7 +305,10 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
                              basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup)
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        return list(pool.map(run_of, range(solver.worlds)))
+        runs = list(pool.map(run_of, range(solver.worlds)))
+    if not quiet:
+        print(f"high-res residuals after stepping: {time.perf_counter() - residuals_start:.1f} s", file=sys.stderr)
+    return runs
 
 
 def sequence_groups(level: str, files: Sequence[str]) -> list[tuple[str, ...]]:
