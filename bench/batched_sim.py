@@ -13,7 +13,7 @@ cost). `--peer newton` adds, per level and B, the same cloth hanging from its pi
 by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
 not installed). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
-      [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every iteration|substep] [--profile]
+      [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
       [--contacts] [--peer newton] [--out table.md]
 """
 from __future__ import annotations
@@ -172,12 +172,13 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cuda:0")
     parser.add_argument("--levels", default="low,high")
-    parser.add_argument("--batches", default="1,2,4,8,16,32,64,128")
+    parser.add_argument("--batches", default="1,2,4,8,16,32,64,128,256")
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--substeps", type=int, default=8)
     parser.add_argument("--iterations", type=int, default=75)
-    parser.add_argument("--harmonic-every", default="iteration", choices=("iteration", "substep"))
+    parser.add_argument("--harmonic-every", default="substep", choices=("iteration", "substep"),
+                        help="the simulate stage's default, high_res.harmonic_every, is substep")
     parser.add_argument("--profile", action="store_true")
     parser.add_argument("--peer", choices=("newton",), help="also time NVIDIA Newton's XPBD on the hanging cloth")
     parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
