@@ -21,10 +21,7 @@ from __future__ import annotations
 
 import warp as wp
 
-# CUDA: approximate division and square root (--use_fast_math: ~2 ulp instead of IEEE rounding, denormals
-# flushed to zero). The Jacobi sweeps are bound by their IEEE div/sqrt sequences: fast math cut a batched
-# frame by a quarter on an H100 (docs/performance.md). No transcendental function is used here, and
-# comparisons with NaN stay IEEE, so the blow-up flags still fire. The CPU build ignores the option.
+# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
 wp.set_module_options({"fast_math": True})
 
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
@@ -501,7 +498,7 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
                     sc.face_contacts[t, slot] = side * (i + 1)
                     count += 1
                 else:
-                    sub.flags[i // sub.world_vertices, overflow_flag] = 1
+                    sub.flags[world, overflow_flag] = 1
     # Triangles in id order rather than the tree's: the sums of the iterations then do not depend on the BVH, so a
     # world stepped in a batch (one tree over all worlds) moves exactly as when stepped alone.
     sort_list(sc.vertex_contacts, i, count)
