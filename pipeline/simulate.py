@@ -37,7 +37,7 @@ from pipeline.config import LEARNING_ONLY, read_settings
 from pipeline.errors import PipelineError
 from pipeline.meshio import check_mesh
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
-from sim.xpbd.body import outside_body
+from sim.xpbd.body import SubdividedOutsideBody
 
 
 def solver_settings(settings: dict) -> SolverSettings:
@@ -76,64 +76,41 @@ def per_frame_product(A, x: np.ndarray) -> np.ndarray:
 
 class BasisProducts:
     """B^T M x per frame (F, K, 3) of the frames x (F, V, 3) of one garment's high-res runs (`high`), and
-    (B^T M S) x_low of its low-res ones (`low`), in float64. With `torch_device` (a CUDA run's device) both
-    matrices go to that device once and each call is one GEMM there: in single-threaded BLAS (a simulate job has
-    one thread) they cost ~0.17 s a world of the paper pants' setup and ~0.27 s a world after stepping (a replica
-    on the 2-core machine), ~28 s of a 64-world job whose stepping took 57 s on the H100. Otherwise numpy's BLAS."""
+    (B^T M S) x_low of its low-res ones (`low`), in float64 with numpy's BLAS. On the host, not the device: a
+    job's products run on its threads while the device steps (the residual) or take ~0.1 s a paper-pants sequence
+    (the targets), and doing them on a GPU with torch cost the job torch's import (4.3 s on the H100's host)."""
 
-    def __init__(self, mass_basis_t: np.ndarray, S, torch_device: str | None = None):
-        low_content = np.asarray((S.T @ mass_basis_t.T).T)      # B^T M S (K, V_low): the targets' product, factored
-        self.torch_device = torch_device
-        if torch_device is None:
-            self._matrices = {"high": mass_basis_t, "low": low_content}
-            return
-        import torch            # only for a CUDA run: a CPU job does not pay torch's import
-        self._torch = torch
-        self._matrices = {name: torch.as_tensor(np.ascontiguousarray(m, dtype=np.float64), device=torch_device)
-                          for name, m in (("high", mass_basis_t), ("low", low_content))}
+    def __init__(self, mass_basis_t: np.ndarray, S):
+        self._high = np.ascontiguousarray(mass_basis_t, dtype=np.float64)
+        self._low = np.ascontiguousarray((S.T @ self._high.T).T)      # B^T M S (K, V_low): the targets', factored
 
     def high(self, x: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
         """B^T M x per frame; with `columns`, over those high-res vertices only (x then (F, len(columns), 3))."""
-        return self._product("high", x, columns)
+        A = self._high if columns is None else self._high[:, columns]
+        return per_frame_product(A, x.astype(np.float64, copy=False))
 
     def low(self, x_low: np.ndarray) -> np.ndarray:
         """(B^T M S) x_low per frame: B^T M of S x_low without forming S x_low."""
-        return self._product("low", x_low, None)
-
-    def _product(self, name: str, x: np.ndarray, columns: np.ndarray | None) -> np.ndarray:
-        A = self._matrices[name]
-        if self.torch_device is None:
-            return per_frame_product(A if columns is None else A[:, columns], x.astype(np.float64, copy=False))
-        torch = self._torch
-        if columns is not None:
-            A = A[:, torch.as_tensor(columns, device=self.torch_device)]
-        frames = torch.as_tensor(np.ascontiguousarray(x), device=self.torch_device).to(torch.float64)
-        return torch.einsum("kv,fvc->fkc", A, frames).cpu().numpy()
+        return per_frame_product(self._low, x_low.astype(np.float64, copy=False))
 
 
-def harmonic_targets_of(x_low: np.ndarray, S, products: BasisProducts,
-                        clear: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
-    """B^T M x per frame (F, K, 3) of x = S x_low, moved by `clear` (F, V, 3) -> (F, V, 3) where it enters the body.
+Clearance = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
-    As (B^T M S) x_low plus B^T M of the few vertices `clear` moved: the same sum as B^T M x over all V high-res
+
+def harmonic_targets_of(x_low: np.ndarray, products: BasisProducts, clear: Clearance | None) -> np.ndarray:
+    """B^T M x per frame (F, K, 3) of x = S x_low moved clear of the body, `clear` (x_low -> the ids of the
+    vertices of S x_low it moves and their offsets (F, M, 3), as sim.xpbd.body.SubdividedOutsideBody gives them).
+
+    As (B^T M S) x_low plus B^T M of the moved vertices' offsets: the same sum as B^T M x over all V high-res
     vertices, for a product with the V_low coarse ones (1/16) and one with the moved vertices. The whole (K, V)
     product per frame was most of the high-res stage's setup for a 64-world batch (single-threaded BLAS, 2026-11-24).
     """
-    x_low = x_low.astype(np.float64, copy=False)
     targets = products.low(x_low)
     if clear is None:
         return targets
-    smooth = per_frame_product(S, x_low)
-    # What `clear` receives and returns, float32 and C-contiguous here in the sequence's own thread: `clear` runs
-    # under the lock the batch's threads share, and there a strided copy (~0.1 s a paper-pants world) serialised
-    # most of a 64-world job's setup (cProfile on the H100, 2026-11-24).
-    single = np.ascontiguousarray(smooth, dtype=np.float32)
-    cleared = clear(single)
-    moved = np.flatnonzero((cleared != single).any(axis=(0, 2)))
-    # Unmoved vertices enter as S x_low in float64 (float32 before): the targets differ from the former ones by
-    # float32 rounding of those positions, ~1e-8 relative.
+    moved, offsets = clear(x_low)
     if len(moved):
-        targets += products.high(cleared[:, moved] - smooth[:, moved], moved)
+        targets += products.high(offsets, moved)
     return targets
 
 
@@ -186,10 +163,16 @@ def read_batch(scene_paths: Sequence[str], body_collision: bool) -> Batch:
     return Batch(list(scene_paths), drives, mesh)
 
 
-def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: bool) -> tuple[np.ndarray, np.ndarray]:
+STEPPED_CHUNK = 16     # frames handed to run_frames' `stepped` at a time
+
+
+def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: bool,
+               stepped: Callable[[np.ndarray, int, int], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Step frames 1..n-1 of the batch (frame 0 is the initial state); `inputs(f)` gives step()'s FrameInputs for
-    frame f. Returns positions (F, B, V, 3) and the ms each frame took the whole batch. Unless `quiet`, says first
-    how much work that is (the schema bounds frames, substeps and iterations)."""
+    frame f. Returns positions (F, B, V, 3) and the ms each frame took the whole batch. `stepped(positions,
+    first, end)` is told each time frames first..end-1 are in positions (STEPPED_CHUNK frames at a time, the last
+    chunk shorter). Unless `quiet`, says first how much work that is (the schema bounds frames, substeps and
+    iterations)."""
     state = solver.state
     n_frames, worlds = batch.n_frames, solver.worlds
     if not quiet:
@@ -200,6 +183,7 @@ def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: boo
     positions = np.empty((n_frames, worlds, solver.world_vertices, 3), dtype=np.float32)
     positions[0] = state.read_world_positions()
     solve_ms = np.zeros(n_frames)
+    first = 0                       # the first frame not yet handed to `stepped`
     for f in tqdm(range(1, n_frames), desc=label, disable=quiet, unit="frame"):
         start = time.perf_counter()
         try:
@@ -209,6 +193,11 @@ def run_frames(solver: ClothSolver, batch: Batch, inputs, label: str, quiet: boo
                                 f"max_speed) at frame {f}, substep {err.substep}") from None
         positions[f] = state.read_world_positions()
         solve_ms[f] = (time.perf_counter() - start) * 1e3
+        if stepped is not None and f + 1 - first == STEPPED_CHUNK:
+            stepped(positions, first, f + 1)
+            first = f + 1
+    if stepped is not None and first < n_frames:
+        stepped(positions, first, n_frames)
     return positions, solve_ms
 
 
@@ -265,16 +254,16 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     # there would pull the cloth into the body at every projection and the contacts would push it back out (the
     # residual stayed at ~1e-3 on the CPU pants). With the body, the target is taken from S x_low moved clear of
     # it, the way the solver moves the cloth, so that one shape meets both constraints.
-    products = BasisProducts((mass[:, None] * basis).T, S, device if device.startswith("cuda") else None)
-
+    products = BasisProducts((mass[:, None] * basis).T, S)
+    clearance = (SubdividedOutsideBody(S, batch.drives[0].capsule_radii, s.collision_thickness, device)
+                 if s.body_collision else None)
     warp_launches = threading.Lock()
 
-    def clear(positions: np.ndarray, drive: SceneDrive) -> np.ndarray:
-        with warp_launches:     # one Warp launch at a time; the sequences' other work goes on around it
-            return outside_body(positions, drive.capsules, drive.capsule_radii, s.collision_thickness, device)
-
     def targets_of(x_low: np.ndarray, drive: SceneDrive) -> np.ndarray:
-        return harmonic_targets_of(x_low, S, products, (lambda p: clear(p, drive)) if s.body_collision else None)
+        def clear(coarse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            with warp_launches:     # one Warp launch at a time; the sequences' other work goes on around it
+                return clearance(coarse, drive.capsules)
+        return harmonic_targets_of(x_low, products, clear if clearance is not None else None)
 
     with ThreadPoolExecutor(max_workers=threads) as pool:
         harmonic_targets = list(pool.map(targets_of, x_lows, batch.drives))
@@ -292,20 +281,34 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     if not quiet:   # where the setup goes (issue 12: a batch job's wall against its stepping)
         print(f"high-res setup: reading {read_done - start:.1f} s, harmonic targets {targets_done - read_done:.1f} "
               f"s ({threads} thread(s)), solver {setup_done - targets_done:.1f} s", file=sys.stderr)
-    positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet)
-    residuals_start = time.perf_counter()
+    # B^T M x of the stepped frames for the residual, on the job's threads while the device steps the next ones
+    # (numpy's BLAS releases the GIL; the main thread mostly waits on the device).
+    contents = [np.empty((d.n_frames, basis.shape[1], 3)) for d in batch.drives]
+
+    def content_of(w: int, first: int, end: int, positions: np.ndarray) -> None:
+        end = min(end, len(contents[w]))
+        if first < end:
+            contents[w][first:end] = products.high(positions[first:end, w])
+
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pending = []
+
+        def stepped(positions: np.ndarray, first: int, end: int) -> None:
+            pending.extend(pool.submit(content_of, w, first, end, positions) for w in range(len(contents)))
+
+        positions, solve_ms = run_frames(solver, batch, inputs, "high-res", quiet, stepped)
+        residuals_start = time.perf_counter()
+        for job in pending:
+            job.result()
 
     def run_of(w: int) -> SimulationRun:
         n_frames = batch.drives[w].n_frames
-        x = positions[:n_frames, w]
-        high_content = products.high(x)
-        residual = (np.linalg.norm((high_content - harmonic_targets[w]).reshape(n_frames, -1), axis=1)
-                    / np.linalg.norm(high_content.reshape(n_frames, -1), axis=1))
-        return SimulationRun(x, faces, rest, pins, solve_ms[:n_frames], solver.n_constraints, residual,
-                             basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup)
+        residual = (np.linalg.norm((contents[w] - harmonic_targets[w]).reshape(n_frames, -1), axis=1)
+                    / np.linalg.norm(contents[w].reshape(n_frames, -1), axis=1))
+        return SimulationRun(positions[:n_frames, w], faces, rest, pins, solve_ms[:n_frames], solver.n_constraints,
+                             residual, basis.shape[1], batch_worlds=solver.worlds, setup_seconds=setup)
 
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        runs = list(pool.map(run_of, range(solver.worlds)))
+    runs = [run_of(w) for w in range(solver.worlds)]
     if not quiet:
         print(f"high-res residuals after stepping: {time.perf_counter() - residuals_start:.1f} s", file=sys.stderr)
     return runs

@@ -645,13 +645,11 @@ def clear_of_body(sub: Substep, x: wp.array(dtype=wp.vec3), capsules: Capsules):
         x[i] = clear_of_capsules(first_capsule(i, sub, capsules), x[i], sub.f1, capsules)
 
 
-@wp.kernel
-def move_outside_capsules(points: wp.array2d(dtype=wp.vec3), ends: wp.array3d(dtype=wp.vec3),
-                          radii: wp.array2d(dtype=float), thickness: float):
-    """Points (F, N) to `thickness` outside frame f's capsules (ends (F, P, 2), radii (P, 2)): the nearest-point
-    projection of finish_substep, capsules taking turns FINAL_PASSES times (the crease where two overlap)."""
-    f, i = wp.tid()
-    x = points[f, i]
+@wp.func
+def outside_frame_capsules(x: wp.vec3, f: int, ends: wp.array3d(dtype=wp.vec3), radii: wp.array2d(dtype=float),
+                           thickness: float) -> wp.vec3:
+    """x to `thickness` outside frame f's capsules (ends (F, P, 2), radii (P, 2)): the nearest-point projection of
+    finish_substep, capsules taking turns FINAL_PASSES times (the crease where two overlap)."""
     for _ in range(FINAL_PASSES):
         total = float(0.0)
         for c in range(ends.shape[1]):
@@ -665,4 +663,36 @@ def move_outside_capsules(points: wp.array2d(dtype=wp.vec3), ends: wp.array3d(dt
             total = total + moved
         if total == 0.0:
             break
-    points[f, i] = x
+    return x
+
+
+@wp.kernel
+def move_outside_capsules(points: wp.array2d(dtype=wp.vec3), ends: wp.array3d(dtype=wp.vec3),
+                          radii: wp.array2d(dtype=float), thickness: float):
+    """Points (F, N) moved outside frame f's capsules in place (outside_frame_capsules)."""
+    f, i = wp.tid()
+    points[f, i] = outside_frame_capsules(points[f, i], f, ends, radii, thickness)
+
+
+@wp.kernel
+def subdivided_outside_capsules(row_start: wp.array(dtype=int), columns: wp.array(dtype=int),
+                                weights: wp.array(dtype=float), coarse: wp.array2d(dtype=wp.vec3),
+                                ends: wp.array3d(dtype=wp.vec3), radii: wp.array2d(dtype=float), thickness: float,
+                                offsets: wp.array2d(dtype=wp.vec3), moved: wp.array(dtype=int)):
+    """Row i of S (CSR) times frame f's coarse points (F, V_low), moved outside frame f's capsules: the offset of
+    the move in offsets (F, V), and moved[i] = 1 where some frame moved vertex i (moved starts at 0)."""
+    f, i = wp.tid()
+    x = wp.vec3(0.0)
+    for k in range(row_start[i], row_start[i + 1]):
+        x += weights[k] * coarse[f, columns[k]]
+    cleared = outside_frame_capsules(x, f, ends, radii, thickness)
+    offsets[f, i] = cleared - x
+    if wp.length_sq(cleared - x) > 0.0:
+        moved[i] = 1            # every writer writes 1: no race on the value
+
+
+@wp.kernel
+def gather_vertices(points: wp.array2d(dtype=wp.vec3), ids: wp.array(dtype=int), out: wp.array2d(dtype=wp.vec3)):
+    """out[f, j] = points[f, ids[j]]."""
+    f, j = wp.tid()
+    out[f, j] = points[f, ids[j]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
@@ -15,7 +16,7 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
-from sim.xpbd.body import outside_body
+from sim.xpbd.body import SubdividedOutsideBody, outside_body
 
 FRAMES = 40
 BUDGET = dict(substeps=4, iterations=20, body_collision=True)
@@ -39,6 +40,32 @@ def test_points_leave_the_capsules_to_the_thickness_and_the_others_stay():
         alone = inside & ((before < 0.01).sum(axis=1) == 1)
         distance = np.linalg.norm(moved[f][alone] - points[f][alone], axis=1)
         np.testing.assert_allclose(distance, 0.01 - before.min(axis=1)[alone], atol=1e-5)
+
+
+DEVICES = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() else [])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_subdivided_points_leave_the_body_as_the_fine_points_would(device):
+    """SubdividedOutsideBody (S x on the device, only the moved vertices back) against outside_body of S x formed on
+    the host: the same vertices move, by the same offsets; the others are not listed."""
+    garment = make_garment("pants", default_skeleton(), max_edge=0.12)
+    S, _ = loop_subdivide(garment.vertices, garment.faces, levels=1)
+    rng = np.random.default_rng(1)
+    coarse = garment.vertices[None] + rng.normal(scale=0.01, size=(3, *garment.vertices.shape))
+    capsules = np.array([[[0.0, 0.5, 0.0], [0.0, 1.0, 0.0]], [[0.1, 0.2, 0.0], [0.2, 0.6, 0.05]]])[None].repeat(3, 0)
+    capsules += rng.normal(scale=0.02, size=capsules.shape)
+    radii = np.array([[0.12, 0.1], [0.09, 0.07]])
+    fine = np.stack([S @ x for x in coarse]).astype(np.float32)
+    cleared = outside_body(fine, capsules, radii, 0.01, device)
+    expected = np.flatnonzero(np.abs(cleared - fine).max(axis=(0, 2)) > 1e-6)
+    ids, offsets = SubdividedOutsideBody(S, radii, 0.01, device)(coarse, capsules)
+    assert 50 < len(expected) < len(fine[0]) // 2
+    # a vertex within float32 rounding of the skin may move in one and not the other: by at most that rounding
+    assert set(expected) <= set(ids) and np.abs(offsets[:, ~np.isin(ids, expected)]).max(initial=0.0) < 1e-6
+    np.testing.assert_allclose(fine[:, ids] + offsets, cleared[:, ids], atol=2e-6)
+    none_near = SubdividedOutsideBody(S, radii, 0.01, device)(coarse, capsules + 10.0)
+    assert len(none_near[0]) == 0 and none_near[1].shape == (3, 0, 3)
 
 
 @pytest.fixture(scope="module")
