@@ -2,9 +2,10 @@
 (docs/artifacts.md, section "sim_low.h5 / sim_high.h5")."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
-from typing import Any, Literal, Mapping
+from typing import Any, Iterator, Literal, Mapping
 
 import h5py
 import numpy as np
@@ -38,20 +39,32 @@ class Trajectory:
     faces: np.ndarray              # (T, 3) int64
 
 
-def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
-                     run: SimulationRun, device: str, source_mesh: str) -> None:
-    """Write one run; `settings` (the resolved scene settings) are its provenance `config`, `source_mesh` the
-    `mesh_fingerprint` of the scene's low-res rest mesh (that of a high-res run too: the mesh it derives from)."""
-    with atomic_h5(path, f"simulate_{level}", settings) as f:
-        f.attrs[SOURCE_MESH] = source_mesh
-        f.create_dataset("positions", data=run.positions.astype(np.float32))
+class SimulationWriter:
+    """One run's file while the run is made: its frames written as they are stepped (`frames`, from any thread:
+    h5py serialises its calls), the rest once the run is done (`finish`). Opened by `simulation_writer`."""
+
+    def __init__(self, f: h5py.File, level: Literal["low", "high"], device: str, n_frames: int):
+        self._f, self._level, self._device = f, level, device
+        self._written = np.zeros(n_frames, dtype=bool)
+        self.finished = False
+
+    def frames(self, first: int, positions: np.ndarray) -> None:
+        """Frames first .. first + len(positions) - 1, (n, V, 3)."""
+        self._f["positions"][first:first + len(positions)] = np.asarray(positions, dtype=np.float32)
+        self._written[first:first + len(positions)] = True
+
+    def finish(self, run: SimulationRun) -> None:
+        """Everything but the positions, which `frames` has written, all of them."""
+        if not self._written.all() or len(run.positions) != len(self._written):
+            raise ValueError(f"{self._f.filename}: finished with frames {np.flatnonzero(~self._written)} not written")
+        f, level = self._f, self._level
         f.create_dataset("faces", data=run.faces.astype(np.int32))
         f.create_dataset("rest_vertices", data=run.rest_vertices.astype(np.float64))
         f.create_dataset("pins/ids", data=run.pin_ids.astype(np.int64))
         f.create_dataset("solve_ms", data=run.solve_ms.astype(np.float64))
         f["solve_ms"].attrs["meaning"] = ("wall time of each frame's solve in ms, for the whole batch of `batch` "
                                           "sequences stepped together (frame 0: initial state, 0)")
-        f.attrs.update(n_constraints=run.n_constraints, level=level, device=device, frames=len(run.positions),
+        f.attrs.update(n_constraints=run.n_constraints, level=level, device=self._device, frames=len(run.positions),
                        batch=run.batch_worlds, setup_seconds=run.setup_seconds)
         if run.harmonic_residual is not None:
             f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
@@ -59,6 +72,31 @@ def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], set
                                                        "t = B^T M S x_low (S x_low moved clear of the body where "
                                                        "it collides)")
             f.attrs["n_harmonics"] = run.n_harmonics
+        self.finished = True
+
+
+@contextlib.contextmanager
+def simulation_writer(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
+                      frames_vertices: tuple[int, int], device: str, source_mesh: str) -> Iterator[SimulationWriter]:
+    """A writer of one run of (frames, vertices) positions; `settings` (the resolved scene settings) are its
+    provenance `config`, `source_mesh` the `mesh_fingerprint` of the scene's low-res rest mesh (that of a
+    high-res run too: the mesh it derives from). The file appears at `path` only if the block ends without error
+    and the writer was finished."""
+    with atomic_h5(path, f"simulate_{level}", settings) as f:
+        f.attrs[SOURCE_MESH] = source_mesh
+        f.create_dataset("positions", shape=(*frames_vertices, 3), dtype=np.float32)
+        writer = SimulationWriter(f, level, device, frames_vertices[0])
+        yield writer
+        if not writer.finished:
+            raise ValueError(f"{path}: the run's writer was left unfinished")
+
+
+def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
+                     run: SimulationRun, device: str, source_mesh: str) -> None:
+    """Write one run made before (simulation_writer's arguments)."""
+    with simulation_writer(path, level, settings, run.positions.shape[:2], device, source_mesh) as writer:
+        writer.frames(0, run.positions)
+        writer.finish(run)
 
 
 def read_trajectory(path: str | os.PathLike) -> Trajectory:

@@ -243,3 +243,33 @@ def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex(
     nothing_moved = (np.zeros(0, dtype=np.int64), np.zeros((len(x_low), 0, 3), dtype=np.float32))
     untouched = harmonic_targets_of(x_low, products, lambda coarse: nothing_moved)
     np.testing.assert_allclose(untouched, np.stack([mass_basis_t @ x for x in smooth]), rtol=1e-12, atol=1e-12)
+
+
+def test_a_run_written_while_stepping_appears_only_once_finished(tmp_path):
+    """simulation_writer (the high-res stage writes each chunk of frames as it is stepped): frames in any order
+    read back as written once finished; a block that raises after some frames, or ends with the writer
+    unfinished, leaves no file at all (not even a temporary one)."""
+    from pipeline.artifacts.simulation import SimulationRun, read_trajectory, simulation_writer
+    rng = np.random.default_rng(0)
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    x = rng.normal(size=(5, 4, 3)).astype(np.float32)
+    run = SimulationRun(x, faces, x[0].astype(np.float64), np.array([0]), np.zeros(5), 5)
+    with simulation_writer(tmp_path / "sim.h5", "high", {}, (5, 4), "cpu", "mesh") as writer:
+        writer.frames(3, x[3:])
+        writer.frames(0, x[:3])
+        writer.finish(run)
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "sim.h5").positions, x)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]
+
+    with pytest.raises(RuntimeError, match="blew up"):
+        with simulation_writer(tmp_path / "failed.h5", "high", {}, (5, 4), "cpu", "mesh") as writer:
+            writer.frames(0, x[:3])
+            raise RuntimeError("blew up")
+    with pytest.raises(ValueError, match="unfinished"):
+        with simulation_writer(tmp_path / "unfinished.h5", "high", {}, (5, 4), "cpu", "mesh") as writer:
+            writer.frames(0, x)
+    with pytest.raises(ValueError, match=r"frames \[3 4\] not written"):
+        with simulation_writer(tmp_path / "short.h5", "high", {}, (5, 4), "cpu", "mesh") as writer:
+            writer.frames(0, x[:3])
+            writer.finish(run)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]
