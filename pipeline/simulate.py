@@ -8,9 +8,11 @@ SCENE.h5 is one sequence's scene (results/<scene>/sequences/<name>/scene.h5), wh
 Several sequences (of one garment) are stepped together as one batch, a solver world each: on a GPU a batch
 costs about what one sequence does until the device is full (the workflow's `shard` key sizes it).
 The high-res run follows the same pins (carried over through the subdivision), collides with the same body, and
-holds the hard constraint B^T M (x_high - S x_low) = 0 after every solver iteration (paper sec. 5, Kavan et al.
-2011). A batch's per-sequence work outside the solver (the harmonic targets before stepping, the residual after)
-runs on --threads threads, a sequence each: most of a 64-sequence GPU job's time besides its stepping.
+holds the hard constraint B^T M (x_high - S x_low) = 0 (paper sec. 5, Kavan et al. 2011; projected once a
+substep by default, `high_res.harmonic_every`). A batch's per-sequence work outside the solver runs on --threads
+threads, a sequence each: the harmonic targets before stepping, and, while the device steps the next frames, the
+residual's products and the writing of the frames already stepped (a 64-sequence GPU job's wall is ~1.2x its
+stepping, docs/performance.md).
 """
 from __future__ import annotations
 
