@@ -3,8 +3,8 @@
 Median over measured frames after warm-up frames (the first frame compiles kernels and, on CUDA, captures the frame
 graph). Each row's ratio is against the first variant of the same mesh and device in the same invocation: for the
 flags the stretch-only run, so the price of bending and of the harmonic constraint is visible; for the garments
-(`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the run without
-collisions, so the price of body and of self-collision is. Usage:
+(`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the stretch-only run
+too, then the price of bending ("no collision"), of the body and of self-collision. Usage:
   python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
   [--substeps 8] [--iterations 75] [--out table.md]
 e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
@@ -98,7 +98,8 @@ def garment_rows(case: str, args) -> list[str]:
                 continue
             base = dict(substeps=args.substeps, iterations=args.iterations)
             baseline = None
-            for name, switches in (("no collision", {}), ("body", dict(body_collision=True)),
+            for name, switches in (("stretch only", dict(bending=False)), ("no collision", {}),
+                                   ("body", dict(body_collision=True)),
                                    ("body+self", dict(body_collision=True, self_collision=True))):
                 ms = time_garment(verts, faces, SolverSettings(**base, **switches), device, pins, targets, capsules,
                                   radii, args.frames, args.warmup)
