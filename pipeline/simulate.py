@@ -21,7 +21,6 @@ import contextlib
 import functools
 import itertools
 import sys
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -99,23 +98,18 @@ class BasisProducts:
         return per_frame_product(self._low, x_low.astype(np.float64, copy=False))
 
 
-Clearance = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-
-
-def harmonic_targets_of(x_low: np.ndarray, products: BasisProducts, clear: Clearance | None) -> np.ndarray:
-    """B^T M x per frame (F, K, 3) of x = S x_low moved clear of the body, `clear` (x_low -> the ids of the
-    vertices of S x_low it moves and their offsets (F, M, 3), as sim.xpbd.body.SubdividedOutsideBody gives them).
+def harmonic_targets_of(x_low: np.ndarray, products: BasisProducts,
+                        moved: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """B^T M x per frame (F, K, 3) of x = S x_low moved clear of the body: `moved` holds the ids of the vertices
+    of S x_low the body moves and their offsets (F, M, 3), as sim.xpbd.body.SubdividedOutsideBody gives them.
 
     As (B^T M S) x_low plus B^T M of the moved vertices' offsets: the same sum as B^T M x over all V high-res
     vertices, for a product with the V_low coarse ones (1/16) and one with the moved vertices. The whole (K, V)
     product per frame was most of the high-res stage's setup for a 64-world batch (single-threaded BLAS, 2026-11-24).
     """
     targets = products.low(x_low)
-    if clear is None:
-        return targets
-    moved, offsets = clear(x_low)
-    if len(moved):
-        targets += products.high(offsets, moved)
+    if moved is not None and len(moved[0]):
+        targets += products.high(moved[1], moved[0])
     return targets
 
 
@@ -153,9 +147,10 @@ def read_batch(scene_paths: Sequence[str], body_collision: bool) -> Batch:
     drives, mesh = [], None
     for path in scene_paths:
         rest, faces = read_rest_mesh(path)
-        check_mesh(path, rest, faces)
-        drive = read_scene_drive(path, body_collision)
         fingerprint = mesh_fingerprint(rest, faces)
+        if mesh is None:    # the others must be this mesh: checked once (8 ms a paper-pants file, 0.5 s for 64)
+            check_mesh(path, rest, faces)
+        drive = read_scene_drive(path, body_collision)
         if mesh is None:
             mesh, first = fingerprint, drive
         elif fingerprint != mesh:
@@ -266,20 +261,21 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     products = BasisProducts((mass[:, None] * basis).T, S)
     clearance = (SubdividedOutsideBody(S, batch.drives[0].capsule_radii, s.collision_thickness, device)
                  if s.body_collision else None)
-    warp_launches = threading.Lock()
-
-    def targets_of(x_low: np.ndarray, drive: SceneDrive) -> np.ndarray:
-        def clear(coarse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            with warp_launches:     # one Warp launch at a time; the sequences' other work goes on around it
-                return clearance(coarse, drive.capsules)
-        return harmonic_targets_of(x_low, products, clear if clearance is not None else None)
-
+    # Each sequence's clearance here, one after another (~3 ms a paper-pants sequence on the H100: Warp's launches
+    # stay on this thread), then the targets' products on the job's threads while this thread builds the solver
+    # from frame 0's (~1 s each, for a 64-sequence batch).
+    moved = [clearance(x_low, d.capsules) if clearance else None for x_low, d in zip(x_lows, batch.drives)]
+    clearance_done = time.perf_counter()
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        harmonic_targets = list(pool.map(targets_of, x_lows, batch.drives))
+        computing = [pool.submit(harmonic_targets_of, x_low, products, m) for x_low, m in zip(x_lows, moved)]
+        frame0_targets = [harmonic_targets_of(x_low[:1], products, None if m is None else (m[0], m[1][:1]))
+                          for x_low, m in zip(x_lows, moved)]
+        solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
+                             harmonic=constraint, harmonic_target=np.concatenate(frame0_targets), worlds=len(scene_paths),
+                             **batch.body())
+        solver_done = time.perf_counter()
+        harmonic_targets = [job.result() for job in computing]
     targets_done = time.perf_counter()
-    solver = ClothSolver(rest, faces, s, device, pins, initial_positions=np.stack([S @ x[0] for x in x_lows]),
-                         harmonic=constraint, harmonic_target=batch.stack(harmonic_targets, 0),
-                         worlds=len(scene_paths), **batch.body())
 
     def inputs(f: int) -> FrameInputs:
         return FrameInputs(pin_targets=batch.stack(targets, f), harmonic_target=batch.stack(harmonic_targets, f),
@@ -288,8 +284,9 @@ def simulate_high(settings: dict, scene_paths: Sequence[str], subdiv_path: str, 
     setup_done = time.perf_counter()
     setup = setup_done - start
     if not quiet:   # where the setup goes (issue 12: a batch job's wall against its stepping)
-        print(f"high-res setup: reading {read_done - start:.1f} s, harmonic targets {targets_done - read_done:.1f} "
-              f"s ({threads} thread(s)), solver {setup_done - targets_done:.1f} s", file=sys.stderr)
+        print(f"high-res setup: reading {read_done - start:.1f} s, body clearance {clearance_done - read_done:.1f} s, "
+              f"solver {solver_done - clearance_done:.1f} s with the harmonic targets' products on {threads} "
+              f"thread(s) meanwhile, then waiting for those {targets_done - solver_done:.1f} s", file=sys.stderr)
     # B^T M x of the stepped frames for the residual, on the job's threads while the device steps the next ones
     # (numpy's BLAS releases the GIL; the main thread mostly waits on the device).
     # Writing the frames there too took a 64-world job's writing (2.5-4.5 s) off its wall.

@@ -225,23 +225,22 @@ def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex(
     products = BasisProducts(mass_basis_t, S)
     smooth = np.stack([S @ x for x in x_low.astype(np.float64)])
 
-    def floor(coarse):            # a "body" below z = 0: moves the vertices under it up onto it
-        assert coarse is x_low
+    def floor():                  # a "body" below z = 0: moves the vertices under it up onto it
         cleared = smooth.copy()
         cleared[..., 2] = np.maximum(cleared[..., 2], 0.0)
         moved = np.flatnonzero((cleared != smooth).any(axis=(0, 2)))
         assert 0 < len(moved) < len(smooth[0])
         return moved, (cleared - smooth)[:, moved]
 
-    for clear in (floor, None):
-        cleared = smooth if clear is None else np.maximum(smooth, [-np.inf, -np.inf, 0.0])
+    for moved in (floor(), None):
+        cleared = smooth if moved is None else np.maximum(smooth, [-np.inf, -np.inf, 0.0])
         expected = np.stack([mass_basis_t @ x for x in cleared])
-        got = harmonic_targets_of(x_low, products, clear)
+        got = harmonic_targets_of(x_low, products, moved)
         np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
     np.testing.assert_allclose(products.high(cleared.astype(np.float32)),
                                np.stack([mass_basis_t @ x for x in cleared.astype(np.float32)]), rtol=1e-12, atol=1e-12)
     nothing_moved = (np.zeros(0, dtype=np.int64), np.zeros((len(x_low), 0, 3), dtype=np.float32))
-    untouched = harmonic_targets_of(x_low, products, lambda coarse: nothing_moved)
+    untouched = harmonic_targets_of(x_low, products, nothing_moved)
     np.testing.assert_allclose(untouched, np.stack([mass_basis_t @ x for x in smooth]), rtol=1e-12, atol=1e-12)
 
 
