@@ -66,8 +66,9 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             threads: high_batch_threads(_scene, len(_seqs))
             resources: mem_mb=8000 + 2000 * len(_seqs), gpu=_gpu
             # The job spreads its products over its threads, a sequence each, one BLAS thread apiece: BLAS pools of
-            # `threads` threads each (what Snakemake sets) spin on the cores the solver's construction and the
-            # stepping loop need (a 64-sequence job's solver took 4.1 s instead of 1.3 s beside them, H100).
+            # `threads` threads each (what Snakemake sets) crowd the cores the solver's construction needs meanwhile
+            # (the paper pants' 64-sequence shard on the H100: solver 2.4 s and wall 51.7 s with them, 1.7 s and
+            # 49.8 s without).
             shell:
                 "OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 "
                 "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --threads {threads} "
