@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
-import itertools
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -35,7 +34,8 @@ from geometry.rigid import apply_rigid
 from pipeline import cli
 from pipeline.artifacts.h5 import check_same_mesh, mesh_fingerprint
 from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
-from pipeline.artifacts.simulation import SimulationRun, SimulationWriter, read_trajectory, simulation_writer, write_simulation
+from pipeline.artifacts.simulation import (SimulationRun, SimulationWriter, read_trajectory, simulation_writer,
+                                           write_simulation)
 from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
 from pipeline.config import LEARNING_ONLY, read_settings
 from pipeline.errors import PipelineError
@@ -375,11 +375,11 @@ def main(argv: Sequence[str] | None = None) -> None:
             runs = simulate_high(settings, scenes, groups[0][1], [group[2] for group in groups], device,
                                  args.quiet, args.threads, open_run)
         start = time.perf_counter()
-        for group, run, writer in itertools.zip_longest(groups, runs, writers):
-            if writer is None:
+        for writer, run in zip(writers, runs):          # a high-res batch: its frames are written already
+            writer.finish(run)
+        if not writers:
+            for group, run in zip(groups, runs):
                 write_simulation(group[-1], args.level, settings, run, device, source_mesh())
-            else:
-                writer.finish(run)
     if not args.quiet:    # where the stage's time went (issue 12: its wall against its stepping)
         ms = runs[0].solve_ms
         streamed = " (high-res frames written while stepping)" if writers else ""
