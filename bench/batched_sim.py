@@ -11,10 +11,11 @@ time goes, per kernel, at the largest B (CUDA only; launched without the graph, 
 own). `--contacts` adds the low-res batches with body and self collision each switched off (what the contacts
 cost). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
 by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
-not installed). Usage:
+not installed). `--lanes 1,4` times each B with those threads per vertex in the sweeps (ClothSolver's
+sweep_lanes; default: the solver's). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
-      [--contacts] [--peer newton] [--out table.md]
+      [--contacts] [--peer newton] [--lanes 1,4] [--out table.md]
 """
 from __future__ import annotations
 
@@ -91,8 +92,11 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
     return np.stack(frames)
 
 
-def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start):
-    extra = {} if constraint is None else dict(harmonic=constraint, harmonic_target=goals[0], initial_positions=start)
+def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start,
+                lanes=None):
+    extra = dict(sweep_lanes=lanes)
+    if constraint is not None:
+        extra.update(harmonic=constraint, harmonic_target=goals[0], initial_positions=start)
     if settings.body_collision:
         extra.update(capsules=capsules[:worlds, 0], capsule_radii=radii)
     return ClothSolver(vertices, faces, settings, device, pins, worlds=worlds, **extra)
@@ -183,6 +187,7 @@ def main():
     parser.add_argument("--peer", choices=("newton",), help="also time NVIDIA Newton's XPBD on the hanging cloth")
     parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
                         "collision switched off")
+    parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -191,7 +196,9 @@ def main():
     S, _ = loop_subdivide(*levels["low"], levels=1)
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
-    rows = ["| level | V | B | ms per batch frame | cloth-frames/s | x B=1 |", "|---|---|---|---|---|---|"]
+    lane_counts = [int(lanes) for lanes in args.lanes.split(",")] if args.lanes else [None]
+    rows = ["| level | V | B | lanes | ms per batch frame | cloth-frames/s | x first row |",
+            "|---|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
         vertices, faces = levels[level]
@@ -204,18 +211,20 @@ def main():
                                     n_frames)
                 goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
-            solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds, constraint,
-                                 goals, start)
-            ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
-            rate = worlds * 1e3 / ms
-            base = base or rate
-            rows.append(f"| {level} | {len(vertices)} | {worlds} | {ms:.2f} | {rate:.0f} | {rate / base:.1f} |")
-            print(rows[-1], flush=True)
-            if args.profile and worlds == batches[-1]:
-                profiles += [f"\n{level}, B = {worlds}: one frame's kernels (eager launches)",
-                             "| kernel | launches | ms | share |", "|---|---|---|---|",
-                             *kernel_profile(solver, goals, targets, capsules)]
-            del solver
+            for lanes in lane_counts:
+                solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds,
+                                     constraint, goals, start, lanes)
+                ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
+                rate = worlds * 1e3 / ms
+                base = base or rate
+                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.sweep_lanes} | {ms:.2f} | {rate:.0f} | "
+                            f"{rate / base:.1f} |")
+                print(rows[-1], flush=True)
+                if args.profile and worlds == batches[-1]:
+                    profiles += [f"\n{level}, B = {worlds}, {solver.sweep_lanes} lanes: one frame's kernels (eager "
+                                 "launches)", "| kernel | launches | ms | share |", "|---|---|---|---|",
+                                 *kernel_profile(solver, goals, targets, capsules)]
+                del solver
     peers = peer_rows(levels, pins, batches, settings, args) if args.peer else []
     contacts = contact_rows(levels, pins, targets, capsules, radii, batches, settings, args) if args.contacts else []
     table = "\n".join(rows + profiles + contacts + peers)

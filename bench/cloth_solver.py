@@ -4,9 +4,10 @@ Median over measured frames after warm-up frames (the first frame compiles kerne
 graph). Each row's ratio is against the first variant of the same mesh and device in the same invocation: for the
 flags the stretch-only run, so the price of bending and of the harmonic constraint is visible; for the garments
 (`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the stretch-only run
-too, then the price of bending ("no collision"), of the body and of self-collision. Usage:
+too, then the price of bending ("no collision"), of the body and of self-collision. `--lanes 1,4` times each
+CUDA run with those threads per vertex in the sweeps (ClothSolver's sweep_lanes; default: the solver's). Usage:
   python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
-  [--substeps 8] [--iterations 75] [--out table.md]
+  [--substeps 8] [--iterations 75] [--lanes 1,4] [--out table.md]
 e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
 """
 from __future__ import annotations
@@ -42,13 +43,13 @@ def build(max_edge: float):
     return (low, low_faces), (high, faces)
 
 
-def time_run(vertices, faces, settings, device, pins, frames, warmup, harmonic=None):
+def time_run(vertices, faces, settings, device, pins, frames, warmup, lanes, harmonic=None):
     target = None
     if harmonic is not None:
         constraint, basis, mass = harmonic
         target = (mass[:, None] * basis).T @ vertices
     solver = ClothSolver(vertices, faces, settings, device, pins, harmonic=harmonic and harmonic[0],
-                         harmonic_target=target)
+                         harmonic_target=target, sweep_lanes=lanes)
     sway = np.array([0.05, 0.0, 0.03])
     times = []
     for f in range(warmup + frames):
@@ -57,7 +58,7 @@ def time_run(vertices, faces, settings, device, pins, frames, warmup, harmonic=N
         solver.step(solver.state, FrameInputs(pin_targets=pin_targets, harmonic_target=target))
         solver.state.positions.numpy()  # the positions a stage stores each frame; also synchronises the device
         times.append((time.perf_counter() - start) * 1e3)
-    return float(np.median(times[warmup:]))
+    return float(np.median(times[warmup:])), solver.sweep_lanes
 
 
 def garment_inputs(kind: str, n_frames: int):
@@ -76,17 +77,17 @@ def garment_inputs(kind: str, n_frames: int):
     return levels, ids, targets, capsules, radii
 
 
-def time_garment(vertices, faces, settings, device, pins, targets, capsules, radii, frames, warmup):
+def time_garment(vertices, faces, settings, device, pins, targets, capsules, radii, frames, warmup, lanes):
     body = settings.body_collision
     solver = ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[0] if body else None,
-                         capsule_radii=radii if body else None)
+                         capsule_radii=radii if body else None, sweep_lanes=lanes)
     times = []
     for f in range(1, warmup + frames + 1):
         start = time.perf_counter()
         solver.step(solver.state, FrameInputs(pin_targets=targets[f], capsules=capsules[f] if body else None))
         solver.state.positions.numpy()
         times.append((time.perf_counter() - start) * 1e3)
-    return float(np.median(times[warmup:]))
+    return float(np.median(times[warmup:])), solver.sweep_lanes
 
 
 def garment_rows(case: str, args) -> list[str]:
@@ -101,12 +102,13 @@ def garment_rows(case: str, args) -> list[str]:
             for name, switches in (("stretch only", dict(bending=False)), ("no collision", {}),
                                    ("body", dict(body_collision=True)),
                                    ("body+self", dict(body_collision=True, self_collision=True))):
-                ms = time_garment(verts, faces, SolverSettings(**base, **switches), device, pins, targets, capsules,
-                                  radii, args.frames, args.warmup)
-                baseline = baseline or ms
-                rows.append(f"| {case} | {level} | {len(verts)} | - | {device} | {name} | {ms:.2f} | "
-                            f"{ms / baseline:.2f} |")
-                print(rows[-1], flush=True)
+                for lanes in lane_counts(device, args):
+                    ms, used = time_garment(verts, faces, SolverSettings(**base, **switches), device, pins, targets,
+                                      capsules, radii, args.frames, args.warmup, lanes)
+                    baseline = baseline or ms
+                    rows.append(f"| {case} | {level} | {len(verts)} | - | {device} | {used} | {name} | "
+                                f"{ms:.2f} | {ms / baseline:.2f} |")
+                    print(rows[-1], flush=True)
     return rows
 
 
@@ -131,12 +133,20 @@ def flag_rows(case: str, args) -> list[str]:
                                  (harmonic_constraint(basis, mass, pins), basis, mass)))
             baseline = None
             for name, settings, harmonic in variants:
-                ms = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, harmonic)
-                baseline = baseline or ms
-                rows.append(f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | {name} | "
-                            f"{ms:.2f} | {ms / baseline:.2f} |")
-                print(rows[-1], flush=True)
+                for lanes in lane_counts(device, args):
+                    ms, used = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, lanes, harmonic)
+                    baseline = baseline or ms
+                    rows.append(f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | "
+                                f"{used} | {name} | {ms:.2f} | {ms / baseline:.2f} |")
+                    print(rows[-1], flush=True)
     return rows
+
+
+def lane_counts(device: str, args) -> list[int | None]:
+    """The sweep_lanes values to time on `device` (None: the solver's default; the CPU takes 1 only)."""
+    if not args.lanes or not device.startswith("cuda"):
+        return [None]
+    return [int(lanes) for lanes in args.lanes.split(",")]
 
 
 def main():
@@ -148,10 +158,11 @@ def main():
     parser.add_argument("--substeps", type=int, default=8)
     parser.add_argument("--iterations", type=int, default=75)
     parser.add_argument("--skip-cpu-high", action="store_true", help="skip high-res runs on the CPU (slow)")
+    parser.add_argument("--lanes", default="", help="CUDA threads per vertex in the sweeps, e.g. 1,4")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
-    rows = ["| mesh | level | V | K | device | variant | ms/frame | x first variant |",
-            "|---|---|---|---|---|---|---|---|"]
+    rows = ["| mesh | level | V | K | device | lanes | variant | ms/frame | x first row |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for case in args.cases.split(","):
         rows += garment_rows(case, args) if case in GARMENTS else flag_rows(case, args)
     table = "\n".join(rows)

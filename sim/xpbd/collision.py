@@ -25,7 +25,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True})
 
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
-                              predict_vertex, store_state)
+                              lane_count, lane_sum_vec3, predict_vertex, store_state)
 
 SWEEP_STEPS = 24            # sphere-tracing steps of the continuous body test (a head-on approach needs one)
 SWEEP_TOLERANCE = 1.0e-3    # the trace has touched when within this fraction of the level
@@ -534,21 +534,25 @@ def sort_face_lists(sc: SelfContacts):
 
 @wp.kernel
 def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, sc: SelfContacts,
-                          capsules: Capsules):
+                          capsules: Capsules, lanes: int):
     """One Jacobi sweep: distance constraints (distance_correction) and self-contacts gathered from x_in, then
     projection out of the capsules. Empty contact lists and no watched capsule leave exactly x_in + distance
-    correction, as solve_distance_constraints computes it."""
-    i = wp.tid()
+    correction, as solve_distance_constraints computes it. Launched over n * lanes threads (kernels.lane_sum): a
+    lane takes every lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane
+    writes the result."""
+    tid = wp.tid()
+    i = tid // lanes
+    lane = tid - i * lanes
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
     xi = x_in[i]
-    dx = distance_correction(i, xi, sub, constraints, sweep)
+    dx = distance_correction(i, xi, sub, constraints, sweep, lane, lanes)
     # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
     # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
     contact = wp.vec3(0.0)
     active = int(0)
     wi = inv_mass[i]
-    for a in range(sc.vertex_count[i]):
+    for a in range(lane, sc.vertex_count[i], lanes):
         code = sc.vertex_contacts[i, a]
         xa, xb, xc, w, n, ok = contact_triangle(sc.faces[wp.abs(code) - 1], x_in, inv_mass)
         if ok:
@@ -557,7 +561,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
                 contact = contact + (wi * dl * float(wp.sign(code))) * n
                 active += 1
     if wi > 0.0 and sc.corner_count[i] > 0:
-        for f in range(sc.face_offsets[i], sc.face_offsets[i + 1]):
+        for f in range(sc.face_offsets[i] + lane, sc.face_offsets[i + 1], lanes):
             t = sc.vertex_faces[f]
             if sc.face_count[t] > 0:
                 tri = sc.faces[t]
@@ -575,10 +579,14 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
                         if on:
                             contact = contact - (wi * bary[corner] * dl * float(wp.sign(code))) * n
                             active += 1
+    dx = lane_sum_vec3(dx, lanes)
+    contact = lane_sum_vec3(contact, lanes)
+    active = lane_count(active, lanes)
     if active > 0:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
-    sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
+    if lane == 0:
+        sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
 
 
 @wp.kernel

@@ -99,6 +99,36 @@ class HarmonicProjection:
     target_end: wp.array2d(dtype=wp.vec3)        # (B, K) at its end
 
 
+# A sweep may spread each vertex's constraints and contacts over `lanes` adjacent threads (CUDA: 1, 2, 4, 8 or 16;
+# the CPU runs 1): one cloth alone is latency-bound (~14.5k threads, a few warps per SM, each thread walking its
+# lists of dependent loads), and lanes shorten every thread's walk. The lanes' partial sums meet in a butterfly of
+# warp shuffles, so every lane ends with the same bits (a + b = b + a in floating point); with one lane the sum is
+# the thread's own, in the order it always had. The mask names only the group's lanes: other groups of the warp
+# may be elsewhere in their loops, and a group is never split (lanes divide 32 and the launch is n * lanes wide).
+_LANE_SUM = """
+#if defined(__CUDA_ARCH__)
+    const unsigned int first = (threadIdx.x & 31u) & ~(unsigned int)(lanes - 1);
+    const unsigned int group = (0xffffffffu >> (32 - lanes)) << first;
+    for (int m = 1; m < lanes; m <<= 1)
+        value += __shfl_xor_sync(group, value, m);
+#endif
+    return value;
+"""
+
+
+@wp.func_native(_LANE_SUM)
+def lane_sum(value: float, lanes: int) -> float: ...
+
+
+@wp.func_native(_LANE_SUM)
+def lane_count(value: int, lanes: int) -> int: ...
+
+
+@wp.func
+def lane_sum_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
+    return wp.vec3(lane_sum(value[0], lanes), lane_sum(value[1], lanes), lane_sum(value[2], lanes))
+
+
 @wp.func
 def predict_vertex(i: int, sub: Substep, pins: PinDrive) -> wp.vec3:
     """Symplectic-Euler prediction x* = x + h (v + h g) e^{-k h}; pinned vertices jump to their target at the
@@ -125,7 +155,7 @@ def predict_positions(sub: Substep, pins: PinDrive):
 
 @wp.func
 def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: DistanceConstraints,
-                        sweep: JacobiSweep) -> wp.vec3:
+                        sweep: JacobiSweep, lane: int, lanes: int) -> wp.vec3:
     """One Jacobi XPBD iteration over distance constraints rest_min <= |x_i - x_j| <= rest_max (XPBD eq. 18):
     the correction of vertex i (at xi = x_in[i]).
 
@@ -138,6 +168,7 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     (alpha = 0: stretch, by default) needs no multiplier, its update being the same whatever lambda is, so its
     multiplier is neither read nor written (memory traffic, not arithmetic, bounds a batched sweep).
     `lambda_carry` is 0 on a substep's first iteration, which resets the multipliers without a separate launch.
+    This lane's share: entries lane, lane + lanes, ... of the vertex's list (lane_sum adds the shares up).
     """
     n = sub.world_vertices
     world = i // n
@@ -146,7 +177,7 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     own = i - first
     wi = constraints.inv_mass[own]
     dx = wp.vec3(0.0)
-    for a in range(constraints.offsets[own], constraints.offsets[own + 1]):
+    for a in range(constraints.offsets[own] + lane, constraints.offsets[own + 1], lanes):
         entry = constraints.entries[a]
         j = first + entry[0]
         c = entry[1]
@@ -170,11 +201,16 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
 
 
 @wp.kernel
-def solve_distance_constraints(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep):
-    """One Jacobi sweep over the distance constraints, reading x_in and writing x_out (see distance_correction)."""
-    i = wp.tid()
+def solve_distance_constraints(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, lanes: int):
+    """One Jacobi sweep over the distance constraints, reading x_in and writing x_out (see distance_correction),
+    launched over n * lanes threads: vertex tid // lanes, lane tid % lanes."""
+    tid = wp.tid()
+    i = tid // lanes
+    lane = tid - i * lanes
     xi = sweep.x_in[i]
-    sweep.x_out[i] = xi + distance_correction(i, xi, sub, constraints, sweep)
+    dx = lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes), lanes)
+    if lane == 0:
+        sweep.x_out[i] = xi + dx
 
 
 @wp.func

@@ -83,6 +83,10 @@ WORLD_SPACING = 8.0
 CONTACT_CAPACITY = 32
 MAX_CONTACT_CAPACITY = 512
 
+# Threads per vertex in a CUDA Jacobi sweep (kernels.lane_sum): measured on an H100 (docs/performance.md). The CPU
+# runs one thread per vertex (its kernels run serially: lanes would only add loop overhead).
+CUDA_SWEEP_LANES = 4
+
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
 # watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
@@ -101,18 +105,26 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     the same mesh, settings and pinned vertices. The state starts at `initial_positions` ((V, 3) for every world,
     or (B, V, 3); default: the rest positions) with zero velocities; the pins start where the state has them, and
     `harmonic_target` (B, K, 3) and `capsules` (B, N, 2, 3) give the other inputs at frame 0, `capsule_radii`
-    (N, 2) the capsules' radii at a and b (one body shape for every world).
+    (N, 2) the capsules' radii at a and b (one body shape for every world). `sweep_lanes` threads share a vertex
+    in each Jacobi sweep (default: CUDA_SWEEP_LANES on CUDA, 1 on the CPU; the sums' order, not the physics,
+    depends on it).
     """
 
     def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
                  pinned: np.ndarray, initial_positions: np.ndarray | None = None,
                  harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
                  capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1,
-                 contact_capacity: int = CONTACT_CAPACITY):
+                 contact_capacity: int = CONTACT_CAPACITY, sweep_lanes: int | None = None):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         self.settings = settings
         self.device = wp.get_device(device)
+        if sweep_lanes is None:
+            sweep_lanes = CUDA_SWEEP_LANES if self.device.is_cuda else 1
+        if sweep_lanes not in ((1, 2, 4, 8, 16) if self.device.is_cuda else (1,)):
+            raise ValueError(f"sweep_lanes must be 1, 2, 4, 8 or 16 on CUDA (threads of a warp per vertex) and 1 on "
+                             f"the CPU, got {sweep_lanes!r}")
+        self.sweep_lanes = sweep_lanes
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
         s = settings
@@ -446,12 +458,13 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
                 self._launch_broad_phase(sub)
             every_iteration = s.harmonic_every == "iteration"
             for sweep in self._sweeps:
+                lanes = self.sweep_lanes
                 if collide:
-                    wp.launch(collision.solve_with_collisions, dim=n, device=dev,
-                              inputs=[sub, self.constraints, sweep, self.contacts, self.capsules])
+                    wp.launch(collision.solve_with_collisions, dim=n * lanes, device=dev,
+                              inputs=[sub, self.constraints, sweep, self.contacts, self.capsules, lanes])
                 else:
-                    wp.launch(kernels.solve_distance_constraints, dim=n, device=dev,
-                              inputs=[sub, self.constraints, sweep])
+                    wp.launch(kernels.solve_distance_constraints, dim=n * lanes, device=dev,
+                              inputs=[sub, self.constraints, sweep, lanes])
                 if self.harmonic_projection is not None and (every_iteration or sweep is self._sweeps[-1]):
                     self._launch_projection(sweep.x_out, sub.f1)
             solved = self._sweeps[-1].x_out

@@ -259,7 +259,7 @@ def test_collision_switches_change_nothing_without_contact():
         np.testing.assert_array_equal(x, runs[False, False])
 
 
-def contact_scene(device):
+def contact_scene(device, sweep_lanes=None):
     """Stacked sheets draped over a capsule that moves: body contact, friction and self-contact all active."""
     vertices, faces, _, _, _ = stacked_sheets()
     radii = np.array([[0.08, 0.06]])
@@ -269,7 +269,7 @@ def contact_scene(device):
 
     settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
     solver = ClothSolver(vertices, faces, settings, device, np.zeros(0, int), capsules=capsule(0),
-                         capsule_radii=radii)
+                         capsule_radii=radii, sweep_lanes=sweep_lanes)
     positions = []
     for frame in range(1, 31):
         solver.step(solver.state, FrameInputs(capsules=capsule(frame)))
@@ -286,17 +286,20 @@ def test_runs_on_cpu_are_deterministic_with_contacts():
 
 
 @pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
-def test_cuda_graph_agrees_with_cpu():
-    # The devices round differently (FMA contraction); contact and stick/slip decisions then amplify the
-    # difference (on an H100: 2e-7 of the cloth size after 5 frames, 1e-4 after 10, a few % after 30, with the
-    # same trees and contact order on both). So: close agreement at first, the same contact physics throughout.
+@pytest.mark.parametrize("lanes", [1, 4, 16])
+def test_cuda_graph_agrees_with_cpu(lanes):
+    # The devices round differently (FMA contraction, and a vertex's sums split over `lanes` threads add up in
+    # another order); contact and stick/slip decisions then amplify the difference (on an H100: 2e-7 of the cloth
+    # size after 5 frames, 1e-4 after 10, a few % after 30, with the same trees and contact order on both). So:
+    # close agreement at first, the same contact physics throughout.
     cpu, _ = contact_scene("cpu")
-    cuda, solver = contact_scene("cuda:0")
+    cuda, solver = contact_scene("cuda:0", lanes)
+    assert solver.sweep_lanes == lanes
     size = np.ptp(cpu[0], axis=0).max()
     error = np.abs(cpu - cuda).max(axis=(1, 2)) / size
     assert error[:5].max() < 1e-5
     np.testing.assert_allclose(cuda.mean(axis=1), cpu.mean(axis=1), atol=0.02 * size)
-    again, _ = contact_scene("cuda:0")
+    again, _ = contact_scene("cuda:0", lanes)
     np.testing.assert_array_equal(again, cuda)  # deterministic on the GPU too: no float atomics
 
 
@@ -316,6 +319,8 @@ def test_collision_inputs_are_checked():
     with pytest.raises(ValueError, match="body_collision is off"):
         solver = ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int))
         solver.step(solver.state, FrameInputs(capsules=capsule))
+    with pytest.raises(ValueError, match="sweep_lanes"):  # the CPU's threads run one after the other: no shuffles
+        ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int), sweep_lanes=4)
     for field, value in [("collision_thickness", 0.0), ("friction", -0.1), ("self_thickness", -1.0)]:
         with pytest.raises(ValueError, match=field):
             SolverSettings(**{field: value})
