@@ -226,19 +226,38 @@ def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float,
 
 
 @wp.func
-def push_out_of_body(i: int, first: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules,
-                     fraction: float) -> wp.vec3:
-    """keep_outside for every capsule watched by vertex i (whose world's capsules start at row `first`), one after
-    the other, at `fraction` of the frame; the distances moved add to the vertex's push (the normal impulse that
-    friction is limited by)."""
+def watched_capsules(i: int, first: int, capsules: Capsules, fraction: float):
+    """The capsules vertex i watches (its world's capsules start at row `first`), at `fraction` of the frame: end
+    points a (rows of a mat33), b, radii at a and b (vec3s), slot k used when byte k of the returned code is not 0.
+    Loaded before a sweep's gather, so that the loads are in flight while the gather runs (a lone cloth's sweep
+    waits on its longest chain of dependent loads, and the body test is the last link)."""
     near = capsules.near[i]
-    while near != 0:
-        c = first + (near & 255) - 1
-        near = near >> 8
-        a, b = capsule_at(capsules, c, fraction)
-        x, moved = keep_outside(x_from, x, a, b, capsules.radius[c, 0], capsules.radius[c, 1], capsules.thickness)
-        if moved > 0.0:
-            capsules.push[i] = capsules.push[i] + moved
+    ends_a = wp.mat33(0.0)
+    ends_b = wp.mat33(0.0)
+    radius_a = wp.vec3(0.0)
+    radius_b = wp.vec3(0.0)
+    for k in range(WATCHED):
+        code = (near >> (8 * k)) & 255
+        if code != 0:
+            c = first + code - 1
+            a, b = capsule_at(capsules, c, fraction)
+            ends_a[k] = a
+            ends_b[k] = b
+            radius_a[k] = capsules.radius[c, 0]
+            radius_b[k] = capsules.radius[c, 1]
+    return near, ends_a, ends_b, radius_a, radius_b
+
+
+@wp.func
+def push_out_of_body(i: int, x_from: wp.vec3, x: wp.vec3, near: int, ends_a: wp.mat33, ends_b: wp.mat33,
+                     radius_a: wp.vec3, radius_b: wp.vec3, capsules: Capsules) -> wp.vec3:
+    """keep_outside for every capsule vertex i watches (watched_capsules), one after the other; the distances moved
+    add to the vertex's push (the normal impulse that friction is limited by)."""
+    for k in range(WATCHED):
+        if (near >> (8 * k)) & 255 != 0:
+            x, moved = keep_outside(x_from, x, ends_a[k], ends_b[k], radius_a[k], radius_b[k], capsules.thickness)
+            if moved > 0.0:
+                capsules.push[i] = capsules.push[i] + moved
     return x
 
 
@@ -546,6 +565,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
     xi = x_in[i]
+    near, ends_a, ends_b, radius_a, radius_b = watched_capsules(i, first_capsule(i, sub, capsules), capsules, sub.f1)
     dx = distance_correction(i, xi, sub, constraints, sweep, lane, lanes)
     # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
     # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
@@ -586,7 +606,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
     if lane == 0:
-        sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
+        sweep.x_out[i] = push_out_of_body(i, xi, xi + dx, near, ends_a, ends_b, radius_a, radius_b, capsules)
 
 
 @wp.kernel

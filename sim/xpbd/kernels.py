@@ -248,25 +248,38 @@ def harmonic_partial_sums(x: wp.array(dtype=wp.vec3), hp: HarmonicProjection):
 
 
 @wp.kernel
-def harmonic_residual(hp: HarmonicProjection, target_fraction: float):
-    """r_k = (B^T M x)_k - (B^T M S x_low)_k of world w, the low-res side interpolated linearly within the frame."""
-    w, k = wp.tid()
+def harmonic_residual(hp: HarmonicProjection, target_fraction: float, lanes: int):
+    """r_k = (B^T M x)_k - (B^T M S x_low)_k of world w, the low-res side interpolated linearly within the frame.
+    Launched over B K lanes threads: `lanes` threads share a mode's chunks (lane_sum)."""
+    tid = wp.tid()
+    q = tid // lanes
+    lane = tid - q * lanes
+    n_modes = hp.residual.shape[1]
+    w = q // n_modes
+    k = q - w * n_modes
     acc = wp.vec3(0.0)
-    for c in range(hp.partial.shape[1]):
+    for c in range(lane, hp.partial.shape[1], lanes):
         acc = acc + hp.partial[w, c, k]
-    hp.residual[w, k] = acc - wp.lerp(hp.target_start[w, k], hp.target_end[w, k], target_fraction)
+    acc = lane_sum_vec3(acc, lanes)
+    if lane == 0:
+        hp.residual[w, k] = acc - wp.lerp(hp.target_start[w, k], hp.target_end[w, k], target_fraction)
 
 
 @wp.kernel
-def harmonic_project(hp: HarmonicProjection, x: wp.array(dtype=wp.vec3)):
+def harmonic_project(hp: HarmonicProjection, x: wp.array(dtype=wp.vec3), lanes: int):
     """x_i -= sum_k A[i, k] r_k with A = P_free B (B^T M P_free B)^{-1}: the M-orthogonal projection onto
     B^T M (x - S x_low) = 0 that leaves pinned vertices (zero rows of A) where they are. A is stored transposed
-    (K, V) so that consecutive vertices read consecutive entries."""
-    i = wp.tid()
+    (K, V) so that consecutive vertices read consecutive entries (also with `lanes` threads a vertex, each taking
+    every lanes-th mode: a lane's loads across the warp's vertices stay contiguous)."""
+    tid = wp.tid()
+    i = tid // lanes
+    lane = tid - i * lanes
     n = hp.mass_basis.shape[0]
     w = i // n
     row = i - w * n
     acc = wp.vec3(0.0)
-    for k in range(hp.residual.shape[1]):
+    for k in range(lane, hp.residual.shape[1], lanes):
         acc = acc + hp.correction_basis_t[k, row] * hp.residual[w, k]
-    x[i] = x[i] - acc
+    acc = lane_sum_vec3(acc, lanes)
+    if lane == 0:
+        x[i] = x[i] - acc

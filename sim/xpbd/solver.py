@@ -83,9 +83,22 @@ WORLD_SPACING = 8.0
 CONTACT_CAPACITY = 32
 MAX_CONTACT_CAPACITY = 512
 
-# Threads per vertex in a CUDA Jacobi sweep (kernels.lane_sum): measured on an H100 (docs/performance.md). The CPU
-# runs one thread per vertex (its kernels run serially: lanes would only add loop overhead).
-CUDA_SWEEP_LANES = 4
+# Threads per vertex in a CUDA Jacobi sweep (kernels.lane_sum): a sweep of few vertices is latency-bound, and lanes
+# shorten each thread's walk; a sweep of many is bound by throughput, which lanes only spend on index arithmetic.
+# On an H100 (docs/performance.md): one 3.7k-vertex cloth is fastest with 8 lanes, one 14.5k-vertex cloth with 4,
+# 128 worlds of 3.7k (0.47 M vertices) with 1. So: about SWEEP_THREADS threads a sweep, 1 to 8 lanes. The CPU runs
+# one thread per vertex (its kernels run serially: lanes would only add loop overhead).
+SWEEP_THREADS = 65536
+MAX_SWEEP_LANES = 8
+
+
+def cuda_sweep_lanes(vertices: int) -> int:
+    """The default lanes for a CUDA sweep over `vertices` (all worlds'): the largest power of two of at most
+    MAX_SWEEP_LANES with vertices * lanes <= SWEEP_THREADS, and at least 1."""
+    lanes = 1
+    while 2 * lanes <= MAX_SWEEP_LANES and 2 * lanes * vertices <= SWEEP_THREADS:
+        lanes *= 2
+    return lanes
 
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
@@ -106,7 +119,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     or (B, V, 3); default: the rest positions) with zero velocities; the pins start where the state has them, and
     `harmonic_target` (B, K, 3) and `capsules` (B, N, 2, 3) give the other inputs at frame 0, `capsule_radii`
     (N, 2) the capsules' radii at a and b (one body shape for every world). `sweep_lanes` threads share a vertex
-    in each Jacobi sweep (default: CUDA_SWEEP_LANES on CUDA, 1 on the CPU; the sums' order, not the physics,
+    in each Jacobi sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics,
     depends on it).
     """
 
@@ -120,7 +133,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self.settings = settings
         self.device = wp.get_device(device)
         if sweep_lanes is None:
-            sweep_lanes = CUDA_SWEEP_LANES if self.device.is_cuda else 1
+            sweep_lanes = cuda_sweep_lanes(worlds * len(rest_vertices)) if self.device.is_cuda else 1
         if sweep_lanes not in ((1, 2, 4, 8, 16) if self.device.is_cuda else (1,)):
             raise ValueError(f"sweep_lanes must be 1, 2, 4, 8 or 16 on CUDA (threads of a warp per vertex) and 1 on "
                              f"the CPU, got {sweep_lanes!r}")
@@ -497,5 +510,9 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         hp = self.harmonic_projection
         worlds, n_chunks, n_modes = hp.partial.shape
         wp.launch(kernels.harmonic_partial_sums, dim=(worlds, n_chunks, n_modes), device=self.device, inputs=[x, hp])
-        wp.launch(kernels.harmonic_residual, dim=(worlds, n_modes), device=self.device, inputs=[hp, fraction])
-        wp.launch(kernels.harmonic_project, dim=x.shape[0], device=self.device, inputs=[hp, x])
+        # Lanes as in a sweep: per vertex (its K modes), and per mode (its chunks' partial sums).
+        lanes = self.sweep_lanes
+        mode_lanes = cuda_sweep_lanes(worlds * n_modes) if self.device.is_cuda else 1
+        wp.launch(kernels.harmonic_residual, dim=worlds * n_modes * mode_lanes, device=self.device,
+                  inputs=[hp, fraction, mode_lanes])
+        wp.launch(kernels.harmonic_project, dim=x.shape[0] * lanes, device=self.device, inputs=[hp, x, lanes])

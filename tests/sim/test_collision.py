@@ -351,3 +351,14 @@ def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
         assert solver.contacts.vertex_count.numpy().max() <= runs[capacity][1]
     assert runs[2][1] > 2 and runs[64][1] == 64          # the small lists grew; the large ones never had to
     np.testing.assert_array_equal(runs[2][0], runs[64][0])
+
+
+def test_sweep_lanes_follow_the_thread_budget():
+    """The CUDA default: lanes halve as the vertices double past SWEEP_THREADS / MAX_SWEEP_LANES, never below 1."""
+    from sim.xpbd.solver import MAX_SWEEP_LANES, SWEEP_THREADS, cuda_sweep_lanes
+    assert cuda_sweep_lanes(1) == MAX_SWEEP_LANES
+    assert cuda_sweep_lanes(14499) == 4 and cuda_sweep_lanes(3661) == 8 and cuda_sweep_lanes(128 * 3661) == 1
+    for vertices in (1, 100, 3661, 14499, 40000, 10 ** 7):
+        lanes = cuda_sweep_lanes(vertices)
+        assert lanes in (1, 2, 4, 8) and (lanes == 1 or vertices * lanes <= SWEEP_THREADS)
+        assert lanes == MAX_SWEEP_LANES or vertices * 2 * lanes > SWEEP_THREADS
