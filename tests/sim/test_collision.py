@@ -14,6 +14,9 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
+from sim.xpbd import collision
+from sim.xpbd.collision import SelfContacts, contact_side, neighbor_list
+from sim.xpbd.kernels import Substep
 
 THICKNESS = SolverSettings().collision_thickness
 SELF_THICKNESS = SolverSettings().self_thickness
@@ -362,3 +365,56 @@ def test_sweep_lanes_follow_the_thread_budget():
         lanes = cuda_sweep_lanes(vertices)
         assert lanes in (1, 2, 4, 8) and (lanes == 1 or vertices * lanes <= SWEEP_THREADS)
         assert lanes == MAX_SWEEP_LANES or vertices * 2 * lanes > SWEEP_THREADS
+
+
+@wp.kernel
+def contacts_in_one_pass(sub: Substep, sc: SelfContacts, lists: wp.array2d(dtype=int), counts: wp.array(dtype=int)):
+    """A second implementation of the search's contact lists: each BVH hit tested as the traversal meets it."""
+    i = wp.tid()
+    n = int(0)
+    if sub.inv_mass[i] > 0.0:
+        neighbors = neighbor_list()
+        first = sc.edge_offsets[i]
+        n_neighbors = sc.edge_offsets[i + 1] - first
+        for a in range(n_neighbors):
+            neighbors[a] = sc.vertex_neighbors[first + a]
+        query = wp.bvh_query_aabb(sc.face_bvh, wp.min(sub.x_prev[i], sub.x[i]), wp.max(sub.x_prev[i], sub.x[i]))
+        t = int(0)
+        while wp.bvh_query_next(query, t):
+            side = contact_side(i, neighbors, n_neighbors, wp.vec2i(0, sc.world_faces), t, sub.x, sub.x_prev, sc)
+            if side != 0:
+                lists[i, n] = side * (t + 1)
+                n += 1
+    counts[i] = n
+
+
+def test_the_search_tests_every_hit_of_long_sweeps():
+    """find_self_contacts collects BVH hits in batches of HIT_BATCH before testing them; vertices swept across
+    both sheets hit several batches' worth of triangles, and their lists must be those of a one-pass search."""
+    vertices, faces, _, n_bottom, _ = stacked_sheets()
+    settings = SolverSettings(substeps=1, iterations=1, self_collision=True)
+    solver = ClothSolver(vertices, faces, settings, "cpu", np.zeros(0, int), contact_capacity=512)
+    sub, sc = solver._substeps[0], solver.contacts
+    moved = vertices.copy()
+    moved[n_bottom:] += np.random.default_rng(3).normal(scale=0.25, size=(len(vertices) - n_bottom, 3))
+    sub.x_prev.assign(vertices.astype(np.float32))
+    sub.x.assign(moved.astype(np.float32))
+    wp.launch(collision.contact_bounds, dim=len(faces), device="cpu", inputs=[sub.x, sub.x_prev, sc])
+    solver._face_bvh.refit()
+    wp.launch(collision.find_self_contacts, dim=len(vertices), device="cpu", inputs=[sub, sc, settings.substeps])
+    lists = wp.zeros((len(vertices), len(faces)), dtype=int, device="cpu")
+    counts = wp.zeros(len(vertices), dtype=int, device="cpu")
+    wp.launch(contacts_in_one_pass, dim=len(vertices), device="cpu", inputs=[sub, sc, lists, counts])
+
+    # The scene does need several batches: hits counted from the boxes themselves.
+    lower, upper = sc.face_lower.numpy(), sc.face_upper.numpy()
+    low, high = np.minimum(vertices, moved), np.maximum(vertices, moved)
+    hits = ((low[:, None] <= upper[None]) & (high[:, None] >= lower[None])).all(axis=2).sum(axis=1)
+    assert hits.max() > 3 * collision.HIT_BATCH
+    counts = counts.numpy()
+    np.testing.assert_array_equal(sc.vertex_count.numpy(), counts)
+    assert counts.sum() > 100 and solver.flags.numpy()[0, -1] == 0
+    found, reference = sc.vertex_contacts.numpy(), lists.numpy()
+    for i in np.flatnonzero(counts):
+        expected = reference[i, :counts[i]]
+        np.testing.assert_array_equal(found[i, :counts[i]], expected[np.argsort(np.abs(expected))])
