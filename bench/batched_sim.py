@@ -31,6 +31,7 @@ import warp as wp
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
 from newton_peer import newton_hanging, newton_missing, ours_hanging  # bench/ is the script's own folder
+from pipeline.simulate import BasisProducts, harmonic_targets_of
 from scenes.capsules import capsules_world
 from scenes.garments import make_garment
 from scenes.kinematics import rest_transforms
@@ -38,7 +39,7 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
-from sim.xpbd.body import outside_body
+from sim.xpbd.body import SubdividedOutsideBody
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
@@ -73,12 +74,12 @@ def harmonics(vertices, faces, pins):
 
 def harmonic_targets(constraint, S, x_low, capsules, radii, settings, device):
     """B^T M S x_low (F, B, K, 3) of low-res positions (F, B, V_low, 3), S x_low moved clear of each world's
-    capsules (B, F', P, 2, 3) first as the simulate stage does (pipeline.simulate.simulate_high)."""
-    f, b, v, _ = x_low.shape
-    subdivided = (S @ x_low.transpose(2, 0, 1, 3).reshape(v, -1)).reshape(-1, f, b, 3).transpose(1, 2, 0, 3)
-    clear = np.stack([outside_body(subdivided[:, w], capsules[w, :f], radii, settings.collision_thickness, device)
-                      for w in range(b)], axis=1)
-    return np.einsum("kv,fbvc->fbkc", constraint.mass_basis.T, clear.astype(np.float64), optimize=True)  # BLAS
+    capsules (B, F', P, 2, 3) first: the simulate stage's own path (pipeline.simulate.simulate_high)."""
+    products = BasisProducts(constraint.mass_basis.T, S)
+    clear = SubdividedOutsideBody(S, radii, settings.collision_thickness, device)
+    f = x_low.shape[0]
+    return np.stack([harmonic_targets_of(x_low[:, w], products, clear(x_low[:, w], capsules[w, :f]))
+                     for w in range(x_low.shape[1])], axis=1)
 
 
 def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n_frames):
