@@ -206,22 +206,14 @@ def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, r
 
 
 @wp.func
-def clear_of_capsule(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, thickness: float):
-    """Distance and normal of x to the capsule, and whether keep_outside leaves x where it is: outside by the
-    thickness, and too short a way from x_from to have passed through (the common case)."""
-    d, n = capsule_distance(x, a, b, ra, rb)
-    return d, n, d >= thickness and wp.length(x - x_from) < wp.min(ra, rb)
-
-
-@wp.func
 def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, thickness: float):
     """Move x, reached from x_from (relative to the capsule), to `thickness` outside the capsule, and return it
     with the distance moved. If x_from was clearly outside (more than a quarter of the thickness) the way in is
     swept first, so x stays on the side it came from even where it crossed the capsule's axis; then the nearest
     point projection settles it on the offset surface."""
-    d, n, clear = clear_of_capsule(x_from, x, a, b, ra, rb, thickness)
-    if clear:
-        return x, 0.0
+    d, n = capsule_distance(x, a, b, ra, rb)
+    if d >= thickness and wp.length(x - x_from) < wp.min(ra, rb):
+        return x, 0.0  # outside, and too short a way to have passed through (the common case)
     moved = float(0.0)
     d_from, n_from = capsule_distance(x_from, a, b, ra, rb)
     if d_from > 0.25 * thickness:
@@ -617,30 +609,9 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
     active = lane_count(active, lanes)
     if active > 0:
         dx = dx + contact / float(active)
-    # The body last, from this vertex's previous iterate, which the previous sweep left outside. With lanes, each
-    # first tests one watched capsule for keep_outside's early exit at xi + dx: where every capsule lets the vertex
-    # be (most sweeps), the one-by-one pass would leave it there too, and the lanes skip that pass's chain of
-    # loads; otherwise the first lane runs it.
-    first = first_capsule(i, sub, capsules)
-    near = capsules.near[i]
-    x_new = xi + dx
-    busy = near
-    if lanes > 1 and near != 0:
-        busy = int(0)
-        for k in range(lane, WATCHED, lanes):
-            code = (near >> (8 * k)) & 255
-            if code != 0:
-                c = first + code - 1
-                end_a, end_b = capsule_at(capsules, c, sub.f1)
-                gap, normal, clear = clear_of_capsule(xi, x_new, end_a, end_b, capsules.radius[c, 0],
-                                                      capsules.radius[c, 1], capsules.thickness)
-                if not clear:
-                    busy = 1
-        busy = lane_count(busy, lanes)
+    # The body last, from this vertex's previous iterate, which the previous sweep left outside.
     if lane == 0:
-        if busy != 0:
-            x_new = push_out_of_body(i, first, xi, x_new, capsules, sub.f1)
-        sweep.x_out[i] = x_new
+        sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
 
 
 @wp.kernel
