@@ -25,7 +25,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True})
 
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
-                              lane_count, lane_sum_vec3, predict_vertex, store_state)
+                              lane_count, lane_of, lane_sum_vec3, predict_vertex, store_state)
 
 SWEEP_STEPS = 24            # sphere-tracing steps of the continuous body test (a head-on approach needs one)
 SWEEP_TOLERANCE = 1.0e-3    # the trace has touched when within this fraction of the level
@@ -565,9 +565,7 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
     correction, as solve_distance_constraints computes it. Launched over n * lanes threads (kernels.lane_sum): a
     lane takes every lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane
     writes the result."""
-    tid = wp.tid()
-    i = tid // lanes
-    lane = tid - i * lanes
+    i, lane = lane_of(wp.tid(), lanes)
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
     xi = x_in[i]

@@ -125,6 +125,13 @@ def lane_count(value: int, lanes: int) -> int: ...
 
 
 @wp.func
+def lane_of(tid: int, lanes: int):
+    """The item (vertex, mode) thread tid works on and its lane there, in a launch of `lanes` threads an item."""
+    item = tid // lanes
+    return item, tid - item * lanes
+
+
+@wp.func
 def lane_sum_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
     return wp.vec3(lane_sum(value[0], lanes), lane_sum(value[1], lanes), lane_sum(value[2], lanes))
 
@@ -204,9 +211,7 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
 def solve_distance_constraints(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, lanes: int):
     """One Jacobi sweep over the distance constraints, reading x_in and writing x_out (see distance_correction),
     launched over n * lanes threads: vertex tid // lanes, lane tid % lanes."""
-    tid = wp.tid()
-    i = tid // lanes
-    lane = tid - i * lanes
+    i, lane = lane_of(wp.tid(), lanes)
     xi = sweep.x_in[i]
     dx = lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes), lanes)
     if lane == 0:
@@ -251,9 +256,7 @@ def harmonic_partial_sums(x: wp.array(dtype=wp.vec3), hp: HarmonicProjection):
 def harmonic_residual(hp: HarmonicProjection, target_fraction: float, lanes: int):
     """r_k = (B^T M x)_k - (B^T M S x_low)_k of world w, the low-res side interpolated linearly within the frame.
     Launched over B K lanes threads: `lanes` threads share a mode's chunks (lane_sum)."""
-    tid = wp.tid()
-    q = tid // lanes
-    lane = tid - q * lanes
+    q, lane = lane_of(wp.tid(), lanes)
     n_modes = hp.residual.shape[1]
     w = q // n_modes
     k = q - w * n_modes
@@ -271,9 +274,7 @@ def harmonic_project(hp: HarmonicProjection, x: wp.array(dtype=wp.vec3), lanes: 
     B^T M (x - S x_low) = 0 that leaves pinned vertices (zero rows of A) where they are. A is stored transposed
     (K, V) so that consecutive vertices read consecutive entries (also with `lanes` threads a vertex, each taking
     every lanes-th mode: a lane's loads across the warp's vertices stay contiguous)."""
-    tid = wp.tid()
-    i = tid // lanes
-    lane = tid - i * lanes
+    i, lane = lane_of(wp.tid(), lanes)
     n = hp.mass_basis.shape[0]
     w = i // n
     row = i - w * n
