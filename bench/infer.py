@@ -11,7 +11,8 @@ each size (RC13, RC9, RC9 x/2, RC9 x/4 of D62 D124 D248 D D248 D_3 D248, random 
 Modes: eager, graph (eager replayed as one CUDA graph), eager-tf32, graph-tf32, fast, fast-graph, fast-bf16,
 fast-bf16-graph, fast-compiled, fast-bf16-compiled-graph (the fast network through torch.compile: inductor,
 max-autotune on CUDA; minutes of compiling per size), fused, fused-graph, fused-bf16, fused-bf16-graph (CUDA:
-model/fused_network.py, one Triton kernel per convolution, tuned on the first call), exported (the torch.export
+model/fused_network.py, Triton kernels tuned on the first call, each convolution in the form its rule picks),
+fused-gather-bf16-graph (every convolution a gather-GEMM, the form before products-first), exported (the torch.export
 program of deploy/export.py, loaded back: net is not separate there), exported-graph. Graph modes copy each
 call's inputs into the graph's static buffers inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
@@ -65,6 +66,7 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-graph": ("fused", torch.float32, True, False, False),
          "fused-bf16": ("fused", torch.bfloat16, False, False, False),
          "fused-bf16-graph": ("fused", torch.bfloat16, True, False, False),
+         "fused-gather-bf16-graph": ("fused-gather", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
          "exported-graph": ("exported", torch.float32, True, False, False)}
 # Paper Table 3, "DL + SubD" ms on an RTX 2080 Ti, by high-res vertex count.
@@ -111,7 +113,15 @@ def kernel_table(fn, device: torch.device) -> str:
         if device.type == "cuda":
             torch.cuda.synchronize(device)
     key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
-    return profile.key_averages().table(sort_by=key, row_limit=20)
+    table = profile.key_averages().table(sort_by=key, row_limit=20)
+    if device.type != "cuda":
+        return table
+    # The last call's kernels in launch order: which convolution (or norm) costs what.
+    kernels = sorted((e for e in profile.events() if e.device_type == torch.autograd.DeviceType.CUDA),
+                     key=lambda e: e.time_range.start)
+    last = kernels[len(kernels) - len(kernels) // 5:]
+    launches = "\n".join(f"  {i:3d} {e.device_time:8.1f} us  {e.name[:90]}" for i, e in enumerate(last))
+    return f"{table}\nkernels of the last call in launch order ({sum(e.device_time for e in last):.1f} us):\n{launches}"
 
 
 def regressor(spec: FeatureSpec, size: str, faces: np.ndarray, rest: np.ndarray) -> FeatureRegressor:
@@ -137,8 +147,10 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
-    if kind in ("fast", "fused"):
-        upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind == "fused"), subdivision).to(device)
+    if kind in ("fast", "fused", "fused-gather"):
+        products = False if kind == "fused-gather" else None
+        upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind != "fast", products=products),
+                                  subdivision).to(device)
         if compiled:     # inductor may fuse the elementwise passes (pad, norm, pooling) into fewer kernels
             upsampler.regressor.network = torch.compile(
                 upsampler.regressor.network, dynamic=False,
@@ -186,7 +198,7 @@ def main() -> None:
     if device.type == "cuda" and not torch.cuda.is_available():
         sys.exit(f"error: device '{args.device}' requested but torch finds no CUDA device")
     unknown = [m for m in modes if m not in MODES]
-    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] or MODES[m][0] == "fused"
+    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] or MODES[m][0].startswith("fused")
                                                  for m in modes)):
         sys.exit(f"error: --modes {args.modes}: modes are {', '.join(MODES)}; graph, tf32 and fused ones need "
                  f"CUDA")

@@ -147,6 +147,74 @@ def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float) ->
     return planner.plan
 
 
+# Below this many input channels a segment's products (L * out values a row) outweigh the gathered inputs they
+# replace (L * channels) by too much, and the input affine is applied on load: those convolutions gather first.
+PRODUCTS_MIN_CHANNELS = 16
+# Up to this many input channels (one segment) a gathering convolution is fp32 rank-1 updates, not a tl.dot
+# whose K would be padded to 16.
+FEW_CHANNELS = 8
+# Every stored row's width a multiple of this many values (zero-padded channels): rows start 16-byte aligned in
+# bf16, so Triton and cuBLAS load them in vectors, not value by value (docs/performance.md measures it).
+ALIGN = 16
+
+
+def products_first(launch: FusedConv) -> bool:
+    """Whether the convolution runs as dense products then a gather-sum (`slot_weights`, triton_conv.gather_sum):
+    each input row times every slot's weights in one large matmul (cuBLAS's rate, and an unpooled segment at its
+    coarse level), then each vertex sums its table neighbours' slot products - a memory-bound pass without the
+    gather-GEMM's latency-bound loads. The choice is measured in docs/performance.md."""
+    return not launch.segments[0].affine and min(s.channels for s in launch.segments) >= PRODUCTS_MIN_CHANNELS
+
+
+def few_channels(launch: FusedConv) -> bool:
+    """Whether a gathering convolution reads so few channels that fp32 rank-1 updates beat a tensor-core dot."""
+    return len(launch.segments) == 1 and launch.segments[0].channels <= FEW_CHANNELS
+
+
+def _round_up(n: int, align: int) -> int:
+    return -(-n // align) * align
+
+
+def aligned_plan(plan: list[FusedConv | Prepare], align: int, narrow: int) -> list[FusedConv | Prepare]:
+    """The same network with every launch's output widened to a multiple of `align` channels - but the last (the
+    answer) and those of at most `narrow` channels (padding would multiply what they store) - by zero weight
+    columns and bias entries, and zero weight rows for the added input channels. A padded
+    channel is 0 after every step (its norm: mean 0, variance 0, (0 - 0) / sqrt(eps) = 0), so the output is the
+    plan's exactly; `run_plan_reference` runs either."""
+    widths: dict[int, int] = {}         # launch index -> stored width; the network input stays raw
+    width_of = lambda item: item.channels if item.source == NETWORK_INPUT else widths[item.source]  # noqa: E731
+    aligned: list[FusedConv | Prepare] = []
+    for index, launch in enumerate(plan):
+        if isinstance(launch, Prepare):
+            widths[index] = width_of(launch)
+            aligned.append(dataclasses.replace(launch, channels=widths[index]))
+            continue
+        n_out = launch.weight.shape[1]
+        n_wide = n_out if index == len(plan) - 1 or n_out <= narrow else _round_up(n_out, align)
+        segments = tuple(dataclasses.replace(s, channels=width_of(s)) for s in launch.segments)
+        size = launch.weight.shape[0] // sum(s.channels for s in launch.segments)
+        old = launch.weight.reshape(size, -1, n_out)
+        weight = torch.zeros(size, sum(s.channels for s in segments), n_wide, dtype=launch.weight.dtype)
+        start, wide_start = 0, 0
+        for segment, wide in zip(launch.segments, segments):
+            weight[:, wide_start:wide_start + segment.channels, :n_out] = old[:, start:start + segment.channels]
+            start, wide_start = start + segment.channels, wide_start + wide.channels
+        bias = torch.cat([launch.bias, launch.bias.new_zeros(n_wide - n_out)])
+        widths[index] = n_wide
+        aligned.append(dataclasses.replace(launch, segments=segments, weight=weight.reshape(-1, n_wide), bias=bias))
+    return aligned
+
+
+def slot_weights(launch: FusedConv) -> list[torch.Tensor]:
+    """Per segment, its rows of the slot-major weight as (channels, L * out): segment input @ it = every slot's
+    product, slot k in columns k * out ... (k + 1) * out."""
+    width, n_out = sum(s.channels for s in launch.segments), launch.weight.shape[1]
+    by_slot = launch.weight.reshape(-1, width, n_out)
+    offsets = np.cumsum([0] + [s.channels for s in launch.segments])
+    return [by_slot[:, start:end].permute(1, 0, 2).reshape(end - start, -1)
+            for start, end in zip(offsets[:-1], offsets[1:])]
+
+
 def sums_of(x: torch.Tensor) -> torch.Tensor:
     """(B, 2, C) per-channel sums of x and x^2 over the vertices in fp32: what a conv's epilogue adds up."""
     wide = x.float()
@@ -201,14 +269,26 @@ class FusedNetwork(nn.Module):
     precision, as FastNetwork's, since raw positions and the answer itself lose too much in bf16."""
 
     def __init__(self, net: EncoderDecoder, mesh: MeshHierarchy, input_offset: torch.Tensor,
-                 input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32):
+                 input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32,
+                 products: bool | None = None):
+        """`products`: how the convolutions run - None: each by the rules (`products_first`, then
+        `few_channels`, else a gather-GEMM); True: products first wherever no input affine forbids it; False:
+        every one a gather-GEMM (the form before products-first, for comparison)."""
         super().__init__()
         mesh = mesh.to("cpu")
-        self.plan = fused_plan(net, mesh, output_scale)
+        self.plan = aligned_plan(fused_plan(net, mesh, output_scale), ALIGN, FEW_CHANNELS)
         self.pool_max = net.pool_kind == "max"
         self.dtype = dtype
         convs = [i for i, launch in enumerate(self.plan) if isinstance(launch, FusedConv)]
         full_precision = {convs[0], convs[-1]}
+
+        def form(launch: FusedConv) -> str:
+            if products is False:
+                return "gather"
+            if not launch.segments[0].affine and (products or products_first(launch)):
+                return "products"
+            return "few" if few_channels(launch) else "gather"
+        self.forms = {index: form(self.plan[index]) for index in convs}
         for level, table in enumerate(mesh.conv):
             self.register_buffer(f"table_{level}", table.to(torch.int32).contiguous())
         for index, launch in enumerate(self.plan):
@@ -216,6 +296,9 @@ class FusedNetwork(nn.Module):
                 kind = torch.float32 if index in full_precision else dtype
                 self.register_buffer(f"weight_{index}", launch.weight.to(kind).contiguous())
                 self.register_buffer(f"bias_{index}", launch.bias.float())
+                if self.forms[index] == "products":
+                    for number, weights in enumerate(slot_weights(launch)):
+                        self.register_buffer(f"slot_weights_{index}_{number}", weights.to(kind).contiguous())
                 rows = [segment.rows for segment in launch.segments]
             else:
                 rows = [launch.rows]
@@ -233,7 +316,7 @@ class FusedNetwork(nn.Module):
         if not (x.is_cuda or os.environ.get("TRITON_INTERPRET") == "1"):
             raise ValueError("the fused network runs on CUDA (FastNetwork is the CPU path)")
         # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install.
-        from model.triton_conv import Sums, fused_conv, prepare
+        from model.triton_conv import Sums, few_channel_conv, fused_conv, gather_sum, prepare
 
         batch, total = x.shape[0], self.sums_offsets[-1]
         # One buffer for every norm's sums, zeroed once a frame: one memset node in a captured graph.
@@ -249,9 +332,21 @@ class FusedNetwork(nn.Module):
                 continue
             segments = [(source_of(segment.source), getattr(self, f"rows_{index}_{number}", None))
                         for number, segment in enumerate(launch.segments)]
-            affine = self.affine if launch.segments[0].affine else None
+            table, bias = getattr(self, f"table_{launch.level}"), getattr(self, f"bias_{index}")
             out_dtype = self.dtype if index < len(self.plan) - 1 else torch.float32
-            outputs.append(fused_conv(getattr(self, f"table_{launch.level}"), segments, affine,
-                                      getattr(self, f"weight_{index}"), getattr(self, f"bias_{index}"), out_dtype,
-                                      sums_at(index) if launch.stats else None))
+            sums_here = sums_at(index) if launch.stats else None
+            if self.forms[index] == "products":
+                products = []
+                for number, (source, rows) in enumerate(segments):
+                    weights = getattr(self, f"slot_weights_{index}_{number}")
+                    product = torch.matmul(source.to(weights.dtype), weights)
+                    products.append((product.view(*source.shape[:2], table.shape[1], -1), rows))
+                outputs.append(gather_sum(table, products, bias, out_dtype, sums_here))
+                continue
+            affine = self.affine if launch.segments[0].affine else None
+            weight = getattr(self, f"weight_{index}")
+            if self.forms[index] == "few":
+                outputs.append(few_channel_conv(table, *segments[0], affine, weight, bias, out_dtype, sums_here))
+            else:
+                outputs.append(fused_conv(table, segments, affine, weight, bias, out_dtype, sums_here))
         return outputs[-1]

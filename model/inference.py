@@ -158,18 +158,18 @@ class FastRegressor(nn.Module):
     the displacement (B, V, 3) in the dataset's frame and the caller's order."""
 
     def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32,
-                 fused: bool = False):
-        """`fused`: the network as one Triton kernel per convolution (model.fused_network; CUDA only) instead
-        of FastNetwork's gather + matmul per convolution."""
+                 fused: bool = False, products: bool | None = None):
+        """`fused`: the network in model.fused_network's few launches (Triton; CUDA only) instead of
+        FastNetwork's gather + matmul per convolution; `products`: FusedNetwork's choice of convolution form."""
         super().__init__()
         if not isinstance(model, FeatureRegressor):
             raise ValueError(f"fast inference runs the encoder-decoder's FeatureRegressor only, got a "
                              f"{type(model).__name__}")
         mesh = mesh.truncated(model.net.n_levels).to("cpu")
         orders = locality_orders(mesh)
-        kind = FusedNetwork if fused else FastNetwork
-        self.network = kind(model.net, reorder_hierarchy(mesh, orders), model.input_offset, model.input_scale,
-                            float(model.output_scale), dtype)
+        args = (model.net, reorder_hierarchy(mesh, orders), model.input_offset, model.input_scale,
+                float(model.output_scale), dtype)
+        self.network = FusedNetwork(*args, products=products) if fused else FastNetwork(*args)
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()
         self.features = model.spec.features(new_of[faces], rest[order])

@@ -102,6 +102,15 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
             mapped = tl.load(map2_ptr + entries, mask=valid, other=0)
         acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr, outs,
                            out_ok, c2, c1, width, n_out, L, SLOTS, False, PRECISE, BLOCK_K)
+    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
+            n_vertices, n_out, STATS)
+
+
+@triton.jit
+def _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
+            n_vertices, n_out, STATS: tl.constexpr):
+    """A convolution's epilogue: + bias, stored in the output's dtype, and for a norm the fp32 per-channel sums
+    of the tile and of its square added to the frame's (atomics)."""
     acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
     keep = row_ok[:, None] & out_ok[None, :]
     tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
@@ -111,6 +120,67 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
         sums = sums_ptr + frame * sums_batch_stride
         tl.atomic_add(sums + outs, tl.sum(kept, axis=0), mask=out_ok)
         tl.atomic_add(sums + sums_second + outs, tl.sum(kept * kept, axis=0), mask=out_ok)
+
+
+@triton.jit
+def _add_products(acc, products_ptr, map_ptr, entry, valid, slot, outs, mask, n_out, MAPPED: tl.constexpr,
+                  L: tl.constexpr):
+    """acc + each row's table neighbour's (through the unpooling map) slot-`slot` product row."""
+    if MAPPED:
+        entry = tl.load(map_ptr + entry, mask=valid, other=0)
+    offsets = entry[:, None].to(tl.int64) * (L * n_out) + slot * n_out + outs[None, :]
+    return acc + tl.load(products_ptr + offsets, mask=mask, other=0.0).to(tl.float32)
+
+
+@triton.jit
+def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, bias_ptr, n_vertices, n_out,
+                       src1_ptr, map1_ptr, src1_vertices, src2_ptr, map2_ptr, src2_vertices,
+                       L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
+                       STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    frame = tl.program_id(2).to(tl.int64)
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
+    row_ok, out_ok = rows < n_vertices, outs < n_out
+    src1 = src1_ptr + frame * src1_vertices * L * n_out
+    src2 = src2_ptr + frame * src2_vertices * L * n_out
+    acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
+    for slot in tl.static_range(L):     # unrolled: the slots' gathers are independent and overlap
+        entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids, 0 = padding
+        valid = entry >= 0
+        entry = tl.maximum(entry, 0)
+        mask = valid[:, None] & out_ok[None, :]
+        acc = _add_products(acc, src1, map1_ptr, entry, valid, slot, outs, mask, n_out, MAPPED1, L)
+        if TWO:
+            acc = _add_products(acc, src2, map2_ptr, entry, valid, slot, outs, mask, n_out, MAPPED2, L)
+    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
+            n_vertices, n_out, STATS)
+
+
+@triton.jit
+def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr,
+                        affine_ptr, n_vertices, n_out, src_ptr, map_ptr, src_vertices, C: tl.constexpr,
+                        L: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr, STATS: tl.constexpr,
+                        BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    frame = tl.program_id(2).to(tl.int64)
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
+    row_ok, out_ok = rows < n_vertices, outs < n_out
+    src = src_ptr + frame * src_vertices * C
+    acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
+    for slot in tl.static_range(L):     # unrolled: every gather independent of the others
+        entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids, 0 = padding
+        valid = entry >= 0
+        entry = tl.maximum(entry, 0)
+        if MAPPED:
+            entry = tl.load(map_ptr + entry, mask=valid, other=0)
+        for c in tl.static_range(C):    # one fp32 rank-1 update per (slot, channel): exact, no padded K
+            x = tl.load(src + entry.to(tl.int64) * C + c, mask=valid, other=0.0).to(tl.float32)
+            if AFFINE:
+                x = tl.where(valid, (x - tl.load(affine_ptr + c)) * tl.load(affine_ptr + C + c), 0.0)
+            w = tl.load(weight_ptr + (slot * C + c) * n_out + outs, mask=out_ok, other=0.0).to(tl.float32)
+            acc += x[:, None] * w[None, :]
+    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
+            n_vertices, n_out, STATS)
 
 
 @triton.jit
@@ -206,6 +276,58 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
         grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
                              triton.cdiv(n_out, meta["BLOCK_N"]), batch)
         _tuned_conv[grid](*args, **constants)
+    return out
+
+
+_GATHER_SUM_CONFIGS = [triton.Config({"BLOCK_M": m}, num_warps=w) for m, w in ((16, 4), (32, 4), (64, 8))]
+_tuned_gather_sum = triton.autotune(_GATHER_SUM_CONFIGS, key=["n_vertices", "n_out", "src1_vertices", "src2_vertices"],
+                                    restore_value=["sums_ptr"])(_gather_sum_kernel)
+
+
+def gather_sum(table: torch.Tensor, products: list[tuple[torch.Tensor, torch.Tensor | None]], bias: torch.Tensor,
+               out_dtype: torch.dtype, sums: Sums | None) -> torch.Tensor:
+    """A convolution's second half when its products came first: out[b, v] = bias + sum over the segments and
+    the table's slots k of products[b, map(table[v, k]), k] (products (B, V_src, L, N) contiguous, each segment's
+    input already multiplied by its slot weights; map (V_src_table, 1) int32 or None). Returns (B, V, N), with
+    the norm's sums added as `fused_conv`'s."""
+    if not 1 <= len(products) <= 2:
+        raise ValueError(f"a convolution sums one or two segments' products, got {len(products)}")
+    n_vertices, size = table.shape
+    (src1, map1), (src2, map2) = products[0], products[-1]
+    batch, n_out = src1.shape[0], src1.shape[3]
+    out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
+    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
+    args = (out, *sums_args, table, bias, n_vertices, n_out, src1, table if map1 is None else map1, src1.shape[1],
+            src2, table if map2 is None else map2, src2.shape[1])
+    block_n = min(256, max(16, triton.next_power_of_2(n_out)))
+    constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(products) == 2,
+                     STATS=sums is not None, BLOCK_N=block_n)
+    if INTERPRETED:
+        grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, block_n), batch)
+        _gather_sum_kernel[grid](*args, **constants, BLOCK_M=_FIXED["BLOCK_M"])
+    else:
+        grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]), triton.cdiv(n_out, block_n), batch)  # noqa: E731
+        _tuned_gather_sum[grid](*args, **constants)
+    return out
+
+
+def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tensor | None,
+                     affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
+                     sums: Sums | None) -> torch.Tensor:
+    """`fused_conv` of one segment of few channels (a handful: the loops unroll over slots x channels) in fp32
+    FMAs - the network's first convolution on raw features, an output layer's last - where tensor-core tiles
+    would pad K to 16 and multiply mostly zeros."""
+    n_vertices, size = table.shape
+    batch, src_vertices, channels = source.shape
+    n_out = weight.shape[1]
+    out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
+    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
+    block_m, block_n = (16, 16) if INTERPRETED else (64, min(128, max(16, triton.next_power_of_2(n_out))))
+    grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
+    _few_channel_kernel[grid](out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices,
+                              n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
+                              MAPPED=rows is not None, AFFINE=affine is not None, STATS=sums is not None,
+                              BLOCK_M=block_m, BLOCK_N=block_n, num_warps=4)
     return out
 
 

@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 import torch
 
-from model.fused_network import (NETWORK_INPUT, FusedConv, FusedNetwork, Prepare, fused_plan,
-                                 run_plan_reference)
+from model.fused_network import (NETWORK_INPUT, FusedConv, FusedNetwork, Prepare, aligned_plan, fused_plan,
+                                 products_first, run_plan_reference, slot_weights)
+from model.layers import mesh_conv
 from model.inference import FastNetwork
 from model.networks import NetworkSpec, build_network
 from model_meshes import build_hierarchy, grid_mesh
@@ -95,19 +96,65 @@ def test_fused_network_refuses_what_it_cannot_run():
             FusedNetwork(net, mesh, offset, scale, 0.3)(x)
 
 
+@pytest.mark.parametrize("pool,arch", CASES)
+def test_aligned_plan_gives_the_plan_output_and_aligned_widths(pool, arch):
+    net, mesh, offset, scale, x = _case(pool, arch)
+    plan = fused_plan(net, mesh, 0.3)
+    aligned = aligned_plan(plan, 16, 4)
+    with torch.no_grad():
+        expected = run_plan_reference(plan, list(mesh.conv), x, offset, scale, net.pool_kind == "max")
+        got = run_plan_reference(aligned, list(mesh.conv), x, offset, scale, net.pool_kind == "max")
+    assert got.shape == expected.shape and _relative(got, expected) < FP32_TOLERANCE
+    for old, new in zip(plan, aligned):
+        width = (lambda launch: launch.weight.shape[1] if isinstance(launch, FusedConv) else launch.channels)
+        assert width(new) == (width(old) if width(old) <= 4 or new is aligned[-1] else -(-width(old) // 16) * 16)
+        if isinstance(new, FusedConv):
+            inputs = [s.channels for s in new.segments]
+            assert all(c % 16 == 0 or c <= 4 for s, c in zip(new.segments, inputs) if s.source != NETWORK_INPUT)
+            assert new.weight.shape[0] == net.convs[0].size * sum(inputs)
+
+
+def test_slot_products_summed_over_the_table_are_the_convolution():
+    """The products-first form of a two-segment convolution (an unpooled coarse input and a skip), in PyTorch:
+    each segment times its `slot_weights`, then each vertex's table neighbours' slot products summed."""
+    net, mesh, offset, scale, x = _case("max", ARCHS[1])
+    plan = fused_plan(net, mesh, 0.3)
+    up = next(launch for launch in plan if isinstance(launch, FusedConv) and len(launch.segments) == 2)
+    assert products_first(up) == (min(s.channels for s in up.segments) >= 16)
+    table = mesh.conv[up.level]
+    inputs = [torch.randn(2, int(s.rows.max()) + 1 if s.rows is not None else len(table), s.channels)
+              for s in up.segments]
+    through = [v if s.rows is None else v[:, torch.as_tensor(s.rows[:, 0])] for v, s in zip(inputs, up.segments)]
+    expected = mesh_conv(torch.cat(through, dim=-1).double(), table, up.weight, up.bias)
+    size, n_out = table.shape[1], up.weight.shape[1]
+    got = up.bias.expand(2, len(table), n_out).clone()
+    for values, segment, weights in zip(inputs, up.segments, slot_weights(up)):
+        products = (values.double() @ weights).reshape(2, values.shape[1], size, n_out)
+        rows = table.long() - 1                                           # -1: padding
+        for slot in range(size):
+            neighbour = rows[:, slot].clamp(min=0)
+            if segment.rows is not None:
+                neighbour = torch.as_tensor(segment.rows[:, 0])[neighbour]
+            got += products[:, neighbour, slot] * (rows[:, slot] >= 0)[None, :, None]
+    assert float((got - expected).abs().max()) < 1e-10 * float(expected.abs().max())
+
+
 def _kernel_errors(device: str, dtype: torch.dtype) -> dict[str, float]:
-    """Per case, the fused network's largest error relative to the plan's reference; with "fast" in the key,
-    FastNetwork's at the same dtype (the bound bf16 is held to)."""
+    """Per case and convolution form (every one a gather-GEMM, or products first wherever it can), the fused
+    network's largest error relative to the plan's reference; with "fast" in the key, FastNetwork's at the same
+    dtype (the bound bf16 is held to)."""
     errors = {}
-    for pool, arch in CASES:
+    for (pool, arch), products in [(case, products) for case in CASES for products in (False, True)]:
         net, mesh, offset, scale, x = _case(pool, arch)
         expected = _reference(net, mesh, offset, scale, x)
-        fused = FusedNetwork(net, mesh, offset, scale, 0.3, dtype).to(device)
+        fused = FusedNetwork(net, mesh, offset, scale, 0.3, dtype, products=products).to(device)
+        forms = sorted(fused.forms.values())
+        assert forms == (["few"] + ["products"] * (len(net.convs) - 1) if products else ["gather"] * len(net.convs))
         with torch.no_grad():
-            errors[f"{pool} {arch}"] = _relative(fused(x.to(device)), expected)
+            errors[f"{pool} {arch} {products}"] = _relative(fused(x.to(device)), expected)
             single = fused(x[1:].to(device))            # a frame alone: the batch does not mix frames
-            errors[f"{pool} {arch} alone"] = _relative(single, expected[1:])
-            if dtype != torch.float32:
+            errors[f"{pool} {arch} {products} alone"] = _relative(single, expected[1:])
+            if dtype != torch.float32 and products:
                 fast = FastNetwork(net, mesh, offset, scale, 0.3, dtype).to(device)
                 errors[f"{pool} {arch} fast"] = _relative(fast(x.to(device)), expected)
     return errors
@@ -123,7 +170,7 @@ def test_triton_kernels_interpreted_on_the_cpu_match_the_plan():
     assert done.returncode == 0, done.stderr[-2000:]
     errors = json.loads(done.stdout.splitlines()[-1])
     print(errors)
-    assert len(errors) == 2 * len(CASES) and max(errors.values()) < FP32_TOLERANCE
+    assert len(errors) == 4 * len(CASES) and max(errors.values()) < FP32_TOLERANCE
 
 
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
@@ -136,7 +183,8 @@ def test_triton_kernels_on_cuda_match_the_plan():
     print(errors)
     for pool, arch in CASES:        # bf16 hidden layers: no worse than the bf16 fast path on the same network
         bound = 2 * errors[f"{pool} {arch} fast"] + 1e-3
-        assert errors[f"{pool} {arch}"] < bound and errors[f"{pool} {arch} alone"] < bound
+        assert all(errors[f"{pool} {arch} {products}{alone}"] < bound
+                   for products in (False, True) for alone in ("", " alone"))
 
 
 if __name__ == "__main__":      # the interpreted run of test_triton_kernels_interpreted_on_the_cpu_match_the_plan
