@@ -159,26 +159,27 @@ def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_
 @triton.jit
 def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr,
                         affine_ptr, n_vertices, n_out, src_ptr, map_ptr, src_vertices, C: tl.constexpr,
-                        L: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr, STATS: tl.constexpr,
-                        BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+                        L: tl.constexpr, SLOTS: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
+                        STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame = tl.program_id(2).to(tl.int64)
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
     row_ok, out_ok = rows < n_vertices, outs < n_out
+    entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
+    if MAPPED:
+        entries = tl.load(map_ptr + entries, mask=valid, other=0)
     src = src_ptr + frame * src_vertices * C
+    slots = tl.arange(0, SLOTS)
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
-    for slot in tl.static_range(L):     # unrolled: every gather independent of the others
-        entry = tl.load(table_ptr + rows * L + slot, mask=row_ok, other=0) - 1     # +1 ids, 0 = padding
-        valid = entry >= 0
-        entry = tl.maximum(entry, 0)
-        if MAPPED:
-            entry = tl.load(map_ptr + entry, mask=valid, other=0)
-        for c in tl.static_range(C):    # one fp32 rank-1 update per (slot, channel): exact, no padded K
-            x = tl.load(src + entry.to(tl.int64) * C + c, mask=valid, other=0.0).to(tl.float32)
-            if AFFINE:
-                x = tl.where(valid, (x - tl.load(affine_ptr + c)) * tl.load(affine_ptr + C + c), 0.0)
-            w = tl.load(weight_ptr + (slot * C + c) * n_out + outs, mask=out_ok, other=0.0).to(tl.float32)
-            acc += x[:, None] * w[None, :]
+    # Per channel, every slot's value of the tile's rows in one (BLOCK_M, SLOTS) gather - C gathers in all, none
+    # waiting on another - times that channel's (SLOTS, BLOCK_N) weights as an fp32 FMA dot ("ieee": exact).
+    for c in tl.static_range(C):
+        x = tl.load(src + entries.to(tl.int64) * C + c, mask=valid, other=0.0).to(tl.float32)
+        if AFFINE:
+            x = tl.where(valid, (x - tl.load(affine_ptr + c)) * tl.load(affine_ptr + C + c), 0.0)
+        w = tl.load(weight_ptr + (slots[:, None] * C + c) * n_out + outs[None, :],
+                    mask=(slots[:, None] < L) & out_ok[None, :], other=0.0).to(tl.float32)
+        acc = tl.dot(x, w, acc, input_precision="ieee")
     _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
             n_vertices, n_out, STATS)
 
@@ -279,8 +280,20 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
     return out
 
 
-_GATHER_SUM_CONFIGS = [triton.Config({"BLOCK_M": m}, num_warps=w) for m, w in ((16, 4), (32, 4), (64, 8))]
+# Narrow column blocks give coarse levels (a few hundred rows) enough programs to fill the SMs.
+_GATHER_SUM_CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n}, num_warps=w)
+                       for m, n, w in ((16, 64, 2), (32, 64, 4), (16, 128, 4), (32, 128, 4), (32, 256, 4),
+                                       (64, 256, 8))]
+
+
+def _gather_sum_configs(configs, named_args, **_):
+    """Column blocks no wider than the output (rounded up to 64)."""
+    widest = max(64, triton.next_power_of_2(named_args["n_out"]))
+    return [config for config in configs if config.kwargs["BLOCK_N"] <= widest]
+
+
 _tuned_gather_sum = triton.autotune(_GATHER_SUM_CONFIGS, key=["n_vertices", "n_out", "src1_vertices", "src2_vertices"],
+                                    prune_configs_by={"early_config_prune": _gather_sum_configs},
                                     restore_value=["sums_ptr"])(_gather_sum_kernel)
 
 
@@ -299,14 +312,14 @@ def gather_sum(table: torch.Tensor, products: list[tuple[torch.Tensor, torch.Ten
     sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
     args = (out, *sums_args, table, bias, n_vertices, n_out, src1, table if map1 is None else map1, src1.shape[1],
             src2, table if map2 is None else map2, src2.shape[1])
-    block_n = min(256, max(16, triton.next_power_of_2(n_out)))
     constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(products) == 2,
-                     STATS=sums is not None, BLOCK_N=block_n)
+                     STATS=sums is not None)
     if INTERPRETED:
-        grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, block_n), batch)
-        _gather_sum_kernel[grid](*args, **constants, BLOCK_M=_FIXED["BLOCK_M"])
+        grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
+        _gather_sum_kernel[grid](*args, **constants, **_FIXED)
     else:
-        grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]), triton.cdiv(n_out, block_n), batch)  # noqa: E731
+        grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
+                             triton.cdiv(n_out, meta["BLOCK_N"]), batch)
         _tuned_gather_sum[grid](*args, **constants)
     return out
 
@@ -322,11 +335,11 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
     n_out = weight.shape[1]
     out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
     sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
-    block_m, block_n = (16, 16) if INTERPRETED else (64, min(128, max(16, triton.next_power_of_2(n_out))))
+    block_m, block_n = (16, 16) if INTERPRETED else (32, min(64, max(16, triton.next_power_of_2(n_out))))
     grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
     _few_channel_kernel[grid](out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices,
                               n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
-                              MAPPED=rows is not None, AFFINE=affine is not None, STATS=sums is not None,
+                              SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None, AFFINE=affine is not None, STATS=sums is not None,
                               BLOCK_M=block_m, BLOCK_N=block_n, num_warps=4)
     return out
 
