@@ -282,14 +282,15 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
 
 # Narrow column blocks give coarse levels (a few hundred rows) enough programs to fill the SMs.
 _GATHER_SUM_CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n}, num_warps=w)
-                       for m, n, w in ((16, 64, 2), (32, 64, 4), (16, 128, 4), (32, 128, 4), (32, 256, 4),
-                                       (64, 256, 8))]
+                       for m, n, w in ((128, 16, 4), (256, 16, 4), (64, 32, 4), (128, 32, 4), (16, 64, 2),
+                                       (32, 64, 4), (16, 128, 4), (32, 128, 4), (32, 256, 4), (64, 256, 8))]
 
 
 def _gather_sum_configs(configs, named_args, **_):
-    """Column blocks no wider than the output (rounded up to 64)."""
-    widest = max(64, triton.next_power_of_2(named_args["n_out"]))
-    return [config for config in configs if config.kwargs["BLOCK_N"] <= widest]
+    """Column blocks as wide as the output (a power of two, 16 to 256) or, for a wide one, 64 and up: a narrow
+    output (an output layer's 3 channels) takes tall thin tiles instead of masking most of a wide one."""
+    widest = min(256, max(16, triton.next_power_of_2(named_args["n_out"])))
+    return [config for config in configs if min(widest, 64) <= config.kwargs["BLOCK_N"] <= widest]
 
 
 _tuned_gather_sum = triton.autotune(_GATHER_SUM_CONFIGS, key=["n_vertices", "n_out", "src1_vertices", "src2_vertices"],
