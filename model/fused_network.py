@@ -1,17 +1,21 @@
-"""The encoder-decoder in ~28 launches a frame: what `FastNetwork` computes, one fused kernel per convolution.
+"""The encoder-decoder in few launches a frame: what `FastNetwork` computes, one or two kernels per convolution.
 
 `FastNetwork` runs ~150 small kernels a frame (a gather, a matmul, norm statistics, pool and unpool copies,
 concatenations): on an H100 the frame is bound by launches and by the gathers' memory traffic, not by the
 matmuls (docs/performance.md, "Deployment path"). Here the steps between convolutions are folded into few
 launches (model.triton_conv):
 
-* **conv** -> one gather-GEMM: the table's neighbour rows are loaded straight into the matmul's tiles, never
+* **conv** -> products first where it has >= 16 input channels (`products_first`: a cuBLAS matmul by every
+  slot's weights, then triton_conv.gather_sum), fp32 rank-1 updates for a few channels (`few_channels`), else one
+  gather-GEMM: the table's neighbour rows are loaded straight into the matmul's tiles, never
   written out; an unpooling (or a chain of them) is a 1-wide row map the gather reads through; a concatenation is
   a second input segment filling the next weight rows; the conv's epilogue adds the bias and, when a norm reads
   the output, the per-channel sums of it and of its square (atomics into one buffer).
 * **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
   the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
   averaged or maxed) is folded into the same kind of launch.
+* **row widths** -> `aligned_plan` pads every stored width to a multiple of 16 channels with zeros, so rows are
+  16-byte aligned and loads vectorise (an exact transformation).
 * **input normalisation** -> the first convolution's prologue, (x - offset) / scale, on its few channels; the
   output scale is folded into the last convolution's weights.
 

@@ -1,4 +1,11 @@
-"""The fused network's two Triton kernels (model.fused_network describes the plan that launches them).
+"""The fused network's Triton kernels (model.fused_network describes the plan that launches them).
+
+* `gather_sum`: the second half of a products-first convolution - each vertex sums its table neighbours' rows of
+  the slot products P = x @ [W_0 ... W_{L-1}] (cuBLAS made them), slot k's block for neighbour k, through an
+  unpooling map where the segment is one; bias and norm sums as below. The slots are unrolled so their gathers
+  are all in flight at once: a memory-bound pass.
+* `few_channel_conv`: a convolution of a handful of input channels (the raw features, with their affine) as one
+  (rows x slots) gather per channel and an fp32 FMA dot: no tensor-core tile padding 3 channels to 16.
 
 * `fused_conv`: one mesh convolution as a gather-GEMM. Each program computes a BLOCK_M x BLOCK_N tile of one
   frame's output; for each (table slot, chunk of input channels) it loads the neighbours' rows - through the
@@ -6,9 +13,10 @@
   matrix never exists in memory; the weights stream through in model.layers.mesh_conv's slot-major order. The
   table rows (and the unpooling map) of a program's vertices are loaded once, into registers, and the loop over
   (slot, chunk) is one flat loop, so no load in it waits on another and Triton software-pipelines it. fp32
-  weights (the first and last convolutions) multiply as three tf32 products, fp32-accurate. The epilogue adds the bias and, for a norm, the output's per-channel
-  sums and sums of squares, atomically: the fp32 sums, and hence later layers' last bits, depend on the order
-  the programs finish in (reproducible to rounding, not bit for bit).
+  weights (a full-precision convolution of many channels) multiply as three tf32 products, fp32-accurate. The
+  epilogue adds the bias and, for a norm, the output's per-channel sums and sums of squares, atomically: the
+  fp32 sums, and hence later layers' last bits, depend on the order the programs finish in (reproducible to
+  rounding, not bit for bit).
 * `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
   per value instead of once per gather.
 
@@ -340,8 +348,9 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
     grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
     _few_channel_kernel[grid](out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices,
                               n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
-                              SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None, AFFINE=affine is not None, STATS=sums is not None,
-                              BLOCK_M=block_m, BLOCK_N=block_n, num_warps=4)
+                              SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None,
+                              AFFINE=affine is not None, STATS=sums is not None, BLOCK_M=block_m, BLOCK_N=block_n,
+                              num_warps=4)
     return out
 
 
