@@ -298,11 +298,12 @@ class FusedNetwork(nn.Module):
         for index, launch in enumerate(self.plan):
             if isinstance(launch, FusedConv):
                 kind = torch.float32 if index in full_precision else dtype
-                self.register_buffer(f"weight_{index}", launch.weight.to(kind).contiguous())
                 self.register_buffer(f"bias_{index}", launch.bias.float())
-                if self.forms[index] == "products":
+                if self.forms[index] == "products":     # the weights in the products' layout only
                     for number, weights in enumerate(slot_weights(launch)):
                         self.register_buffer(f"slot_weights_{index}_{number}", weights.to(kind).contiguous())
+                else:
+                    self.register_buffer(f"weight_{index}", launch.weight.to(kind).contiguous())
                 rows = [segment.rows for segment in launch.segments]
             else:
                 rows = [launch.rows]
