@@ -268,8 +268,7 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
     n_out = weight.shape[1]
     (src1, map1), (src2, map2) = segments[0], segments[-1]
     batch, c1, c2 = src1.shape[0], src1.shape[2], src2.shape[2] if len(segments) == 2 else 0
-    out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
-    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
+    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
     args = (out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out,
             src1, table if map1 is None else map1, src1.shape[1], c1,
             src2, table if map2 is None else map2, src2.shape[1], c2)
@@ -278,14 +277,27 @@ def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Ten
     constants = dict(L=size, SLOTS=triton.next_power_of_2(size), MAPPED1=map1 is not None,
                      MAPPED2=map2 is not None, TWO=len(segments) == 2, AFFINE=affine is not None,
                      STATS=sums is not None, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
+    _launch(_conv_kernel, _tuned_conv, args, constants, n_vertices, n_out, batch)
+    return out
+
+
+def _output(table: torch.Tensor, batch: int, n_out: int, out_dtype: torch.dtype, sums: Sums | None,
+            bias: torch.Tensor) -> tuple[torch.Tensor, tuple]:
+    """A convolution's output (B, V, N) and its kernel's three sums arguments (any pointer when no norm)."""
+    out = torch.empty(batch, table.shape[0], n_out, device=table.device, dtype=out_dtype)
+    return out, ((sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0))
+
+
+def _launch(kernel, tuned, args: tuple, constants: dict, n_vertices: int, n_out: int, batch: int) -> None:
+    """A convolution kernel over (row tiles, column tiles, frames): the tuned tiles, or small fixed ones in
+    Triton's interpreter."""
     if INTERPRETED:
         grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
-        _conv_kernel[grid](*args, **constants, **_FIXED)
+        kernel[grid](*args, **constants, **_FIXED)
     else:
         grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
                              triton.cdiv(n_out, meta["BLOCK_N"]), batch)
-        _tuned_conv[grid](*args, **constants)
-    return out
+        tuned[grid](*args, **constants)
 
 
 # Narrow column blocks give coarse levels (a few hundred rows) enough programs to fill the SMs.
@@ -317,19 +329,12 @@ def gather_sum(table: torch.Tensor, products: list[tuple[torch.Tensor, torch.Ten
     n_vertices, size = table.shape
     (src1, map1), (src2, map2) = products[0], products[-1]
     batch, n_out = src1.shape[0], src1.shape[3]
-    out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
-    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
+    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
     args = (out, *sums_args, table, bias, n_vertices, n_out, src1, table if map1 is None else map1, src1.shape[1],
             src2, table if map2 is None else map2, src2.shape[1])
     constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(products) == 2,
                      STATS=sums is not None)
-    if INTERPRETED:
-        grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
-        _gather_sum_kernel[grid](*args, **constants, **_FIXED)
-    else:
-        grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
-                             triton.cdiv(n_out, meta["BLOCK_N"]), batch)
-        _tuned_gather_sum[grid](*args, **constants)
+    _launch(_gather_sum_kernel, _tuned_gather_sum, args, constants, n_vertices, n_out, batch)
     return out
 
 
@@ -342,8 +347,7 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
     n_vertices, size = table.shape
     batch, src_vertices, channels = source.shape
     n_out = weight.shape[1]
-    out = torch.empty(batch, n_vertices, n_out, device=table.device, dtype=out_dtype)
-    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0)
+    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
     block_m, block_n = (16, 16) if INTERPRETED else (32, min(64, max(16, triton.next_power_of_2(n_out))))
     grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
     _few_channel_kernel[grid](out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices,
