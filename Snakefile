@@ -10,8 +10,8 @@ import os
 
 from snakemake.utils import min_version, validate
 
-from pipeline.config import validate_config
-from pipeline.errors import PipelineError
+from pipeline.core.config import validate_config
+from pipeline.core.errors import PipelineError
 
 min_version("9.0")
 

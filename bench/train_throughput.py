@@ -13,7 +13,7 @@ per input variant, batch size and mode, through the training loop's own step (mo
 Torch is set up as the training stage sets it up (deterministic, seeded). Median seconds per step over `--steps`
 steps after `--warmup` (synchronised on CUDA; a graph mode captures during its warm-up), as samples/s; the ratio
 column is against the eager mode of the same variant and batch size in the same run, with the first `--arithmetic`
-listed (pipeline.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also prints
+listed (pipeline.core.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also prints
 what the dataset occupies on the device (inputs + targets): the whole of it stays there during training.
 """
 from __future__ import annotations
@@ -31,7 +31,7 @@ from model.training import Frames
 from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.operators import load_hierarchy
-from pipeline.torch_setup import configure_torch, frames_on, set_arithmetic
+from pipeline.core.torch_setup import configure_torch, frames_on, set_arithmetic
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
 VARIANTS = {"positions": FeatureSpec(("position",)),

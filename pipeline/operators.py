@@ -20,11 +20,11 @@ import h5py
 
 from meshops import Level, build_operators, parse_conv_kinds
 from meshops.levels import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
-from pipeline.artifacts.h5 import source_mesh_of
+from pipeline.core.h5 import source_mesh_of
 from pipeline.artifacts.operators import write_operators
-from pipeline.cli import add_quiet, parse_with_settings, run
-from pipeline.errors import PipelineError
-from pipeline.meshio import load_mesh
+from pipeline.core.cli import add_quiet, parse_with_settings, run
+from pipeline.core.errors import PipelineError
+from pipeline.core.meshio import load_mesh
 
 
 # Each pooling step keeps about 60 % of the vertices or fewer: past 30 steps a mesh of any size this pipeline can

@@ -4,7 +4,7 @@ what moves them (a grid scene's rod; a garment scene's animated mannequin: motio
 vectors, torso frames).
 
 CLI: `python -m pipeline.scene SETTINGS.json OUT.h5 [--sequence NAME]` (settings resolved by
-`python -m pipeline.config`; NAME e.g. train_000 or held_out_000, see scenes/sequences.py). The scene is
+`python -m pipeline.settings`; NAME e.g. train_000 or held_out_000, see scenes/sequences.py). The scene is
 assembled by `scenes.registry` and written by `pipeline.artifacts.scene`; docs/artifacts.md lists every dataset.
 """
 from __future__ import annotations
@@ -12,10 +12,10 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.scene import write_scene, write_scene_rest
-from pipeline.config import LEARNING_ONLY, read_settings
-from pipeline.errors import PipelineError
+from pipeline.core.config import LEARNING_ONLY, read_settings
+from pipeline.core.errors import PipelineError
 from scenes.registry import build_rest, build_scene
 
 

@@ -31,15 +31,15 @@ import warp as wp
 from tqdm import tqdm
 
 from geometry.rigid import apply_rigid
-from pipeline import cli
-from pipeline.artifacts.h5 import check_same_mesh, mesh_fingerprint
+from pipeline.core import cli
+from pipeline.core.h5 import check_same_mesh, mesh_fingerprint
 from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
 from pipeline.artifacts.simulation import (SimulationRun, SimulationWriter, read_trajectory, simulation_writer,
                                            write_simulation)
 from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
-from pipeline.config import LEARNING_ONLY, read_settings
-from pipeline.errors import PipelineError
-from pipeline.meshio import check_mesh
+from pipeline.core.config import LEARNING_ONLY, read_settings
+from pipeline.core.errors import PipelineError
+from pipeline.core.meshio import check_mesh
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
 from sim.xpbd.body import SubdividedOutsideBody
 

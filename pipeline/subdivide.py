@@ -23,12 +23,12 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.artifacts.h5 import mesh_fingerprint
+from pipeline.core.h5 import mesh_fingerprint
 from pipeline.artifacts.subdiv import Harmonics, Subdivision, write_subdiv
-from pipeline.cli import add_quiet, parse_with_settings, run
-from pipeline.config import LEARNING_ONLY
-from pipeline.errors import PipelineError
-from pipeline.meshio import load_mesh
+from pipeline.core.cli import add_quiet, parse_with_settings, run
+from pipeline.core.config import LEARNING_ONLY
+from pipeline.core.errors import PipelineError
+from pipeline.core.meshio import load_mesh
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
 from geometry.mesh import unique_edges

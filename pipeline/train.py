@@ -41,15 +41,15 @@ from model.networks import MeshNetwork, NetworkSpec, build_network
 from model.tasks import VectorRegressor, VectorSpec
 from model.training import CheckpointError, TrainSettings, fit
 from model.training_step import LR_SCHEDULES
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
-from pipeline.errors import PipelineError
-from pipeline.progress import batch_reporter, training_bar
+from pipeline.core.errors import PipelineError
+from pipeline.core.progress import batch_reporter, training_bar
 from pipeline.tasks import frames_of, task_of
-from pipeline.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:

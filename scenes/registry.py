@@ -1,4 +1,4 @@
-"""Scene assembly: resolved settings (pipeline.config) -> the typed parts of a scene (scenes.scene), made by the
+"""Scene assembly: resolved settings (pipeline.core.config) -> the typed parts of a scene (scenes.scene), made by the
 builders registered for the settings' `mesh.generator`: what every sequence shares (`build_rest`) and one
 sequence (`build_scene`). A new scene kind (the hand) is one builder module and one entry here."""
 from __future__ import annotations

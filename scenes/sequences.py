@@ -11,7 +11,7 @@ sequences leaves the others as they were.
 A clip entry of the settings is a procedural kind (scenes.motion.MOTION_KINDS) or a mapping
 {bvh: PATH, start: SECONDS, end: SECONDS} (start and end optional; PATH relative to the working directory), a
 window of a motion-capture file retargeted onto the mannequin (scenes.garment_scene.load_clip). This module reads
-settings only (the workflow and pipeline.config use it), so it imports nothing heavy.
+settings only (the workflow and pipeline.core.config use it), so it imports nothing heavy.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Animations from RGB frames: H.264 MP4 through imageio-ffmpeg, or an animated GIF where no encoder is available.
 
 `encode_animation` returns the file's bytes and its suffix, so that the caller writes them through its own atomic
-writer (a stage: pipeline.artifacts.h5.atomic_write) under the right name, and an HTML page can embed them as
+writer (a stage: pipeline.core.h5.atomic_write) under the right name, and an HTML page can embed them as
 they are. The MP4 is what browsers and players expect: H.264, yuv420p (which needs even sizes: an odd frame is
 padded by repeating its last row or column), `+faststart` (the index first, so playback starts before the whole
 file arrives). imageio-ffmpeg ships its own ffmpeg binary, so the fallback matters only on a platform it has no

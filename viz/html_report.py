@@ -5,7 +5,7 @@ encoder's fallback, as an <img>). Links to exported files stay relative to the p
 move together. Every string is HTML-escaped (titles, captions and table cells may come from config values);
 `Paragraphs` understand a little markdown, applied to the escaped text: blank lines between paragraphs, lines
 starting "- " as a list, `code` and **bold**. `report_html` returns the page as text for the caller's atomic
-writer (a stage: pipeline.artifacts.h5.atomic_write(path).write(page.encode())); viz/markdown_report.py writes
+writer (a stage: pipeline.core.h5.atomic_write(path).write(page.encode())); viz/markdown_report.py writes
 the same pieces as markdown.
 """
 from __future__ import annotations

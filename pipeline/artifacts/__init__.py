@@ -1,2 +1,2 @@
-"""The HDF5 artifacts that stages exchange: `h5` holds the atomic writer, provenance attrs and checked reads;
-each other module is the one typed reader/writer of one artifact, where its dataset names are defined."""
+"""The artifacts the stage chain exchanges: each module is the one typed reader/writer of one artifact, where its
+dataset names are defined (the HDF5 primitives they share: pipeline.core.h5)."""

@@ -18,9 +18,9 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.networks import NetworkSpec, build_network
 from model.tasks import VectorRegressor, VectorSpec
 from model.training import CHECKPOINT_FORMAT
-from pipeline.artifacts.h5 import atomic_write
+from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 
 MODEL_FORMAT = "trimesh-cnn/model-2"     # 1: absolute positions only, no feature spec
 

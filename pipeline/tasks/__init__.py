@@ -10,12 +10,12 @@ import torch
 from model.tasks import VectorStore
 from model.training import Frames
 from pipeline.artifacts.dataset import LearningData
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from pipeline.tasks.pca import PcaTask
 from pipeline.tasks.pose import PoseTask
 from pipeline.tasks.task import Task
 from pipeline.tasks.upsampling import UpsamplingTask
-from pipeline.torch_setup import frames_on
+from pipeline.core.torch_setup import frames_on
 
 TASKS: dict[str, Task] = {task.name: task for task in (UpsamplingTask(), PoseTask(), PcaTask())}
 
@@ -29,7 +29,7 @@ def task_of(name: str, where: str) -> Task:
 
 def frames_of(data: LearningData, device: torch.device | str) -> Frames:
     """Every frame of a dataset on `device` as its task's network reads them: per-vertex features of S x_low
-    (pipeline.torch_setup.frames_on) or one input vector per frame, each with the predictor it adds to."""
+    (pipeline.core.torch_setup.frames_on) or one input vector per frame, each with the predictor it adds to."""
     if task_of(data.task, "dataset").letter == "D":
         return frames_on(data, device)
     store = VectorStore(torch.as_tensor(data.predictor, device=device), torch.as_tensor(data.inputs, device=device))

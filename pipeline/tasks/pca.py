@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.artifacts.dataset import LearningData, PcaBasis, TaskLayout
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from pipeline.tasks.decoder import DecoderTask, decoder_frames
 from pipeline.tasks.task import DatasetRequest, SequenceRun
 

@@ -14,7 +14,7 @@ import numpy as np
 from geometry.rigid import apply_rigid_inverse
 from pipeline.artifacts.dataset import TaskLayout
 from pipeline.artifacts.scene import BODY_STATE, POSE, read_body, read_mannequin_frames, read_skinning
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from pipeline.tasks.decoder import DecoderTask, decoder_frames
 from pipeline.tasks.task import DatasetRequest, SequenceRun
 from scenes.kinematics import rest_transforms

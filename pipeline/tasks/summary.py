@@ -16,10 +16,10 @@ import re
 from pathlib import Path
 from typing import Sequence
 
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors
-from pipeline.artifacts.h5 import atomic_write
-from pipeline.errors import PipelineError
+from pipeline.core.h5 import atomic_write
+from pipeline.core.errors import PipelineError
 from viz.html_report import Paragraphs, Section, Table
 from viz.markdown_report import report_markdown
 

@@ -24,8 +24,9 @@ from geometry.loop_subdivision import loop_subdivide
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.inference import UPSAMPLER_INPUTS
 from model.networks import NetworkSpec, build_network
-from pipeline import cli, export_model, operators
-from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline import export_model, operators
+from pipeline.core import cli
+from pipeline.core.h5 import atomic_h5, write_csr
 from pipeline.artifacts.model import load_model, save_model
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.subdiv import read_subdivision

@@ -6,7 +6,8 @@ from pathlib import Path
 import pytest
 
 from hostile import dataset_command, write_simulations
-from pipeline import cli, dataset, operators
+from pipeline import dataset, operators
+from pipeline.core import cli
 
 
 @pytest.fixture(scope="session")

@@ -3,7 +3,7 @@ own with a time limit, so that a segfault shows as a signal and a hang as a time
 
 Each case's stage runs in a child forked from a forkserver that has imported every stage once (`PRELOAD`):
 starting `python -m pipeline.<stage>` anew costs 2-4 s of imports per case, a fork none. The child runs the stage
-the way its `__main__` does (`pipeline.cli.run`), its stderr going to a file, so what it reports and how it ends
+the way its `__main__` does (`pipeline.core.cli.run`), its stderr going to a file, so what it reports and how it ends
 are those of the command line; the forkserver is a fresh interpreter that has run no torch or Warp work, so
 forking it is safe.
 """
@@ -22,7 +22,8 @@ import h5py
 import numpy as np
 import torch
 
-from pipeline import cli, dataset, evaluate, simulate, train
+from pipeline import dataset, evaluate, simulate, train
+from pipeline.core import cli
 
 STAGES = {"simulate": simulate.main, "dataset": dataset.main, "train": train.main, "evaluate": evaluate.main}
 # Imported by the forkserver before it forks. Python 3.11's forkserver imports these with its own sys.path, which

@@ -1,6 +1,6 @@
 """What every hostile-input test checks, and the small valid artifacts they start from (then spoil).
 
-A refused input must end the stage the way pipeline.cli promises: exit status 2, exactly one stderr line
+A refused input must end the stage the way pipeline.core.cli promises: exit status 2, exactly one stderr line
 `error: <file>: <problem>`, no traceback, and nothing new left in the output folder (no artifact, no temporary
 file). Stages run in a subprocess where a crash is possible (a segfault kills the process, not the test run).
 """
@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from geometry.loop_subdivision import loop_subdivide
-from pipeline import cli, scene
-from pipeline.artifacts.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, write_csr
-from pipeline.config import load_config, resolve_scene, shared_settings, write_settings
+from pipeline import scene
+from pipeline.core import cli
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, write_csr
+from pipeline.core.config import load_config, resolve_scene, shared_settings, write_settings
 
 REPO = Path(__file__).resolve().parents[2]
 N_FRAMES = 8
@@ -39,7 +40,7 @@ def run_stage(stage: str, *args, cwd: Path = REPO, timeout: float = 300) -> Run:
 
 
 def run_in_process(main, *args, capsys) -> Run:
-    """A stage's main through pipeline.cli.run in this process: for checks that happen before any heavy work."""
+    """A stage's main through pipeline.core.cli.run in this process: for checks that happen before any heavy work."""
     try:
         cli.run(main, [str(a) for a in args])
         code = 0

@@ -12,7 +12,7 @@ import torch
 from hostile import ARCH, REPO, assert_refused, files_in, run_in_process, run_stage
 from model.training import CHECKPOINT_FORMAT
 from pipeline import train
-from pipeline.config import load_config, resolve_scene, write_settings
+from pipeline.core.config import load_config, resolve_scene, write_settings
 
 
 class _Payload:

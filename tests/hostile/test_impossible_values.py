@@ -16,10 +16,10 @@ from geometry.loop_subdivision import loop_subdivide
 from geometry.shapes import torus
 from hostile import ARCH, assert_refused, files_in, grid, run_in_process, run_stage, write_patch_scene
 from pipeline import operators, subdivide, train
-from pipeline.cli import check_device
-from pipeline.errors import PipelineError
+from pipeline.core.cli import check_device
+from pipeline.core.errors import PipelineError
 from pipeline.subdivide import subdivision_cost
-from pipeline.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import numpy as np
 import trimesh
 
 from hostile import assert_refused, files_in, run_stage
-from pipeline.meshio import load_mesh
+from pipeline.core.meshio import load_mesh
 
 # Two triangles of a unit square with a vertex no face uses in the middle of the list.
 UNUSED_IN_THE_MIDDLE = """v 0 0 0

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from hostile import ARCH, assert_refused, files_in, run_in_process, run_stage, write_patch_scene
-from pipeline import cli, dataset, simulate, subdivide, train
-from pipeline.artifacts.h5 import SOURCE_MESH, mesh_fingerprint
+from pipeline import dataset, simulate, subdivide, train
+from pipeline.core import cli
+from pipeline.core.h5 import SOURCE_MESH, mesh_fingerprint
 from pipeline.artifacts.scene import read_rest_mesh
 
 

@@ -1,4 +1,4 @@
-"""Item 3 of issue 13: outputs are written through unique temporary files (pipeline.artifacts.h5.atomic_write),
+"""Item 3 of issue 13: outputs are written through unique temporary files (pipeline.core.h5.atomic_write),
 so a link planted at a predictable name is never written through, and two identical runs do not trip over
 each other's temporary files."""
 from __future__ import annotations

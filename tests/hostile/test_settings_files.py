@@ -13,7 +13,7 @@ import pytest
 import hostile
 from hostile import REPO, assert_refused, files_in, run_in_process, run_stage
 from pipeline import scene
-from pipeline.config import read_settings, write_settings
+from pipeline.core.config import read_settings, write_settings
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_settings_are_written_through_the_safe_write_helper(patch_settings, tmp_
     assert stat.S_IMODE((tmp_path / "settings.json").stat().st_mode) == 0o666 & ~umask
     (tmp_path / "file").write_text("")
     before = files_in(tmp_path)
-    run = run_stage("config", REPO / "workflow_config.yaml", "patch", tmp_path / "file" / "settings.json")
+    run = run_stage("settings", REPO / "workflow_config.yaml", "patch", tmp_path / "file" / "settings.json")
     assert_refused(run, str(tmp_path / "file" / "settings.json"), "is a file, not a folder", folder=tmp_path,
                    before=before)
 
@@ -117,7 +117,7 @@ BROKEN_YAML = "profile: cpu\ndefaults: [1, 2\nscenes: {}\n"
 def test_yaml_error_is_one_line_with_its_place(tmp_path):
     path = tmp_path / "config.yaml"
     path.write_text(BROKEN_YAML)
-    run = run_stage("config", path, "patch", tmp_path / "settings.json")
+    run = run_stage("settings", path, "patch", tmp_path / "settings.json")
     # line 3 column 7 is the ':' after `scenes`; the sequence opened at line 2 column 11
     assert_refused(run, f"{path}:3:7: not valid YAML: expected ',' or ']', but got ':' "
                         f"(while parsing a flow sequence at 2:11)")
@@ -130,6 +130,6 @@ def test_non_finite_number_in_a_yaml_config_is_named(tmp_path, literal):
     assert "    dt: 0.0166666667" in text
     path = tmp_path / "config.yaml"
     path.write_text(text.replace("    dt: 0.0166666667", f"    dt: {literal}"))
-    run = run_stage("config", path, "patch", tmp_path / "settings.json")
+    run = run_stage("settings", path, "patch", tmp_path / "settings.json")
     assert_refused(run, str(path), "defaults.solver.dt", "not a finite number")
     assert files_in(tmp_path) == {"config.yaml"}

@@ -29,13 +29,13 @@ def _config_with_scene(folder: Path, name: str) -> Path:
 def test_scene_name_with_shell_syntax_is_one_clear_error(tmp_path, name):
     config = _config_with_scene(tmp_path, name)
     before = files_in(tmp_path)
-    run = run_stage("config", config, "patch", tmp_path / "settings.json", cwd=tmp_path)
+    run = run_stage("settings", config, "patch", tmp_path / "settings.json", cwd=tmp_path)
     assert_refused(run, "evil.yaml", "scenes", name, folder=tmp_path, before=before)
 
 
 def test_plain_scene_names_are_accepted(tmp_path):
     config = _config_with_scene(tmp_path, "pants_v2.1-b")
-    run = run_stage("config", config, "pants_v2.1-b", tmp_path / "settings.json", cwd=tmp_path)
+    run = run_stage("settings", config, "pants_v2.1-b", tmp_path / "settings.json", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "settings.json").is_file()
 

@@ -1,6 +1,6 @@
 """Item 10 of issue 13: an output the file system will not take (its path is a folder, a folder on its way is a
 regular file, the folder is read-only) is one error naming the output, from the one safe-write helper every
-stage writes through (pipeline.artifacts.h5), and leaves no temporary file behind. Once each was an OSError
+stage writes through (pipeline.core.h5), and leaves no temporary file behind. Once each was an OSError
 traceback from mkdir, mkstemp or the final rename."""
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def test_an_unusable_output_path_is_one_clear_error(valid, tmp_path, case, stage
     if stage == "subdivide":
         run = run_stage("subdivide", valid / "subdiv.h5", out, "--levels", "1", "--quiet")
     else:
-        run = run_stage("config", REPO / "workflow_config.yaml", "patch", out)
+        run = run_stage("settings", REPO / "workflow_config.yaml", "patch", out)
     assert_refused(run, f"{out}: cannot write the output", words, folder=tmp_path, before=before)
 
 

@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from meshops_shapes import mesh_of, operators_of
-from pipeline.cli import run
+from pipeline.core.cli import run
 from pipeline.operators import main
 
 ROOT = Path(__file__).resolve().parents[2]

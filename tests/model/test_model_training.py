@@ -141,7 +141,7 @@ def test_errors_of_displacements_predicted_once_equal_split_errors(grid):
 
 
 def test_no_op_of_a_training_step_reads_uninitialised_memory(grid):
-    """pipeline.torch_setup turns off deterministic mode's NaN fill of new tensors (an extra kernel each): safe only
+    """pipeline.core.torch_setup turns off deterministic mode's NaN fill of new tensors (an extra kernel each): safe only
     while nothing reads memory it did not write. With the fill on, such a read would turn the result into NaN or
     change it; training with body-relative local inputs and all three loss terms must come out bit for bit equal."""
     vertices, faces, mesh = grid

@@ -14,7 +14,7 @@ from model.networks import NetworkSpec, build_network
 from model.training import Frames, TrainSettings, fit
 from model.training_step import (COSINE_FLOOR, WARMUP_STEPS, GraphedStep, adam, eager_step, learning_rate,
                                  set_learning_rate)
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from pipeline.train import main as train_main
 
 SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")

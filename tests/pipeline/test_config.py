@@ -8,10 +8,10 @@ import sys
 import pytest
 import yaml
 
-from pipeline.cli import parse_with_settings
-from pipeline.config import (LEARNING_ONLY, deep_merge, load_config, load_schema, read_settings, resolve_scene,
+from pipeline.core.cli import parse_with_settings
+from pipeline.core.config import (LEARNING_ONLY, deep_merge, load_config, load_schema, read_settings, resolve_scene,
                              shared_settings, simulation_settings, validate_config, write_settings)
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from scenes.motion import MOTION_KINDS
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
@@ -71,7 +71,7 @@ def test_cli_reports_bad_key_without_traceback(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump(config))
     out = tmp_path / "s.json"
-    run = subprocess.run([sys.executable, "-m", "pipeline.config", str(path), "patch", str(out)],
+    run = subprocess.run([sys.executable, "-m", "pipeline.settings", str(path), "patch", str(out)],
                          capture_output=True, text=True)
     assert run.returncode == 2
     assert run.stderr.strip() == f"error: {path}: unknown key 'colour' in scenes.patch.mesh"
@@ -142,7 +142,7 @@ def test_settings_json_holds_no_sequence_count():
 
 
 def test_cli_writes_the_shared_settings_and_names_the_sequences(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "pipeline.config", "workflow_config.yaml", "pants",
+    run = subprocess.run([sys.executable, "-m", "pipeline.settings", "workflow_config.yaml", "pants",
                           str(tmp_path / "s.json")], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     cpu = resolve_scene(CONFIG, "pants", "cpu")

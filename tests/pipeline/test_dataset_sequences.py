@@ -10,11 +10,12 @@ import yaml
 
 from geometry.loop_subdivision import loop_subdivide
 from geometry.rigid import apply_rigid_inverse
-from pipeline import cli, dataset
+from pipeline import dataset
+from pipeline.core import cli
 from pipeline.artifacts.dataset import load_dataset
-from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.core.h5 import atomic_h5, write_csr
 from pipeline.artifacts.scene import read_body, read_torso_transforms, write_scene
-from pipeline.config import resolve_scene
+from pipeline.core.config import resolve_scene
 from scenes.registry import build_scene
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))

@@ -9,8 +9,8 @@ from geometry.rigid import apply_rigid, apply_rigid_inverse
 from geometry.rotations import quat_to_matrix
 from pipeline.artifacts.scene import (read_body, read_mannequin_frames, read_rest_mesh, read_scene_drive,
                                       read_sequence, read_torso_transforms, write_scene)
-from pipeline.config import resolve_scene, shared_settings, write_settings
-from pipeline.errors import PipelineError
+from pipeline.core.config import resolve_scene, shared_settings, write_settings
+from pipeline.core.errors import PipelineError
 from pipeline.scene import main as scene_main
 from scenes.capsules import body_signed_distance, capsules_world
 from scenes.kinematics import rest_transforms

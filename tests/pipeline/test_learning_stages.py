@@ -19,13 +19,16 @@ import pytest
 import torch
 import trimesh
 
-from pipeline import cli, dataset, evaluate, network_timing as tradeoff_timing, operators, train, tradeoff
+from experiments.tradeoff import stage as tradeoff
+from pipeline import dataset, evaluate, operators, train
+from pipeline.core import cli
+from pipeline.tasks import timing as tradeoff_timing
 from pipeline.artifacts.evaluation import read_errors
 from pipeline.artifacts.dataset import load_dataset
-from pipeline.errors import PipelineError
-from pipeline.tradeoff import Network
-from pipeline.artifacts.h5 import atomic_h5, config_of, read_csr, write_csr
-from pipeline.config import load_config, resolve_scene, write_settings
+from pipeline.core.errors import PipelineError
+from experiments.tradeoff.stage import Network
+from pipeline.core.h5 import atomic_h5, config_of, read_csr, write_csr
+from pipeline.core.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
 
 REPO = Path(__file__).resolve().parents[2]
@@ -204,7 +207,7 @@ def data_uri_bytes(uri: str) -> bytes:
 
 def test_the_tradeoff_times_each_model_once_on_the_deployment_path_and_pairs_it_with_its_own_evaluation(
         trained, tmp_path):
-    """pipeline.tradeoff.time_networks: one median per distinct model (a model fed several budgets is timed once),
+    """experiments.tradeoff.time_networks: one median per distinct model (a model fed several budgets is timed once),
     finite and positive; an evaluation of a network of another size is refused (its errors would be paired with
     another network's ms)."""
     lean = trained / "lean"

@@ -1,4 +1,4 @@
-"""The multi-garment stages (pipeline/multi.py, pipeline/multi_report.py) on two small synthetic garments of
+"""The multi-garment stages (experiments/multi/stage.py, experiments/multi/report.py) on two small synthetic garments of
 different meshes: one garment trains what pipeline.train trains, bit for bit; the views share one network and
 run in `evaluate`; a garment or operators it was not trained on, garments that disagree on the network, and a
 foreign model file are one error each, leaving nothing behind; the report's table is the evaluations'."""
@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline import dataset, evaluate, multi, multi_report, operators, train
+from experiments.multi import report as multi_report
+from experiments.multi import stage as multi
+from pipeline import dataset, evaluate, operators, train
 from pipeline.artifacts.evaluation import read_errors
-from pipeline.artifacts.multi_table import read_multi_table
-from pipeline.config import load_config, resolve_scene, write_settings
+from experiments.multi.table import read_multi_table
+from pipeline.core.config import load_config, resolve_scene, write_settings
 from test_learning_stages import REPO, stage, write_simulation
 
 GARMENTS = {"a": 5, "b": 4}       # grid resolution of each garment's low-res sheet

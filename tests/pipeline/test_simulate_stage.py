@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import resolve_scene, write_settings
+from pipeline.core.config import resolve_scene, write_settings
 from geometry.rigid import apply_rigid
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))

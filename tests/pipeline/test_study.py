@@ -9,7 +9,8 @@ import h5py
 import numpy as np
 import pytest
 
-from pipeline import cli, study
+from experiments.study import stage as study
+from pipeline.core import cli
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
 
 

@@ -11,11 +11,12 @@ import pytest
 from geometry.loop_subdivision import loop_subdivide
 from geometry.rigid import apply_rigid_inverse
 from geometry.rotations import quat_conjugate, quat_multiply, quat_rotate
-from pipeline import cli, dataset
+from pipeline import dataset
+from pipeline.core import cli
 from pipeline.artifacts.dataset import load_dataset
-from pipeline.artifacts.h5 import atomic_h5, write_csr
+from pipeline.core.h5 import atomic_h5, write_csr
 from pipeline.artifacts.scene import read_body, read_skinning, read_torso_transforms
-from pipeline.config import resolve_scene
+from pipeline.core.config import resolve_scene
 from scenes.kinematics import rest_transforms
 from scenes.registry import build_scene
 from test_dataset_sequences import CONFIG, FRAMES, SEQUENCES, SETTLE, write_sequence

@@ -16,11 +16,11 @@ from pipeline.artifacts.evaluation import Evaluation, read_network_timing, write
 from pipeline.artifacts.scene import TORSO_TRANSFORMS
 from pipeline.artifacts.simulation import SimulationRun, write_simulation
 from pipeline.artifacts.dataset import read_frame_origins
-from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff, write_tradeoff
-from pipeline.errors import PipelineError
-from pipeline.tradeoff import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
+from experiments.tradeoff.artifact import COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff, write_tradeoff
+from pipeline.core.errors import PipelineError
+from experiments.tradeoff.stage import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
                                parse_high_res, per_sequence_ms, table_of, time_subdivision)
-from pipeline.tradeoff_report import findings, pareto_front
+from experiments.tradeoff.report import findings, pareto_front
 
 REFERENCE = Reference(4, 30, "substep")
 

@@ -14,7 +14,7 @@ import yaml
 from test_workflow import build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from pipeline.artifacts.evaluation import read_errors, read_parameter_count
-from pipeline.artifacts.multi_table import read_multi_table
+from experiments.multi.table import read_multi_table
 from pipeline.artifacts.operators import load_hierarchy
 
 GARMENTS = ["pants", "skirt", "tshirt"]

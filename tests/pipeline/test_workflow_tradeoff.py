@@ -13,7 +13,7 @@ import pytest
 import yaml
 from test_workflow import planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
-from pipeline.artifacts.tradeoff import HIGH_RES, LEARNED, LOOP, read_tradeoff
+from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, read_tradeoff
 
 # Tiny pants simulate 2 substeps x 10 iterations, harmonic projection every substep (the defaults' schedule).
 GRID = {"substeps": [1], "widths": [0.125], "epochs": 1, "matched": [1], "high_res_budgets": [[1, 5]],
@@ -183,7 +183,7 @@ def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_
             assert [w for w in words if not (w.startswith(("results/patch/", "-")) or w.isdigit() or w in
                                              {"low", "high", "iteration", "substep", "2>&1", "|", "tee"}
                                              or w.startswith("pipeline."))] == [], job["shell"]
-    stage = next(line for line in run.stdout.splitlines() if "-m pipeline.tradeoff " in line)
+    stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
     assert (" --point 4 results/patch/sequences/train_000/sim_low.h5 --eval 4 results/patch/tradeoff/s4/scene/eval.h5"
             in stage)
     assert " --matched 1 results/patch/tradeoff/s1/matched/eval.h5 " in stage and "--matched 4" not in stage
@@ -208,7 +208,7 @@ def test_a_sharded_scene_simulates_by_shard_and_times_one_sequence_alone(tmp_pat
             counts["tradeoff_timing_high"]) == (2, 2, 3)       # 1 x 5 and the every-iteration 2 x 10; + reference
     assert counts["tradeoff_high_settings"] == 3               # the reference's, for its timing run
     assert "tradeoff_simulate_low" not in counts and "tradeoff_simulate_high" not in counts
-    stage = next(line for line in run.stdout.splitlines() if "-m pipeline.tradeoff " in line)
+    stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
     assert " --point 1 results/pants/tradeoff/s1/timing/sim_low.h5 --eval 1 " in stage
     assert " --point 2 results/pants/tradeoff/s2/timing/sim_low.h5 --eval 2 " in stage
     assert " --sim-high-timing results/pants/tradeoff/h2x10_substep/timing/sim_high.h5 " in stage

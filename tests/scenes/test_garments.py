@@ -9,7 +9,7 @@ import trimesh
 import yaml
 
 from geometry.mesh import edge_faces, unique_edges, validate_mesh, weld_vertices
-from pipeline.config import resolve_scene
+from pipeline.core.config import resolve_scene
 from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
 from scenes.garments import BOUNDARY_LOOPS, CLEARANCE, GARMENT_KINDS, make_garment
 from scenes.kinematics import rest_transforms

@@ -5,7 +5,7 @@ import pytest
 import yaml
 
 from geometry.rigid import apply_rigid
-from pipeline.config import resolve_scene
+from pipeline.core.config import resolve_scene
 from scenes.registry import SCENE_KINDS, build_rest, build_scene
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))

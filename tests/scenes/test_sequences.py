@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.config import resolve_scene
+from pipeline.core.config import resolve_scene
 from scenes.registry import build_rest, build_scene
 from scenes.sequences import (clip_key, held_out_clips, parse_sequence_name, sequence_bvh_files, sequence_clips,
                               sequence_names, training_clips)

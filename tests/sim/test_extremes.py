@@ -19,9 +19,10 @@ from test_xpbd import edge_ratios, hanging_cloth  # noqa: F401  (hanging_cloth i
 from geometry.harmonics import harmonic_basis, lumped_mass
 from geometry.loop_subdivision import loop_subdivide
 from geometry.mesh import unique_edges
-from pipeline import cli, scene, simulate
+from pipeline import scene, simulate
+from pipeline.core import cli
 from pipeline.artifacts.scene import read_rest_mesh, read_scene_drive
-from pipeline.config import load_config, resolve_scene, write_settings
+from pipeline.core.config import load_config, resolve_scene, write_settings
 from scenes.grid import first_row_pins, grid_cloth
 from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints, \
     harmonic_constraint

@@ -7,7 +7,7 @@
 # (more levels for the decoder's unpoolings) gets its own operators.h5. None of this is part of `results/<scene>/`:
 # `make run` does not grow. The only values that reach a shell besides paths are the literal task names and the
 # component count (a folder name, digits).
-from pipeline.config import application_settings
+from pipeline.core.config import application_settings
 
 APPLICATION = "results/{scene}/{application}"     # pose or pca: settings.json, operators.h5
 MODEL_DIR = "results/{scene}/{model_dir}"          # pose, or pca/k<K>: dataset.h5, model.pt, ... report.md

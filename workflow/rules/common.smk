@@ -4,8 +4,8 @@ import os
 import re
 import sys
 
-from pipeline.config import resolve_scene, shared_settings, simulation_settings
-from pipeline.errors import PipelineError
+from pipeline.core.config import resolve_scene, shared_settings, simulation_settings
+from pipeline.core.errors import PipelineError
 from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names, sequence_shards
 
 # Resolving every scene now turns a bad or missing key into one error before any job starts.

@@ -27,7 +27,7 @@ def multi_scene_files(name):
 
 def multi_products(wildcards=None):
     """What `results/multi/` stands for; scenes whose settings a shared network cannot serve are one error before
-    any job runs (pipeline.multi checks the same in the settings files)."""
+    any job runs (experiments.multi checks the same in the settings files)."""
     first = MULTI_SCENES[0]
     for scene in MULTI_SCENES[1:]:
         for key in ("network", "training", "device"):
@@ -66,7 +66,7 @@ if MULTI_SCENES:
         threads: workflow.cores
         resources: mem_mb=8000, gpu=int(SETTINGS[MULTI_SCENES[0]]["device"].startswith("cuda"))
         shell:
-            "{PY:q} -m pipeline.multi train {output.model:q} {output.history:q} {params.garments:q} "
+            "{PY:q} -m experiments.multi train {output.model:q} {output.history:q} {params.garments:q} "
             "--threads {threads} 2>&1 | tee {log:q}"
 
     # The shared network on one garment's dataset: the scene's evaluate, with the garment's view of the network
@@ -101,7 +101,7 @@ if MULTI_SCENES:
         threads: 1
         resources: mem_mb=2000
         shell:
-            "{PY:q} -m pipeline.multi_report {output.table:q} {output.curve:q} {output.report:q} "
+            "{PY:q} -m experiments.multi.report {output.table:q} {output.curve:q} {output.report:q} "
             "--model {input.model:q} --train-log {input.history:q} {params.garments:q} 2>&1 | tee {log:q}"
 
     # `results/multi/` as a target (see the Snakefile's `results/<scene>/`), with and without the trailing slash;

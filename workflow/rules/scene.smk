@@ -5,7 +5,7 @@
 # and simulate stages read). Each is rewritten only when its content changes (the params trigger of its rule), so
 # a config change reruns exactly the scenes and stages it touches: a new training setting retrains without
 # simulating again, and raising the number of sequences reruns none of the sequences already made.
-from pipeline.config import simulation_settings, write_settings
+from pipeline.core.config import simulation_settings, write_settings
 
 
 rule settings:

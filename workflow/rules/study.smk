@@ -117,5 +117,5 @@ rule study:
     threads: 1
     resources: mem_mb=1000
     shell:
-        "{PY:q} -m pipeline.study {output.table:q} {output.plot:q} {output.report:q} {params.points:q} "
+        "{PY:q} -m experiments.study {output.table:q} {output.plot:q} {output.report:q} {params.points:q} "
         "2>&1 | tee {log:q}"

@@ -19,7 +19,7 @@
 #   simulated as the scene's high-res runs were (per sequence, or a batch job per shard); a sharded scene also runs
 #   the first sequence alone for each (the reference too: folder h<own budget>_<own schedule>/), whose ms is the
 #   row's, as for the low-res budgets.
-# Then one table, plot and report (pipeline.tradeoff), which also times every network itself, one after another
+# Then one table, plot and report (experiments.tradeoff), which also times every network itself, one after another
 # on the device (the evaluations may have shared it with other jobs). None of this is part of `results/<scene>/`:
 # `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
 # the schema) reach a shell, quoted.
@@ -469,7 +469,7 @@ rule tradeoff:
     threads: workflow.cores
     resources: mem_mb=16000, gpu=gpus_on_device     # the dataset's frames on the device, to time the networks
     shell:
-        "{PY:q} -m pipeline.tradeoff {input.subdiv:q} {output.table:q} {output.plot:q} {output.report:q} "
+        "{PY:q} -m experiments.tradeoff {input.subdiv:q} {output.table:q} {output.plot:q} {output.report:q} "
         "--sim-high {input.sim_high:q} --dataset {input.dataset:q} --operators {input.operators:q} {params.grid:q} "
         "--settings {input.settings:q} "
         "--threads {threads} 2>&1 | tee {log:q}"

@@ -1,4 +1,4 @@
-"""results/multi/multi.h5, written by `pipeline.multi_report`: per garment the errors of Loop subdivision alone,
+"""results/multi/multi.h5, written by `experiments.multi.report`: per garment the errors of Loop subdivision alone,
 of the garment's own network and of the network shared by every garment, their size and inference time
 (docs/artifacts.md, section "multi/multi.h5")."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_h5, open_artifact, read
-from pipeline.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, open_artifact, read
+from pipeline.core.errors import PipelineError
 
 STAGE = "multi_report"
 WHO = ("predictor", "own", "shared")       # Loop subdivision alone; the garment's own network; the shared one

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts.h5 import FLOAT32_MAX, open_artifact, read_indices
-from pipeline.errors import PipelineError
+from pipeline.core.h5 import FLOAT32_MAX, open_artifact, read_indices
+from pipeline.core.errors import PipelineError
 from geometry.mesh import validate_mesh
 
 # Where each artifact kind keeps its mesh: the first group path found in a file wins.

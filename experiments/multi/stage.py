@@ -2,9 +2,9 @@
 supplementary Table 3) → the multi-garment model.pt, its train.h5 and, per garment, a view: a model.pt of
 pipeline.train's format that `evaluate` (and export_model, deploy/) runs as any scene's model.
 
-    python -m pipeline.multi train MODEL.pt TRAIN.h5 --garment NAME SETTINGS.json DATASET.h5 OPERATORS.h5 VIEW.pt
+    python -m experiments.multi train MODEL.pt TRAIN.h5 --garment NAME SETTINGS.json DATASET.h5 OPERATORS.h5 VIEW.pt
         [--garment ...] [--checkpoint PATH] [--threads N] [--quiet]
-    python -m pipeline.multi view MODEL.pt NAME OPERATORS.h5 VIEW.pt
+    python -m experiments.multi view MODEL.pt NAME OPERATORS.h5 VIEW.pt
 
 train: each garment is a scene's upsampling dataset, operators and settings.json. Network (`network.*`), training
 (`training.*`) and device are read from the garments' settings.json, which must agree on them: the shared
@@ -34,18 +34,18 @@ from model.multi_mesh import Garment, MultiMeshFrames, MultiMeshRegressor
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import MeshNetwork, NetworkSpec, build_network
 from model.training import CheckpointError, TrainSettings, fit
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.dataset import UPSAMPLING, LearningData, load_dataset
 from pipeline.artifacts.model import read_checkpoint, write_checkpoint
-from pipeline.artifacts.multi_model import (check_garment_operators, load_multi_model, save_garment_view,
+from experiments.multi.model_file import (check_garment_operators, load_multi_model, save_garment_view,
                                             save_multi_model, trained_operators)
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
-from pipeline.config import read_settings
-from pipeline.errors import PipelineError
-from pipeline.progress import batch_reporter, training_bar
+from pipeline.core.config import read_settings
+from pipeline.core.errors import PipelineError
+from pipeline.core.progress import batch_reporter, training_bar
 from pipeline.tasks import frames_of
-from pipeline.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch
 
 SHARED = ("network", "training", "device")     # what the garments' settings must agree on
 
@@ -117,7 +117,7 @@ def _garment_mesh(garment: GarmentFiles, data: LearningData, spec: NetworkSpec, 
 
 
 def _train(argv: Sequence[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.multi train", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.multi train", description=__doc__.splitlines()[0])
     parser.add_argument("model", help="multi-garment model.pt to write")
     parser.add_argument("log", help="train.h5 to write")
     parser.add_argument("--garment", nargs=5, action="append", required=True,
@@ -195,7 +195,7 @@ def _train(argv: Sequence[str]) -> None:
 
 
 def _view(argv: Sequence[str]) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.multi view",
+    parser = argparse.ArgumentParser(prog="python -m experiments.multi view",
                                      description="one garment's network of a multi-garment model, as a model.pt")
     parser.add_argument("model", help="multi-garment model.pt")
     parser.add_argument("garment", help="the garment's name, as trained")
@@ -214,12 +214,9 @@ COMMANDS = {"train": _train, "view": _view}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.multi", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.multi", description=__doc__.splitlines()[0])
     parser.add_argument("command", choices=sorted(COMMANDS))
     parser.add_argument("arguments", nargs=argparse.REMAINDER)
     args = parser.parse_args(argv)
     COMMANDS[args.command](args.arguments)
 
-
-if __name__ == "__main__":
-    cli.run(main)

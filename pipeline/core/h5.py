@@ -31,7 +31,7 @@ import h5py
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 
 _VERSIONED_PACKAGES = ("numpy", "scipy", "h5py", "warp-lang", "trimesh", "lap", "torch", "snakemake")
 

@@ -1,4 +1,4 @@
-"""What the trade-off table says, for `pipeline.tradeoff`: the Pareto front, each row's label and marker group, the
+"""What the trade-off table says, for `experiments.tradeoff`: the Pareto front, each row's label and marker group, the
 findings in words (the cost of the input shift, whether matched training removes it, the cheaper high-res runs,
 the pick for 60 Hz), and report.md."""
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.artifacts.h5 import atomic_write
-from pipeline.artifacts.tradeoff import HIGH_RES, LEARNED, LOOP, NO_NETWORK, Tradeoff
+from pipeline.core.h5 import atomic_write
+from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, NO_NETWORK, Tradeoff
 
 PAPER_UNIT = 1e-3          # errors are shown x 1e-3 scene units, as the scene's report (paper Table 3)
 FRAME_60HZ_MS = 1e3 / 60

@@ -1,6 +1,6 @@
 """Stage `study`: the generalisation study's table, plot and report from the evaluations of its grid.
 
-    python -m pipeline.study STUDY.h5 PLOT.png REPORT.md --point N VARIANT EVAL.h5 [--point ...]
+    python -m experiments.study STUDY.h5 PLOT.png REPORT.md --point N VARIANT EVAL.h5 [--point ...]
 
 Each point is a network with input variant VARIANT trained on the scene's first N training sequences and
 evaluated on the test frames of those sequences and on the held-out motion (workflow/rules/study.smk makes them).
@@ -18,10 +18,10 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors, read_parameter_count
-from pipeline.artifacts.h5 import atomic_h5, atomic_write
-from pipeline.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, atomic_write
+from pipeline.core.errors import PipelineError
 from viz.study_plot import study_plot
 
 PAPER_UNIT = 1e-3
@@ -56,7 +56,7 @@ def gather(points: list[tuple[str, str, str]]) -> tuple[list[int], list[str], di
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.study", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.study", description=__doc__.splitlines()[0])
     parser.add_argument("table", help="study.h5 to write")
     parser.add_argument("plot", help="study.png to write")
     parser.add_argument("report", help="report.md to write")
@@ -102,6 +102,3 @@ def _write_report(path: Path, plot: Path, counts: list[int], variants: list[str]
     with atomic_write(path) as f:
         f.write(("\n".join(lines) + "\n").encode())
 
-
-if __name__ == "__main__":
-    cli.run(main)

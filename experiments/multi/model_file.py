@@ -1,4 +1,4 @@
-"""results/multi/model.pt, written by `pipeline.multi train`: one upsampling network trained on several garments
+"""results/multi/model.pt, written by `experiments.multi train`: one upsampling network trained on several garments
 (docs/artifacts.md, section "multi/model.pt"): the shared weights and normalisation once, and per garment its
 mesh constants and the operators and dataset it was trained on; and the garment views, a model.pt of
 pipeline.train's format per garment (`save_garment_view`), which `evaluate`, `export_model` and deploy/ run as
@@ -21,7 +21,7 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.multi_mesh import MultiMeshRegressor
 from model.networks import NetworkSpec, build_network
 from pipeline.artifacts.model import check_plain, read_model_state, save_model, save_state
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 
 MULTI_FORMAT = "trimesh-cnn/multi-model-1"
 NORMALISATION = ("input_offset", "input_scale", "output_scale")     # FeatureRegressor's buffers, shared
@@ -58,7 +58,7 @@ def save_multi_model(path: str | os.PathLike, model: MultiMeshRegressor, spec: N
 
 def load_multi_model(path: str | os.PathLike) -> tuple[MultiMeshRegressor, dict]:
     """The multi-garment model of `path` on the CPU, and the file's contents."""
-    state = read_model_state(path, MULTI_FORMAT, "a multi-garment model written by pipeline.multi")
+    state = read_model_state(path, MULTI_FORMAT, "a multi-garment model written by experiments.multi")
     try:
         check_plain(state, _PLAIN_FIELDS)
         for name, garment in state["garments"].items():

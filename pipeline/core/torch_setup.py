@@ -10,8 +10,8 @@ import torch
 from model.features import FrameStore
 from model.training import Frames
 from pipeline.artifacts.dataset import LearningData
-from pipeline.cli import check_device
-from pipeline.errors import PipelineError
+from pipeline.core.cli import check_device
+from pipeline.core.errors import PipelineError
 
 
 def configure_torch(device: str, seed: int, threads: int | None = None, *, deterministic: bool = True,

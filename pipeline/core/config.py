@@ -9,27 +9,25 @@ checked as strictly when it is read: numbers, the schema's types and ranges, no 
 settings.json leaves out the number of sequences: it says how many sequences exist, not how any is made, so
 raising it changes no input of the artifacts already made (scenes/sequences.py names the sequences).
 
-CLI: `python -m pipeline.config CONFIG.yaml SCENE OUT.json [--profile P] [--device D]` writes resolved settings
-(as settings.json holds them) and prints the scene's sequence names.
+The `settings` stage (`python -m pipeline.settings`) writes a scene's resolved settings with this module.
 """
 from __future__ import annotations
 
-import argparse
 import copy
 import functools
 import json
 import os
 import re
 from pathlib import Path
-from typing import Any, Collection, Sequence
+from typing import Any, Collection
 
 import yaml
 
-from pipeline.artifacts.h5 import FLOAT32_MAX, atomic_write
-from pipeline.errors import PipelineError
-from scenes.sequences import clip_key, held_out_clips, sequence_names, training_clips
+from pipeline.core.h5 import FLOAT32_MAX, atomic_write
+from pipeline.core.errors import PipelineError
+from scenes.sequences import clip_key, held_out_clips, training_clips
 
-SCHEMA_PATH = Path(__file__).resolve().parent.parent / "workflow" / "config.schema.yaml"
+SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "config.schema.yaml"
 
 
 def load_schema() -> dict:
@@ -267,7 +265,7 @@ def application_settings(settings: dict, name: str) -> dict:
 
 
 def write_settings(settings: dict, path: str | os.PathLike) -> None:
-    """Write resolved settings as JSON, through the one safe-write helper (pipeline.artifacts.h5.atomic_write)."""
+    """Write resolved settings as JSON, through the one safe-write helper (pipeline.core.h5.atomic_write)."""
     with atomic_write(path) as f:
         f.write(json.dumps(settings, indent=2, sort_keys=True, allow_nan=False).encode())
 
@@ -315,23 +313,3 @@ def _settings_schema() -> dict:
     return {"$defs": schema["$defs"], **scene,
             "properties": {**scene["properties"], "scene": name, "profile": schema["properties"]["profile"],
                            "device": schema["properties"]["device"]}}
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.config", description=__doc__.splitlines()[0])
-    parser.add_argument("config", help="workflow_config.yaml")
-    parser.add_argument("scene")
-    parser.add_argument("out", help="resolved settings (JSON)")
-    parser.add_argument("--profile", help="overlay to apply (default: the config's `profile`)")
-    parser.add_argument("--device", help="override the device (cpu, cuda:0)")
-    args = parser.parse_args(argv)
-    config = load_config(args.config)
-    settings = resolve_scene(config, args.scene, args.profile, args.device, args.config)
-    write_settings(shared_settings(settings), args.out)
-    print(" ".join(sequence_names(settings)))
-
-
-if __name__ == "__main__":
-    from pipeline import cli  # here: pipeline.cli reads settings through this module
-
-    cli.run(main)

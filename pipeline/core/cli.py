@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from pipeline.config import load_settings, require_complete_settings
-from pipeline.errors import PipelineError
+from pipeline.core.config import load_settings, require_complete_settings
+from pipeline.core.errors import PipelineError
 
 
 def run(main: Callable[[Sequence[str] | None], None], argv: Sequence[str] | None = None) -> None:
@@ -34,18 +34,18 @@ def parse_with_settings(parser: argparse.ArgumentParser, argv: Sequence[str] | N
                         flags_of: Callable[[dict], dict[str, Any]], unread: tuple[str, ...] = ()) -> argparse.Namespace:
     """Parse a stage's arguments, taking the defaults of its flags from `--settings SETTINGS.json`.
 
-    The resolved scene settings (written by `python -m pipeline.config`) are read first; `flags_of(settings)`
+    The resolved scene settings (written by `python -m pipeline.settings`) are read first; `flags_of(settings)`
     maps them to flag destinations, and those values become the flags' defaults, so a flag given by hand still
     wins (a variant tried without editing the config). Each value is handed to argparse as the text the flag
     would get on a command line (a list comma-joined; None leaves the flag without a value), which argparse
     converts with the flag's own `type`: a setting and the same value typed by hand give the same argument.
     (argparse does not check `choices` on defaults; the config schema has checked those values, as
-    `pipeline.config.read_settings` does, naming first a missing setting this stage reads.) `settings` is kept out
+    `pipeline.core.config.read_settings` does, naming first a missing setting this stage reads.) `settings` is kept out
     of the returned namespace, so an artifact's recorded config holds the flags' values only. The top-level
     settings `unread` (never used by this stage) may be absent, as in simulation.json.
     """
     parser.add_argument("--settings", metavar="SETTINGS.json",
-                        help="resolved scene settings (python -m pipeline.config): the defaults of the flags")
+                        help="resolved scene settings (python -m pipeline.settings): the defaults of the flags")
     settings_path = settings_of(argv)
     if settings_path is not None:
         settings = load_settings(settings_path)

@@ -1,10 +1,10 @@
 """Stage `multi_report`: one network for many garments against each garment's own network → multi.h5, the
 training curve and report.md (paper sec. 7, supplementary Table 3).
 
-    python -m pipeline.multi_report MULTI.h5 CURVE.png REPORT.md --model MODEL.pt --train-log TRAIN.h5
+    python -m experiments.multi.report MULTI.h5 CURVE.png REPORT.md --model MODEL.pt --train-log TRAIN.h5
         --garment NAME SHARED_EVAL.h5 OWN_EVAL.h5 [--garment ...]
 
-MODEL.pt and TRAIN.h5 are the multi-garment model and its training (pipeline.multi train). Per garment,
+MODEL.pt and TRAIN.h5 are the multi-garment model and its training (experiments.multi train). Per garment,
 SHARED_EVAL.h5 is the evaluate stage's measure of the shared network on the garment's dataset
 (results/multi/<scene>/eval.h5) and OWN_EVAL.h5 that of the garment's own network, trained on it alone with the
 same settings (results/<scene>/eval.h5). Both must be the same size of network and measure the same frames
@@ -19,13 +19,13 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors, read_network_timing
-from pipeline.artifacts.h5 import atomic_write
-from pipeline.artifacts.multi_model import load_multi_model
-from pipeline.artifacts.multi_table import NETWORKS, TERMS, WHO, MultiTable, write_multi_table
+from pipeline.core.h5 import atomic_write
+from experiments.multi.model_file import load_multi_model
+from experiments.multi.table import NETWORKS, TERMS, WHO, MultiTable, write_multi_table
 from pipeline.artifacts.train_log import read_train_log
-from pipeline.errors import PipelineError
+from pipeline.core.errors import PipelineError
 from viz.html_report import Links, Paragraphs, Picture, Section, Table
 from viz.markdown_report import report_markdown
 from viz.plots import figure_bytes, training_curve
@@ -66,7 +66,7 @@ def gather(state: dict, garments: list[tuple[str, str, str]]) -> MultiTable:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.multi_report", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.multi.report", description=__doc__.splitlines()[0])
     parser.add_argument("table", help="multi.h5 to write")
     parser.add_argument("curve", help="training curve (PNG) to write")
     parser.add_argument("report", help="report.md to write")

@@ -1,6 +1,6 @@
 """Stage `tradeoff`: the speed-accuracy trade of every way to a scene's high-res cloth: a table, a plot, a report.
 
-    python -m pipeline.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
+    python -m experiments.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
         --dataset DATASET.h5 --operators OPERATORS.h5 --point SUBSTEPS SIM_LOW.h5 [SIM_LOW.h5 ...] [--point ...]
         --eval SUBSTEPS EVAL.h5 MODEL.pt [--eval ...] [--matched SUBSTEPS EVAL.h5 MODEL.pt ...]
         [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--sim-high-timing SIM_HIGH.h5 [...]]
@@ -52,20 +52,20 @@ import torch
 
 from geometry.rigid import apply_rigid_inverse
 from model.inference import CapturedCall, padded_stencil
-from pipeline import cli
+from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.model import load_model
-from pipeline.artifacts.h5 import atomic_write
+from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.simulation import read_solve_ms, read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
 from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
-from pipeline.artifacts.tradeoff import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
-from pipeline.errors import PipelineError
-from pipeline.network_timing import WARMUP_RUNS, pick_frames, time_inference
+from experiments.tradeoff.artifact import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
+from pipeline.core.errors import PipelineError
+from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_inference
 from pipeline.tasks import frames_of
-from pipeline.torch_setup import configure_torch
-from pipeline.tradeoff_report import groups, labels, pareto_front, plotted_errors, write_report
+from pipeline.core.torch_setup import configure_torch
+from experiments.tradeoff.report import groups, labels, pareto_front, plotted_errors, write_report
 from viz.tradeoff_plot import tradeoff_plot
 
 SCHEDULES = ("iteration", "substep")
@@ -273,7 +273,7 @@ def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low
 
 def time_networks(networks: Sequence[Network], dataset: str, operators: str, device: torch.device,
                   frames: int) -> dict[str, float]:
-    """Median ms per frame of each distinct model on the deployment path (pipeline.network_timing), one model
+    """Median ms per frame of each distinct model on the deployment path (pipeline.tasks.timing), one model
     after another in this one process, on `frames` test frames of the dataset; each model's parameter count
     checked against its evaluation's (an evaluation of another network would pair its errors with these ms)."""
     data = load_dataset(dataset)
@@ -315,7 +315,7 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.tradeoff", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.tradeoff", description=__doc__.splitlines()[0])
     parser.add_argument("subdiv", help="the scene's subdiv.h5 (S, for timing Loop subdivision)")
     parser.add_argument("table", help="tradeoff.h5 to write")
     parser.add_argument("plot", help="pareto.png to write")
@@ -393,6 +393,3 @@ def main(argv: Sequence[str] | None = None) -> None:
                               f"{reference.iterations}, harmonic every {reference.harmonic_every})"))
     write_report(Path(args.report), Path(args.plot), scene_report, table, os.getloadavg())
 
-
-if __name__ == "__main__":
-    cli.run(main)
