@@ -24,6 +24,8 @@
 # `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
 # the schema) reach a shell, quoted.
 
+import experiments.tradeoff.grid as tradeoff_grid
+
 TRADEOFF = "results/{scene}/tradeoff"
 TRADEOFF_POINT = "results/{scene}/tradeoff/s{substeps}"
 TRADEOFF_SEQ = "results/{scene}/tradeoff/s{substeps}/sequences/{seq}"
@@ -45,179 +47,24 @@ wildcard_constraints:
     schedule="iteration|substep",
 
 
-def width_folder(width):
-    """The folder name of a width: `:g`, so that the config's 0.5 and the wildcard's '0.5' agree."""
-    return f"w{float(width):g}"
-
-
-def own_substeps(scene):
-    return SETTINGS[scene]["solver"]["substeps"]
-
-
-def tradeoff_budgets(scene):
-    """Every low-res budget of the grid, in order: `tradeoff.substeps` and the matched ones."""
-    tradeoff = SETTINGS[scene]["tradeoff"]
-    return sorted(set(tradeoff["substeps"]) | set(tradeoff["matched"]))
-
-
-def matched_budgets(scene):
-    """The budgets with a network trained on their own inputs; at the scene's own that is the scene's network."""
-    return [n for n in sorted(set(SETTINGS[scene]["tradeoff"]["matched"])) if n != own_substeps(scene)]
-
-
-def reference_run(scene):
-    """(substeps, iterations, harmonic schedule) of the scene's own high-res run: the reference."""
-    settings = SETTINGS[scene]
-    return (settings["solver"]["substeps"], settings["solver"]["iterations"], settings["high_res"]["harmonic_every"])
-
-
-def high_res_runs(scene):
-    """(substeps, iterations, harmonic schedule) of each high-res run beside the scene's, in config order, the
-    scene's own (the reference) left out."""
-    tradeoff, own = SETTINGS[scene]["tradeoff"], reference_run(scene)
-    runs = ([(n, i, own[2]) for n, i in tradeoff["high_res_budgets"]]
-            + [(own[0], own[1], schedule) for schedule in tradeoff["harmonic_every"]])
-    return [run for run in dict.fromkeys(runs) if run != own]
-
-
-def high_res_folder(scene, run):
-    n, i, schedule = run
-    return f"results/{scene}/tradeoff/h{n}x{i}_{schedule}"
-
-
-def high_res_files(scene, run):
-    return [f"{high_res_folder(scene, run)}/sequences/{seq}/sim_high.h5" for seq in SEQUENCES[scene]]
-
-
-def high_res_timings(scene):
-    """A sharded scene's high-res timing runs (one sequence alone), by run, the reference's first; none with
-    `shard: 1` (each sequence's own job is timed)."""
-    if SETTINGS[scene]["shard"] == 1:
-        return {}
-    return {run: f"{high_res_folder(scene, run)}/timing/sim_high.h5"
-            for run in (reference_run(scene), *high_res_runs(scene))}
-
-
+# The grid's logic (budgets, high-res runs, folders, settings overlays, the stage's arguments) is
+# experiments.tradeoff.grid's; these feed it a scene's settings and sequences.
 def first_sequence_file(name):
     """The scene's first sequence's file `name`: what a timing run simulates alone."""
     return lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/{name}"
 
 
-def tradeoff_point_settings(settings, substeps):
-    """settings.json of budget `substeps`: the scene's, with that many low-res substeps."""
-    shared = shared_settings(settings)
-    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
-
-
-def tradeoff_network_settings(settings, width):
-    """settings.json of the network of `width`: the scene's, with that width and the tradeoff's epochs."""
-    shared = shared_settings(settings)
-    return {**shared, "network": {**shared["network"], "width": float(width)},
-            "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
-
-
-def tradeoff_point_simulation(settings, substeps):
-    """simulation.json of budget `substeps`: the scene's, with that many low-res substeps."""
-    shared = simulation_settings(settings)
-    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
-
-
-def tradeoff_high_settings(settings, substeps, iterations, schedule):
-    """simulation.json of a high-res run: the scene's, with that solver budget and harmonic schedule."""
-    shared = simulation_settings(settings)
-    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps), "iterations": int(iterations)},
-            "high_res": {**shared["high_res"], "harmonic_every": schedule}}
-
-
-def scene_trained_nets(scene):
-    """The networks trained on the scene's budget: the scene's, then each smaller (folder names under s<n>/)."""
-    return ["scene", *[width_folder(w) for w in SETTINGS[scene]["tradeoff"]["widths"]]]
-
-
-def tradeoff_evals(scene, n):
-    """Every eval.h5 of budget `n` of a network trained on the scene's budget, in scene_trained_nets order."""
-    return [f"results/{scene}/tradeoff/s{n}/{net}/eval.h5" for net in scene_trained_nets(scene)]
-
-
-def network_model(scene, substeps, net):
-    """model.pt of network `net` (scene, matched or w<width>) fed budget `substeps`."""
-    if net == "scene":
-        return f"results/{scene}/model.pt"
-    if net == "matched":
-        return f"results/{scene}/tradeoff/s{substeps}/matched/model.pt"
-    return f"results/{scene}/tradeoff/{net}/model.pt"
-
-
-def tradeoff_model(wildcards):
-    return network_model(wildcards.scene, wildcards.substeps, wildcards.net)
-
-
-def tradeoff_point_dataset(wildcards):
-    """The budget's dataset.h5: the scene's own at the scene's budget."""
-    if int(wildcards.substeps) == own_substeps(wildcards.scene):
-        return f"results/{wildcards.scene}/dataset.h5"
-    return f"results/{wildcards.scene}/tradeoff/s{wildcards.substeps}/dataset.h5"
-
-
 def tradeoff_sequence_files(name):
-    return lambda w: [f"results/{w.scene}/tradeoff/s{w.substeps}/sequences/{seq}/{name}" for seq in SEQUENCES[w.scene]]
+    return lambda w: [f"{folder}/{name}" for folder in tradeoff_sequence_folders(w)]
 
 
 def tradeoff_sequence_folders(wildcards):
-    return [f"results/{wildcards.scene}/tradeoff/s{wildcards.substeps}/sequences/{seq}"
-            for seq in SEQUENCES[wildcards.scene]]
-
-
-def tradeoff_low_runs(scene, n):
-    folder = f"results/{scene}" if n == own_substeps(scene) else f"results/{scene}/tradeoff/s{n}"
-    return [f"{folder}/sequences/{seq}/sim_low.h5" for seq in SEQUENCES[scene]]
-
-
-def tradeoff_timed_runs(scene, n):
-    """The runs whose solver timing is the budget's low-res ms: each sequence's own job, or the timing run."""
-    if SETTINGS[scene]["shard"] == 1:
-        return tradeoff_low_runs(scene, n)
-    return [f"results/{scene}/tradeoff/s{n}/timing/sim_low.h5"]
-
-
-def tradeoff_matched_eval(scene, n):
-    return f"results/{scene}/tradeoff/s{n}/matched/eval.h5"
-
-
-def tradeoff_arguments(wildcards):
-    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5 MODEL.pt` for
-    each budget, and `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run."""
-    scene, words = wildcards.scene, []
-    for n in tradeoff_budgets(scene):
-        words += ["--point", n, *tradeoff_timed_runs(scene, n)]
-        words += [x for net in scene_trained_nets(scene)
-                  for x in ("--eval", n, f"results/{scene}/tradeoff/s{n}/{net}/eval.h5", network_model(scene, n, net))]
-        if n in matched_budgets(scene):
-            words += ["--matched", n, tradeoff_matched_eval(scene, n), network_model(scene, n, "matched")]
-    for run in high_res_runs(scene):
-        words += ["--high-res", *run, *high_res_files(scene, run)]
-    timings = high_res_timings(scene)
-    if timings:
-        words += ["--sim-high-timing", timings[reference_run(scene)]]
-        words += [x for run in high_res_runs(scene) for x in ("--high-res-timing", *run, timings[run])]
-    return [str(word) for word in words]
-
-
-def tradeoff_inputs(wildcards):
-    scene = wildcards.scene
-    return ([path for n in tradeoff_budgets(scene)
-             for path in (*tradeoff_evals(scene, n), *tradeoff_timed_runs(scene, n))]
-            + [path for n in matched_budgets(scene)
-               for path in (tradeoff_matched_eval(scene, n), network_model(scene, n, "matched"))]
-            + list(dict.fromkeys(network_model(scene, n, net) for n in tradeoff_budgets(scene)
-                                 for net in scene_trained_nets(scene)))
-            + [path for run in high_res_runs(scene) for path in high_res_files(scene, run)]
-            + list(high_res_timings(scene).values()))
+    return tradeoff_grid.point_sequence_folders(wildcards.scene, wildcards.substeps, SEQUENCES[wildcards.scene])
 
 
 rule tradeoff_settings:
     output: f"{TRADEOFF_POINT}/settings.json"
-    params: settings=lambda w: tradeoff_point_settings(SETTINGS[w.scene], w.substeps)
+    params: settings=lambda w: tradeoff_grid.point_settings(SETTINGS[w.scene], w.substeps)
     log: f"{TRADEOFF_POINT}/logs/settings.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/settings.tsv"
     localrule: True
@@ -231,7 +78,7 @@ rule tradeoff_settings:
 
 rule tradeoff_simulation_settings:
     output: f"{TRADEOFF_POINT}/simulation.json"
-    params: settings=lambda w: tradeoff_point_simulation(SETTINGS[w.scene], w.substeps)
+    params: settings=lambda w: tradeoff_grid.point_simulation(SETTINGS[w.scene], w.substeps)
     log: f"{TRADEOFF_POINT}/logs/simulation_settings.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/simulation_settings.tsv"
     localrule: True
@@ -272,7 +119,8 @@ rule tradeoff_timing_low:
 rule tradeoff_high_settings:
     output: f"{TRADEOFF_HIGH}/simulation.json"
     params:
-        settings=lambda w: tradeoff_high_settings(SETTINGS[w.scene], w.hsubsteps, w.hiterations, w.schedule)
+        settings=lambda w: tradeoff_grid.high_res_simulation(SETTINGS[w.scene],
+                                                             (w.hsubsteps, w.hiterations, w.schedule))
     log: f"{TRADEOFF_HIGH}/logs/settings.log"
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/settings.tsv"
     localrule: True
@@ -353,7 +201,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
                     p for n in names for p in (
                         f"results/{scene}/sequences/{n}/scene.h5", f"results/{scene}/subdiv.h5",
                         f"results/{scene}/sequences/{n}/sim_low.h5",
-                        high_res_files(scene, (w.hsubsteps, w.hiterations, w.schedule))[SEQUENCES[scene].index(n)])]
+                        tradeoff_grid.high_res_file(scene, (w.hsubsteps, w.hiterations, w.schedule), n))]
             log: f"{_high}/logs/shard_{_k:03d}/simulate_high.log"
             benchmark: f"{_high}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
             threads: high_batch_threads(_scene, len(_names))
@@ -399,7 +247,7 @@ rule tradeoff_dataset:
 
 rule tradeoff_network_settings:
     output: f"{TRADEOFF_NET}/settings.json"
-    params: settings=lambda w: tradeoff_network_settings(SETTINGS[w.scene], w.width)
+    params: settings=lambda w: tradeoff_grid.network_settings(SETTINGS[w.scene], w.width)
     log: f"{TRADEOFF_NET}/logs/settings.log"
     benchmark: f"{TRADEOFF_NET}/benchmarks/settings.tsv"
     localrule: True
@@ -443,8 +291,9 @@ rule tradeoff_train_matched:
 # timing only (no renders, one exported frame, no predicted positions in eval.h5).
 rule tradeoff_evaluate:
     input:
-        settings=f"{TRADEOFF_POINT}/settings.json", dataset=tradeoff_point_dataset,
-        operators=f"{OUT}/operators.h5", model=tradeoff_model,
+        settings=f"{TRADEOFF_POINT}/settings.json",
+        dataset=lambda w: tradeoff_grid.point_dataset(w.scene, SETTINGS[w.scene], int(w.substeps)),
+        operators=f"{OUT}/operators.h5", model=lambda w: tradeoff_grid.network_model(w.scene, w.substeps, w.net),
     output:
         eval=f"{TRADEOFF_EVAL}/eval.h5", report=f"{TRADEOFF_EVAL}/report.md",
         export=directory(f"{TRADEOFF_EVAL}/export"),
@@ -461,9 +310,10 @@ rule tradeoff_evaluate:
 rule tradeoff:
     input:
         settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5", dataset=f"{OUT}/dataset.h5",
-        operators=f"{OUT}/operators.h5", sim_high=sequence_files("sim_high.h5"), points=tradeoff_inputs,
+        operators=f"{OUT}/operators.h5", sim_high=sequence_files("sim_high.h5"),
+        points=lambda w: tradeoff_grid.stage_inputs(w.scene, SETTINGS[w.scene], SEQUENCES[w.scene]),
     output: table=f"{TRADEOFF}/tradeoff.h5", plot=f"{TRADEOFF}/pareto.png", report=f"{TRADEOFF}/report.md"
-    params: grid=tradeoff_arguments
+    params: grid=lambda w: tradeoff_grid.stage_arguments(w.scene, SETTINGS[w.scene], SEQUENCES[w.scene])
     log: f"{TRADEOFF}/logs/tradeoff.log"
     benchmark: f"{TRADEOFF}/benchmarks/tradeoff.tsv"
     threads: workflow.cores

@@ -1,0 +1,185 @@
+"""The trade-off's grid as the workflow lays it out (workflow/rules/tradeoff.smk, `results/<scene>/tradeoff/`):
+from a scene's name, its resolved settings and its sequence names, the low-res budgets and the networks fed each,
+the high-res runs beside the scene's own, their folders and timing runs, each budget's and run's settings overlay,
+and the `experiments.tradeoff` stage's argument list and inputs.
+
+The scene's own budget reuses the scene's runs and dataset.h5; its own high-res run is the reference, never a row.
+A sharded scene (`shard` > 1) simulates by batch, so each budget and high-res run (the reference too) is also run
+for its first sequence alone, whose solver timing is the row's. The Snakefile imports this at every start: it
+reads settings only and imports nothing heavy.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from pipeline.core.config import shared_settings, simulation_settings
+
+Settings = dict[str, Any]
+# (substeps, iterations, harmonic schedule) of a high-res run; wildcards give the numbers as strings.
+HighResRun = tuple[int | str, int | str, str]
+
+
+def width_folder(width: float | str) -> str:
+    """The folder name of a width: `:g`, so that the config's 0.5 and the wildcard's '0.5' agree."""
+    return f"w{float(width):g}"
+
+
+def own_substeps(settings: Settings) -> int:
+    return settings["solver"]["substeps"]
+
+
+def budgets(settings: Settings) -> list[int]:
+    """Every low-res budget of the grid, in order: `tradeoff.substeps` and the matched ones."""
+    tradeoff = settings["tradeoff"]
+    return sorted(set(tradeoff["substeps"]) | set(tradeoff["matched"]))
+
+
+def matched_budgets(settings: Settings) -> list[int]:
+    """The budgets with a network trained on their own inputs; at the scene's own that is the scene's network."""
+    return [n for n in sorted(set(settings["tradeoff"]["matched"])) if n != own_substeps(settings)]
+
+
+def reference_run(settings: Settings) -> HighResRun:
+    """The scene's own high-res run: the reference."""
+    return (settings["solver"]["substeps"], settings["solver"]["iterations"], settings["high_res"]["harmonic_every"])
+
+
+def high_res_runs(settings: Settings) -> list[HighResRun]:
+    """Each high-res run beside the scene's, in config order, once: `tradeoff.high_res_budgets` with the scene's
+    schedule, then the scene's budget with each schedule of `tradeoff.harmonic_every`; the reference left out."""
+    tradeoff, own = settings["tradeoff"], reference_run(settings)
+    runs = ([(n, i, own[2]) for n, i in tradeoff["high_res_budgets"]]
+            + [(own[0], own[1], schedule) for schedule in tradeoff["harmonic_every"]])
+    return [run for run in dict.fromkeys(runs) if run != own]
+
+
+def point_folder(scene: str, substeps: int | str) -> str:
+    """The folder of low-res budget `substeps`: its settings, runs, dataset and the networks fed it."""
+    return f"results/{scene}/tradeoff/s{substeps}"
+
+
+def point_sequence_folders(scene: str, substeps: int | str, sequences: list[str]) -> list[str]:
+    """The budget's sequence folders, in the scene's order: its runs beside links to the scene's truth."""
+    return [f"{point_folder(scene, substeps)}/sequences/{seq}" for seq in sequences]
+
+
+def high_res_folder(scene: str, run: HighResRun) -> str:
+    n, i, schedule = run
+    return f"results/{scene}/tradeoff/h{n}x{i}_{schedule}"
+
+
+def high_res_file(scene: str, run: HighResRun, seq: str) -> str:
+    """Sequence `seq`'s high-res run `run`."""
+    return f"{high_res_folder(scene, run)}/sequences/{seq}/sim_high.h5"
+
+
+def high_res_files(scene: str, sequences: list[str], run: HighResRun) -> list[str]:
+    return [high_res_file(scene, run, seq) for seq in sequences]
+
+
+def high_res_timings(scene: str, settings: Settings) -> dict[HighResRun, str]:
+    """A sharded scene's high-res timing runs (one sequence alone), by run, the reference's first; none with
+    `shard: 1` (each sequence's own job is timed)."""
+    if settings["shard"] == 1:
+        return {}
+    return {run: f"{high_res_folder(scene, run)}/timing/sim_high.h5"
+            for run in (reference_run(settings), *high_res_runs(settings))}
+
+
+def scene_trained_nets(settings: Settings) -> list[str]:
+    """The networks trained on the scene's budget: the scene's, then each smaller (folder names under s<n>/)."""
+    return ["scene", *[width_folder(w) for w in settings["tradeoff"]["widths"]]]
+
+
+def evaluation_file(scene: str, substeps: int | str, net: str) -> str:
+    """eval.h5 of network `net` (scene, matched or w<width>) fed budget `substeps`."""
+    return f"{point_folder(scene, substeps)}/{net}/eval.h5"
+
+
+def network_model(scene: str, substeps: int | str, net: str) -> str:
+    """model.pt of network `net` (scene, matched or w<width>) fed budget `substeps`."""
+    if net == "scene":
+        return f"results/{scene}/model.pt"
+    if net == "matched":
+        return f"{point_folder(scene, substeps)}/matched/model.pt"
+    return f"results/{scene}/tradeoff/{net}/model.pt"
+
+
+def point_dataset(scene: str, settings: Settings, substeps: int) -> str:
+    """The budget's dataset.h5: the scene's own at the scene's budget."""
+    if substeps == own_substeps(settings):
+        return f"results/{scene}/dataset.h5"
+    return f"{point_folder(scene, substeps)}/dataset.h5"
+
+
+def low_runs(scene: str, settings: Settings, sequences: list[str], substeps: int) -> list[str]:
+    """The budget's low-res run of each sequence: the scene's own at the scene's budget."""
+    folder = f"results/{scene}" if substeps == own_substeps(settings) else point_folder(scene, substeps)
+    return [f"{folder}/sequences/{seq}/sim_low.h5" for seq in sequences]
+
+
+def timed_runs(scene: str, settings: Settings, sequences: list[str], substeps: int) -> list[str]:
+    """The runs whose solver timing is the budget's low-res ms: each sequence's own job, or the timing run."""
+    if settings["shard"] == 1:
+        return low_runs(scene, settings, sequences, substeps)
+    return [f"{point_folder(scene, substeps)}/timing/sim_low.h5"]
+
+
+def stage_arguments(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
+    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5 MODEL.pt` for
+    each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run, and a sharded
+    scene's `--sim-high-timing SIM_HIGH.h5` and `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
+    words: list[Any] = []
+    for n in budgets(settings):
+        words += ["--point", n, *timed_runs(scene, settings, sequences, n)]
+        words += [x for net in scene_trained_nets(settings)
+                  for x in ("--eval", n, evaluation_file(scene, n, net), network_model(scene, n, net))]
+        if n in matched_budgets(settings):
+            words += ["--matched", n, evaluation_file(scene, n, "matched"), network_model(scene, n, "matched")]
+    for run in high_res_runs(settings):
+        words += ["--high-res", *run, *high_res_files(scene, sequences, run)]
+    timings = high_res_timings(scene, settings)
+    if timings:
+        words += ["--sim-high-timing", timings[reference_run(settings)]]
+        words += [x for run in high_res_runs(settings) for x in ("--high-res-timing", *run, timings[run])]
+    return [str(word) for word in words]
+
+
+def stage_inputs(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
+    """Every file of `stage_arguments`: evaluations, timed runs, models (each once) and high-res runs."""
+    return ([path for n in budgets(settings)
+             for path in (*[evaluation_file(scene, n, net) for net in scene_trained_nets(settings)],
+                          *timed_runs(scene, settings, sequences, n))]
+            + [path for n in matched_budgets(settings)
+               for path in (evaluation_file(scene, n, "matched"), network_model(scene, n, "matched"))]
+            + list(dict.fromkeys(network_model(scene, n, net) for n in budgets(settings)
+                                 for net in scene_trained_nets(settings)))
+            + [path for run in high_res_runs(settings) for path in high_res_files(scene, sequences, run)]
+            + list(high_res_timings(scene, settings).values()))
+
+
+def point_settings(settings: Settings, substeps: int | str) -> Settings:
+    """settings.json of budget `substeps`: the scene's, with that many low-res substeps."""
+    shared = shared_settings(settings)
+    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
+
+
+def point_simulation(settings: Settings, substeps: int | str) -> Settings:
+    """simulation.json of budget `substeps`: the scene's, with that many low-res substeps."""
+    shared = simulation_settings(settings)
+    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
+
+
+def network_settings(settings: Settings, width: float | str) -> Settings:
+    """settings.json of the network of `width`: the scene's, with that width and the trade-off's epochs."""
+    shared = shared_settings(settings)
+    return {**shared, "network": {**shared["network"], "width": float(width)},
+            "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
+
+
+def high_res_simulation(settings: Settings, run: HighResRun) -> Settings:
+    """simulation.json of high-res run `run`: the scene's, with that solver budget and harmonic schedule."""
+    substeps, iterations, schedule = run
+    shared = simulation_settings(settings)
+    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps), "iterations": int(iterations)},
+            "high_res": {**shared["high_res"], "harmonic_every": schedule}}
