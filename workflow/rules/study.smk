@@ -9,7 +9,7 @@
 # `results/<scene>/study/`. The variant names (schema: letters, digits, _) and their inputs (schema: enums) are the
 # only config values that reach a shell, quoted.
 
-from scenes.sequences import HELD_OUT, TRAIN, parse_sequence_name, sequence_name
+import experiments.study.points as study_points
 
 STUDY = "results/{scene}/study"
 STUDY_POINT = "results/{scene}/study/n{n}"
@@ -19,38 +19,19 @@ wildcard_constraints:
     variant="[A-Za-z0-9_]+",
 
 
-def _study_sequences(wildcards):
-    """The first `n` training sequences (the scene's, and more made the same way where `n` exceeds its
-    `sequences`) and every held-out one."""
-    held_out = [name for name in SEQUENCES[wildcards.scene] if parse_sequence_name(name)[0] == HELD_OUT]
-    return [sequence_name(TRAIN, i) for i in range(int(wildcards.n))] + held_out
-
-
+# Which sequences, epochs and width each point has is experiments.study.points'; these feed it a scene's settings
+# and sequences.
 def study_sequence_files(name):
-    return lambda w: [f"results/{w.scene}/sequences/{seq}/{name}" for seq in _study_sequences(w)]
+    return lambda w: [f"{folder}/{name}" for folder in study_sequence_folders(w)]
 
 
 def study_sequence_folders(wildcards):
-    return [f"results/{wildcards.scene}/sequences/{seq}" for seq in _study_sequences(wildcards)]
+    return [f"results/{wildcards.scene}/sequences/{seq}"
+            for seq in study_points.study_sequences(SEQUENCES[wildcards.scene], int(wildcards.n))]
 
 
 def study_variant(wildcards):
     return SETTINGS[wildcards.scene]["study"]["variants"][wildcards.variant]
-
-
-def study_epochs(wildcards):
-    """Epochs over n sequences that make as many optimiser steps as `study.epochs` (null: the scene's own
-    training.epochs) over the scene's sequences."""
-    settings = SETTINGS[wildcards.scene]
-    epochs = settings["study"]["epochs"] or settings["training"]["epochs"]
-    return max(1, round(epochs * settings["sequences"] / int(wildcards.n)))
-
-
-def study_points(scene):
-    """(n, variant, eval.h5) of every point of a scene's study."""
-    study = SETTINGS[scene]["study"]
-    return [(n, variant, f"results/{scene}/study/n{n}/{variant}/eval.h5")
-            for n in study["sequence_counts"] for variant in study["variants"]]
 
 
 rule study_dataset:
@@ -77,8 +58,8 @@ rule study_train:
         input_frame=lambda w: study_variant(w)["input_frame"],
         output_frame=lambda w: study_variant(w)["output_frame"],
         frame_tangent=lambda w: study_variant(w)["frame_tangent"],
-        epochs=study_epochs,
-        width=lambda w: SETTINGS[w.scene]["study"]["width"] or SETTINGS[w.scene]["network"]["width"],
+        epochs=lambda w: study_points.training_epochs(SETTINGS[w.scene], int(w.n)),
+        width=lambda w: study_points.network_width(SETTINGS[w.scene]),
     log: f"{STUDY_POINT}/{{variant}}/logs/train.log"
     benchmark: f"{STUDY_POINT}/{{variant}}/benchmarks/train.tsv"
     threads: workflow.cores
@@ -109,9 +90,9 @@ rule study_evaluate:
 
 
 rule study:
-    input: lambda w: [path for _, _, path in study_points(w.scene)]
+    input: lambda w: [path for _, _, path in study_points.points(w.scene, SETTINGS[w.scene])]
     output: table=f"{STUDY}/study.h5", plot=f"{STUDY}/study.png", report=f"{STUDY}/report.md"
-    params: points=lambda w: [str(x) for point in study_points(w.scene) for x in ("--point", *point)]
+    params: points=lambda w: study_points.stage_arguments(w.scene, SETTINGS[w.scene])
     log: f"{STUDY}/logs/study.log"
     benchmark: f"{STUDY}/benchmarks/study.tsv"
     threads: 1
