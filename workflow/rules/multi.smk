@@ -5,62 +5,34 @@
 # for each garment (results/multi/<scene>/model.pt) is evaluated by the same evaluate stage as the scene's own
 # network, and a report sets the two side by side with Loop subdivision. Not part of `results/<scene>/`: `make run`
 # does not grow. Only paths and the scene names (checked by the schema) reach a shell.
-MULTI = "results/multi"
+import experiments.multi.garments as multi_garments
+
+MULTI = multi_garments.MULTI
 MULTI_GARMENT = "results/multi/{scene}"
 MULTI_SCENES = list(config.get("multi", {}).get("scenes", []))
-MULTI_PRODUCTS = ("model.pt", "train.h5", "multi.h5", "training_curve.png", "report.md")
-MULTI_GARMENT_PRODUCTS = ("model.pt", "eval.h5", "report.md", "report.html", "renders", "videos", "export")
 
 if MULTI_SCENES:
-    if "multi" in SETTINGS:
-        raise PipelineError("workflow config: a scene may not be named 'multi' (results/multi/ is the multi-garment "
-                            "target)")
-    _unknown = [s for s in MULTI_SCENES if s not in SETTINGS]
-    if _unknown:
-        raise PipelineError(f"workflow config: multi.scenes: '{_unknown[0]}' is not a scene (known: "
-                            f"{', '.join(sorted(SETTINGS))})")
-
-
-def multi_scene_files(name):
-    return [f"results/{scene}/{name}" for scene in MULTI_SCENES]
+    multi_garments.check_garment_names(MULTI_SCENES, SETTINGS)
 
 
 def multi_products(wildcards=None):
     """What `results/multi/` stands for; scenes whose settings a shared network cannot serve are one error before
-    any job runs (experiments.multi checks the same in the settings files)."""
-    first = MULTI_SCENES[0]
-    for scene in MULTI_SCENES[1:]:
-        for key in ("network", "training", "device"):
-            if SETTINGS[scene][key] != SETTINGS[first][key]:
-                raise PipelineError(f"results/multi/: scenes '{first}' and '{scene}' differ in {key}: the garments "
-                                    f"of one network must share network.*, training.* and device")
-    return ([f"{MULTI}/{name}" for name in MULTI_PRODUCTS]
-            + [f"{MULTI}/{scene}/{name}" for scene in MULTI_SCENES for name in MULTI_GARMENT_PRODUCTS])
-
-
-def multi_train_arguments(wildcards):
-    """`--garment NAME SETTINGS.json DATASET.h5 OPERATORS.h5 VIEW.pt` for each garment."""
-    return [x for scene in MULTI_SCENES
-            for x in ("--garment", scene, f"results/{scene}/settings.json", f"results/{scene}/dataset.h5",
-                      f"results/{scene}/operators.h5", f"{MULTI}/{scene}/model.pt")]
-
-
-def multi_report_arguments(wildcards):
-    """`--garment NAME SHARED_EVAL.h5 OWN_EVAL.h5` for each garment."""
-    return [x for scene in MULTI_SCENES
-            for x in ("--garment", scene, f"{MULTI}/{scene}/eval.h5", f"results/{scene}/eval.h5")]
+    any job runs."""
+    multi_garments.check_shared_settings(MULTI_SCENES, SETTINGS)
+    return multi_garments.multi_products(MULTI_SCENES)
 
 
 if MULTI_SCENES:
     # The progress bar (epoch, running loss) is the job's log, as the scene's train rule's.
     rule multi_train:
         input:
-            settings=multi_scene_files("settings.json"), datasets=multi_scene_files("dataset.h5"),
-            operators=multi_scene_files("operators.h5"),
+            settings=multi_garments.scene_files(MULTI_SCENES, "settings.json"),
+            datasets=multi_garments.scene_files(MULTI_SCENES, "dataset.h5"),
+            operators=multi_garments.scene_files(MULTI_SCENES, "operators.h5"),
         output:
             model=f"{MULTI}/model.pt", history=f"{MULTI}/train.h5",
             views=[f"{MULTI}/{scene}/model.pt" for scene in MULTI_SCENES],
-        params: garments=multi_train_arguments
+        params: garments=multi_garments.train_arguments(MULTI_SCENES)
         log: f"{MULTI}/logs/train.log"
         benchmark: f"{MULTI}/benchmarks/train.tsv"
         threads: workflow.cores
@@ -93,9 +65,10 @@ if MULTI_SCENES:
     rule multi_report:
         input:
             model=f"{MULTI}/model.pt", history=f"{MULTI}/train.h5",
-            shared=[f"{MULTI}/{scene}/eval.h5" for scene in MULTI_SCENES], own=multi_scene_files("eval.h5"),
+            shared=[f"{MULTI}/{scene}/eval.h5" for scene in MULTI_SCENES],
+            own=multi_garments.scene_files(MULTI_SCENES, "eval.h5"),
         output: table=f"{MULTI}/multi.h5", curve=f"{MULTI}/training_curve.png", report=f"{MULTI}/report.md"
-        params: garments=multi_report_arguments
+        params: garments=multi_garments.report_arguments(MULTI_SCENES)
         log: f"{MULTI}/logs/report.log"
         benchmark: f"{MULTI}/benchmarks/report.tsv"
         threads: 1
