@@ -17,46 +17,21 @@ wildcard_constraints:
     model_dir="pose|pca/k[0-9]+",
     components="[0-9]+",
 
-APPLICATION_PRODUCTS = ("dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html", "renders",
-                        "videos", "export")
 
-
-def application_of(model_dir):
-    return model_dir.split("/")[0]
-
-
+# Which operators.h5 a model folder reads and what each target stands for are pipeline.workflow_paths'; these feed
+# it a scene's settings.
 def application_settings_file(wildcards):
-    return f"results/{wildcards.scene}/{application_of(wildcards.model_dir)}/settings.json"
+    return f"results/{wildcards.scene}/{workflow_paths.application_of(wildcards.model_dir)}/settings.json"
 
 
 def application_operators(wildcards):
-    """The scene's operators.h5 where the application's operators settings are the scene's, its own otherwise."""
-    application = application_of(wildcards.model_dir)
-    settings = SETTINGS[wildcards.scene]
-    if application_settings(settings, application)["operators"] == settings["operators"]:
-        return f"results/{wildcards.scene}/operators.h5"
-    return f"results/{wildcards.scene}/{application}/operators.h5"
-
-
-def pca_model_dirs(scene):
-    return [f"pca/k{k}" for k in SETTINGS[scene]["applications"]["pca"]["components"]]
-
-
-def pca_summary_arguments(wildcards):
-    """`--model K EVAL.h5` for each component count."""
-    return [str(x) for k in SETTINGS[wildcards.scene]["applications"]["pca"]["components"]
-            for x in ("--model", k, f"results/{wildcards.scene}/pca/k{k}/eval.h5")]
+    return workflow_paths.application_operators(wildcards.scene, SETTINGS[wildcards.scene],
+                                                workflow_paths.application_of(wildcards.model_dir))
 
 
 def application_products(scene, application):
-    """What `results/<scene>/<application>/` stands for; a scene without a mannequin has no pose input, said in
-    one line before any job runs."""
-    if application == "pose" and SETTINGS[scene]["mesh"]["generator"] != "garment":
-        raise PipelineError(f"results/{scene}/pose/: scene '{scene}' has no mannequin, so no pose input (pose to "
-                            f"cloth needs a garment scene, mesh.generator 'garment')")
-    folders = ["pose"] if application == "pose" else pca_model_dirs(scene)
-    summary = [f"results/{scene}/pca/report.md"] if application == "pca" else []
-    return [f"results/{scene}/{folder}/{name}" for folder in folders for name in APPLICATION_PRODUCTS] + summary
+    """An input function: what `results/<scene>/<application>/` stands for, resolved only when asked for."""
+    return lambda wildcards: workflow_paths.application_products(scene, SETTINGS[scene], application)
 
 
 rule application_settings:
@@ -148,9 +123,10 @@ rule application_evaluate:
 
 # The PCA models side by side: how much of the truncation error each recovers.
 rule pca_summary:
-    input: lambda w: [f"results/{w.scene}/{folder}/eval.h5" for folder in pca_model_dirs(w.scene)]
+    input:
+        lambda w: [f"results/{w.scene}/{folder}/eval.h5" for folder in workflow_paths.pca_model_dirs(SETTINGS[w.scene])]
     output: "results/{scene}/pca/report.md"
-    params: models=pca_summary_arguments
+    params: models=lambda w: workflow_paths.pca_summary_arguments(w.scene, SETTINGS[w.scene])
     log: "results/{scene}/pca/logs/summary.log"
     benchmark: "results/{scene}/pca/benchmarks/summary.tsv"
     threads: 1
@@ -165,4 +141,4 @@ for _scene in SETTINGS:
         for _target in (f"results/{_scene}/{_application}/", f"results/{_scene}/{_application}"):
             rule:
                 name: _target
-                input: lambda w, scene=_scene, application=_application: application_products(scene, application)
+                input: application_products(_scene, _application)

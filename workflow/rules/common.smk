@@ -1,11 +1,10 @@
 # Shared by the rule files: every scene's resolved settings and sequences, the wildcard constraints, the paths
-# and the functions the rules read (resources from a scene's settings, what `results/<scene>/` stands for).
-import os
-import re
+# and the functions the rules read (resources from a scene's settings, what `results/<scene>/` stands for). The
+# paths' logic is pipeline.workflow_paths'; the functions here feed it a scene's settings and sequences.
 import sys
 
+from pipeline import workflow_paths
 from pipeline.core.config import resolve_scene, shared_settings, simulation_settings
-from pipeline.core.errors import PipelineError
 from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names, sequence_shards
 
 # Resolving every scene now turns a bad or missing key into one error before any job starts.
@@ -20,16 +19,12 @@ OUT = "results/{scene}"
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
 
 wildcard_constraints:
-    scene="|".join(map(re.escape, SETTINGS)),
+    scene=workflow_paths.one_of(SETTINGS),
     seq=NAME_PATTERN,
 
-# A motion-capture file a scene names must exist (relative paths start in the working directory); found missing
-# here, it is one error naming the file instead of a missing input of some job.
+# A motion-capture file a scene names must exist before any job starts.
 for _scene, _names in SEQUENCES.items():
-    for _path in sorted({p for name in _names for p in sequence_bvh_files(SETTINGS[_scene], name)}):
-        if not os.path.isfile(_path):
-            raise PipelineError(f"{_path}: BVH file of scene '{_scene}' does not exist (working directory "
-                                f"{os.getcwd()})")
+    workflow_paths.check_bvh_files(_scene, SETTINGS[_scene], _names)
 
 
 def log_of(rule_name, per_sequence=False):
@@ -42,22 +37,20 @@ def benchmark_of(rule_name, per_sequence=False):
     return f"{OUT}/benchmarks/{{seq}}/{rule_name}.tsv" if per_sequence else f"{OUT}/benchmarks/{rule_name}.tsv"
 
 
-def gpus_on_device(wildcards):
+def device_gpus(scene):
     """One GPU for a job that runs on the scene's device when that device is CUDA, none otherwise."""
-    return int(SETTINGS[wildcards.scene]["device"].startswith("cuda"))
+    return int(SETTINGS[scene]["device"].startswith("cuda"))
 
 
-def batch_rule_name(stage, scene, shard):
-    """The name of the rule that runs `stage` on shard `shard` of a sharded scene: a Python identifier (the
-    scene's other characters become _), one per scene and shard."""
-    return f"{stage}_batch_{re.sub(r'[^A-Za-z0-9_]', '_', scene)}_{shard:03d}"
+def gpus_on_device(wildcards):
+    return device_gpus(wildcards.scene)
 
 
 def high_batch_threads(scene, sequences):
     """Threads of a high-res batch job: on a GPU one a sequence, up to 8, for the per-sequence work outside the
     solver (harmonic targets, residual: most of a 64-sequence job's time besides stepping); a CPU batch steps on
     one thread for hours, so it holds one core."""
-    return min(sequences, 8) if SETTINGS[scene]["device"].startswith("cuda") else 1
+    return min(sequences, 8) if device_gpus(scene) else 1
 
 
 def bvh_files(wildcards):
@@ -67,21 +60,13 @@ def bvh_files(wildcards):
 
 def sequence_files(name):
     """An input function: artifact `name` of every sequence of the scene."""
-    return lambda wildcards: [f"results/{wildcards.scene}/sequences/{seq}/{name}"
-                              for seq in SEQUENCES[wildcards.scene]]
+    return lambda w: workflow_paths.sequence_files(w.scene, SEQUENCES[w.scene], name)
 
 
 def sequence_folders(wildcards):
-    """Every sequence folder of the scene, in order: the dataset's arguments."""
-    return [f"results/{wildcards.scene}/sequences/{seq}" for seq in SEQUENCES[wildcards.scene]]
-
-
-# What `results/<scene>/` stands for: every final product of a scene (the rest are their inputs).
-PRODUCTS = ("operators.h5", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html", "renders",
-            "videos", "export")
-SEQUENCE_PRODUCTS = ("sim_low.h5", "sim_high.h5")
+    return workflow_paths.sequence_folders(wildcards.scene, SEQUENCES[wildcards.scene])
 
 
 def scene_products(scene):
-    return ([f"results/{scene}/sequences/{seq}/{name}" for seq in SEQUENCES[scene] for name in SEQUENCE_PRODUCTS]
-            + [f"results/{scene}/{name}" for name in PRODUCTS])
+    """What `results/<scene>/` stands for."""
+    return workflow_paths.scene_products(scene, SEQUENCES[scene])

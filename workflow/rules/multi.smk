@@ -36,7 +36,7 @@ if MULTI_SCENES:
         log: f"{MULTI}/logs/train.log"
         benchmark: f"{MULTI}/benchmarks/train.tsv"
         threads: workflow.cores
-        resources: mem_mb=8000, gpu=int(SETTINGS[MULTI_SCENES[0]]["device"].startswith("cuda"))
+        resources: mem_mb=8000, gpu=device_gpus(MULTI_SCENES[0])
         shell:
             "{PY:q} -m experiments.multi train {output.model:q} {output.history:q} {params.garments:q} "
             "--threads {threads} 2>&1 | tee {log:q}"
@@ -51,7 +51,7 @@ if MULTI_SCENES:
             eval=f"{MULTI_GARMENT}/eval.h5", report=f"{MULTI_GARMENT}/report.md",
             html=f"{MULTI_GARMENT}/report.html", renders=directory(f"{MULTI_GARMENT}/renders"),
             videos=directory(f"{MULTI_GARMENT}/videos"), export=directory(f"{MULTI_GARMENT}/export"),
-        wildcard_constraints: scene="|".join(map(re.escape, MULTI_SCENES))
+        wildcard_constraints: scene=workflow_paths.one_of(MULTI_SCENES)
         log: f"{MULTI_GARMENT}/logs/evaluate.log"
         benchmark: f"{MULTI_GARMENT}/benchmarks/evaluate.tsv"
         threads: workflow.cores

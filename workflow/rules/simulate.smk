@@ -4,7 +4,7 @@
 # them together as one batch of solver worlds: on a GPU a batch costs about what one sequence does.
 
 # The scenes whose sequences are simulated one job each (a pattern that matches nothing when there are none).
-UNSHARDED = "|".join(re.escape(s) for s, settings in SETTINGS.items() if settings["shard"] == 1) or "(?!)"
+UNSHARDED = workflow_paths.one_of(s for s, settings in SETTINGS.items() if settings["shard"] == 1)
 
 
 rule simulate_low:
@@ -39,10 +39,10 @@ rule simulate_high:
 for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if SETTINGS[s]["shard"] > 1):
     for _k, _names in enumerate(_shards):
         _out, _seqs = f"results/{_scene}", [f"results/{_scene}/sequences/{n}" for n in _names]
-        _gpu = int(SETTINGS[_scene]["device"].startswith("cuda"))
+        _gpu = device_gpus(_scene)
 
         rule:
-            name: batch_rule_name("simulate_low", _scene, _k)
+            name: workflow_paths.batch_rule_name("simulate_low", _scene, _k)
             input: settings=f"{_out}/simulation.json", scenes=[f"{s}/scene.h5" for s in _seqs]
             output: [f"{s}/sim_low.h5" for s in _seqs]
             params: files=[p for s in _seqs for p in (f"{s}/scene.h5", f"{s}/sim_low.h5")]
@@ -53,7 +53,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} 2>&1 | tee {log:q}"
 
         rule:
-            name: batch_rule_name("simulate_high", _scene, _k)
+            name: workflow_paths.batch_rule_name("simulate_high", _scene, _k)
             input:
                 settings=f"{_out}/simulation.json", subdiv=f"{_out}/subdiv.h5",
                 scenes=[f"{s}/scene.h5" for s in _seqs], sim_low=[f"{s}/sim_low.h5" for s in _seqs],

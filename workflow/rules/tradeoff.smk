@@ -24,6 +24,8 @@
 # `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
 # the schema) reach a shell, quoted.
 
+import os
+
 import experiments.tradeoff.grid as tradeoff_grid
 
 TRADEOFF = "results/{scene}/tradeoff"
@@ -171,10 +173,10 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
     for _k, _names in enumerate(_shards):
         _point, _out = f"results/{_scene}/tradeoff/s{{substeps}}", f"results/{_scene}"
         _high = f"results/{_scene}/tradeoff/h{{hsubsteps}}x{{hiterations}}_{{schedule}}"
-        _gpu = int(SETTINGS[_scene]["device"].startswith("cuda"))
+        _gpu = device_gpus(_scene)
 
         rule:
-            name: batch_rule_name("tradeoff_simulate_low", _scene, _k)
+            name: workflow_paths.batch_rule_name("tradeoff_simulate_low", _scene, _k)
             input:
                 settings=f"{_point}/simulation.json",
                 scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names]
@@ -190,7 +192,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} --quiet 2>&1 | tee {log:q}"
 
         rule:
-            name: batch_rule_name("tradeoff_simulate_high", _scene, _k)
+            name: workflow_paths.batch_rule_name("tradeoff_simulate_high", _scene, _k)
             input:
                 settings=f"{_high}/simulation.json", subdiv=f"{_out}/subdiv.h5",
                 scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names],

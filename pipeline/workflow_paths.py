@@ -1,0 +1,98 @@
+"""The paths and names the workflow gives a scene's stage chain and its applications (the Snakefile,
+workflow/rules/common.smk, simulate.smk, applications.smk): from a scene's name, its resolved settings and its
+sequence names, what `results/<scene>/`, `results/<scene>/pose/` and `results/<scene>/pca/` stand for, each
+sequence's files, the motion-capture files a scene needs, which operators.h5 an application reads and the names of
+sharded scenes' batch rules. The experiment families lay out theirs beside their code (experiments.tradeoff.grid,
+experiments.study.points, experiments.multi.garments). The Snakefile imports this at every start: it reads
+settings only and imports nothing heavy.
+"""
+from __future__ import annotations
+
+import os
+import re
+from typing import Any, Iterable
+
+from pipeline.core.config import application_settings
+from pipeline.core.errors import PipelineError
+from scenes.sequences import sequence_bvh_files
+
+Settings = dict[str, Any]
+
+# What `results/<scene>/` stands for: every final product of a scene (the rest are their inputs).
+SCENE_PRODUCTS = ("operators.h5", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html",
+                  "renders", "videos", "export")
+SEQUENCE_PRODUCTS = ("sim_low.h5", "sim_high.h5")
+# What each model folder of an application (pose, pca/k<K>) holds.
+APPLICATION_PRODUCTS = ("dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html", "renders",
+                        "videos", "export")
+
+
+def one_of(names: Iterable[str]) -> str:
+    """A wildcard constraint that matches exactly one of `names`; with none, one that matches nothing."""
+    return "|".join(map(re.escape, names)) or "(?!)"
+
+
+def batch_rule_name(stage: str, scene: str, shard: int) -> str:
+    """The name of the rule that runs `stage` on shard `shard` of a sharded scene: a Python identifier (the
+    scene's other characters become _), one per scene and shard."""
+    return f"{stage}_batch_{re.sub(r'[^A-Za-z0-9_]', '_', scene)}_{shard:03d}"
+
+
+def sequence_folders(scene: str, sequences: list[str]) -> list[str]:
+    """Every sequence folder of the scene, in order: the dataset's arguments."""
+    return [f"results/{scene}/sequences/{seq}" for seq in sequences]
+
+
+def sequence_files(scene: str, sequences: list[str], name: str) -> list[str]:
+    """Artifact `name` of every sequence of the scene, in order."""
+    return [f"{folder}/{name}" for folder in sequence_folders(scene, sequences)]
+
+
+def scene_products(scene: str, sequences: list[str]) -> list[str]:
+    """What `results/<scene>/` stands for: each sequence's runs, then the scene's products."""
+    return ([f"results/{scene}/sequences/{seq}/{name}" for seq in sequences for name in SEQUENCE_PRODUCTS]
+            + [f"results/{scene}/{name}" for name in SCENE_PRODUCTS])
+
+
+def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> None:
+    """Every motion-capture file the scene's sequences play exists (relative paths start in the working
+    directory): found missing before any job starts, it is one error naming the file instead of a missing input
+    of some job."""
+    for path in sorted({p for name in sequences for p in sequence_bvh_files(settings, name)}):
+        if not os.path.isfile(path):
+            raise PipelineError(f"{path}: BVH file of scene '{scene}' does not exist (working directory "
+                                f"{os.getcwd()})")
+
+
+def application_of(model_dir: str) -> str:
+    """The application (pose, pca) of a model folder (pose, pca/k<K>)."""
+    return model_dir.split("/")[0]
+
+
+def application_operators(scene: str, settings: Settings, application: str) -> str:
+    """The scene's operators.h5 where the application's operators settings are the scene's, its own otherwise."""
+    if application_settings(settings, application)["operators"] == settings["operators"]:
+        return f"results/{scene}/operators.h5"
+    return f"results/{scene}/{application}/operators.h5"
+
+
+def pca_model_dirs(settings: Settings) -> list[str]:
+    """A model folder per PCA component count, in config order."""
+    return [f"pca/k{k}" for k in settings["applications"]["pca"]["components"]]
+
+
+def pca_summary_arguments(scene: str, settings: Settings) -> list[str]:
+    """`--model K EVAL.h5` for each component count."""
+    return [str(x) for k in settings["applications"]["pca"]["components"]
+            for x in ("--model", k, f"results/{scene}/pca/k{k}/eval.h5")]
+
+
+def application_products(scene: str, settings: Settings, application: str) -> list[str]:
+    """What `results/<scene>/<application>/` stands for; a scene without a mannequin has no pose input, said in
+    one line before any job runs."""
+    if application == "pose" and settings["mesh"]["generator"] != "garment":
+        raise PipelineError(f"results/{scene}/pose/: scene '{scene}' has no mannequin, so no pose input (pose to "
+                            f"cloth needs a garment scene, mesh.generator 'garment')")
+    folders = ["pose"] if application == "pose" else pca_model_dirs(settings)
+    summary = [f"results/{scene}/pca/report.md"] if application == "pca" else []
+    return [f"results/{scene}/{folder}/{name}" for folder in folders for name in APPLICATION_PRODUCTS] + summary
