@@ -31,7 +31,8 @@ from model.training import Frames
 from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.operators import load_hierarchy
-from pipeline.core.torch_setup import configure_torch, frames_on, set_arithmetic
+from pipeline.core.torch_setup import configure_torch, set_arithmetic
+from pipeline.tasks import frames_of
 
 ARCH = "D62 D124 D248 D D248 D_3 D248"
 VARIANTS = {"positions": FeatureSpec(("position",)),
@@ -103,7 +104,7 @@ def main() -> None:
         parser.error(f"graph modes need a CUDA --device and --warmup > {WARMUP_STEPS} (capture happens in it)")
     device = configure_torch(args.device, 0, args.threads)
     data = load_dataset(args.dataset)
-    frames = frames_on(data, device)
+    frames = frames_of(data, device)
     gib = (frames.store.positions.nbytes + frames.targets.nbytes) / 2 ** 30
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
     print(f"{where}; {len(data.inputs)} frames of {data.inputs.shape[1]} vertices on the device ({gib:.2f} GiB); "

@@ -17,38 +17,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from model.features import FEATURE_CHANNELS, FrameBatch, FrameStore, InputFeatures, check_features
+from model.feature_spec import FRAMES, FeatureSpec
+from model.features import FrameBatch, FrameStore, InputFeatures
 from model.local_frames import to_global
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
 
-FRAMES = ("dataset", "local")          # the axes vectors are expressed in: the dataset's, or each vertex's own
 STATISTICS_FRAMES = 512                # training frames the normalisation is measured on (evenly spread)
-
-
-@dataclasses.dataclass(frozen=True)
-class FeatureSpec:
-    """What the network sees and in which axes it answers (stored in model.pt; config `network.*`)."""
-
-    inputs: tuple[str, ...] = ("position",)    # model.features.FEATURE_CHANNELS names, stacked in this order
-    input_frame: str = "dataset"               # vector inputs in the dataset's axes or each vertex's local frame
-    output_frame: str = "dataset"              # the predicted displacement's axes, likewise
-    frame_tangent: str = "edge"                # local frames' tangent (model.local_frames)
-
-    def __post_init__(self):
-        object.__setattr__(self, "inputs", tuple(self.inputs))
-        for name, value in (("input_frame", self.input_frame), ("output_frame", self.output_frame)):
-            if value not in FRAMES:
-                raise ValueError(f"{name} must be one of {', '.join(FRAMES)}, got '{value}'")
-        check_features(self.inputs, self.input_frame == "local", self.frame_tangent)
-
-    @property
-    def channels(self) -> int:
-        return sum(FEATURE_CHANNELS[n] for n in self.inputs)
-
-    def features(self, faces: np.ndarray, rest_positions: np.ndarray) -> InputFeatures:
-        """The input features on a mesh (its faces and subdivided rest positions)."""
-        return InputFeatures(self.inputs, faces, rest_positions, self.input_frame == "local", self.frame_tangent)
 
 
 def store_statistics(features: InputFeatures, store: FrameStore, ids: torch.Tensor,
@@ -106,7 +81,7 @@ class FeatureRegressor(nn.Module):
         if net.in_channels != spec.channels:
             raise ValueError(f"the network takes {net.in_channels} input channels, the inputs "
                              f"{', '.join(spec.inputs)} give {spec.channels}")
-        self.net, self.spec, self.features = net, spec, spec.features(faces, rest_positions)
+        self.net, self.spec, self.features = net, spec, InputFeatures.of(spec, faces, rest_positions)
         offset = torch.zeros(spec.channels) if input_offset is None else input_offset
         scale = torch.ones(spec.channels) if input_scale is None else input_scale
         self.register_buffer("input_offset", torch.as_tensor(offset, dtype=torch.float32).reshape(-1))

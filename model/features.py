@@ -7,7 +7,7 @@ vertex (rest positions), following Zhang & Li 2024 (Neural Garment Dynamic Super
 
 Everything is batched torch: positions (B, V, 3) of the Loop-subdivided coarse mesh S x_low in the dataset's
 frame, capsules (B, P, 3) in that same frame. `InputFeatures` stacks the named features into the network's
-(B, V, C) input; `FEATURE_CHANNELS` says how many channels each name gives, in the order they are stacked.
+(B, V, C) input; `FEATURE_CHANNELS` (model.feature_spec) says how many channels each name gives.
 """
 from __future__ import annotations
 
@@ -18,27 +18,14 @@ import torch
 from torch import nn
 
 from geometry.mesh import unique_edges
+from model.feature_spec import FEATURE_CHANNELS, TANGENTS, FeatureSpec, check_features
 from model.local_frames import to_local, vertex_frames
 
-# name -> channel count
-FEATURE_CHANNELS = {
-    "position": 3,           # S x_low, absolute, in the dataset frame (the paper's input)
-    "centered_position": 3,  # S x_low minus its per-frame mean: the shape without where it is
-    "rest_position": 3,      # the subdivided rest mesh: which material point a vertex is (constant per vertex)
-    "normal": 3,             # area-weighted unit vertex normal of S x_low
-    "laplacian": 3,          # umbrella Laplacian (mean of neighbours - vertex): local curvature / folds
-    "velocity": 3,           # (S x_low(f) - S x_low(f-1)) / dt, zero at a sequence's first frame
-    "acceleration": 3,       # (velocity(f) - velocity(f-1)) / dt with the same rule at f-1
-    "strain": 2,             # principal stretches - 1 of S x_low against the rest mesh (compression < 0)
-    "body": 4,               # signed distance to the nearest capsule, then the unit direction away from it
-    "gravity": 3,            # unit gravity direction in the dataset frame (the same at every vertex)
-}
 # name -> the channels that hold a vector of the current frame, which turn with the local frame when inputs are
 # local (rest positions name a material point, not a direction, so they stay as they are)
 VECTOR_CHANNELS = {name: slice(0, 3) for name in ("position", "centered_position", "normal", "laplacian",
                                                    "velocity", "acceleration", "gravity")}
 VECTOR_CHANNELS["body"] = slice(1, 4)
-TANGENTS = ("edge", "gravity")   # how a local frame's tangent is chosen (model.local_frames)
 
 _EPS = 1e-12
 
@@ -198,18 +185,6 @@ def reference_neighbours(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return following[first]
 
 
-def check_features(names: tuple[str, ...], local_inputs: bool, frame_tangent: str) -> None:
-    """ValueError unless `names` are distinct feature names (FEATURE_CHANNELS) that can be stacked as asked."""
-    unknown = [n for n in names if n not in FEATURE_CHANNELS]
-    if unknown or not names or len(set(names)) != len(names):
-        raise ValueError(f"inputs must be distinct names among {', '.join(FEATURE_CHANNELS)}; got "
-                         f"{', '.join(map(str, names)) or 'none'}")
-    if frame_tangent not in TANGENTS:
-        raise ValueError(f"frame_tangent must be one of {', '.join(TANGENTS)}, got '{frame_tangent}'")
-    if local_inputs and "normal" in names:
-        raise ValueError("in local frames the normal is (0, 0, 1) at every vertex: drop 'normal' from the inputs")
-
-
 class InputFeatures(nn.Module):
     """The network input (B, V, C) for the named features, stacked in `names` order.
 
@@ -233,6 +208,11 @@ class InputFeatures(nn.Module):
         self.register_buffer("valence", torch.as_tensor(valence, dtype=torch.float32))
         self.register_buffer("rest", torch.as_tensor(np.asarray(rest_positions), dtype=torch.float32))
         self.register_buffer("reference", torch.as_tensor(reference_neighbours(faces, n_vertices)))
+
+    @classmethod
+    def of(cls, spec: FeatureSpec, faces: np.ndarray, rest_positions: np.ndarray) -> InputFeatures:
+        """The features `spec` names on a mesh (its faces and subdivided rest positions)."""
+        return cls(spec.inputs, faces, rest_positions, spec.input_frame == "local", spec.frame_tangent)
 
     @property
     def channels(self) -> int:

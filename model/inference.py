@@ -33,7 +33,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from torch import nn
 
 from model.feature_regressor import FeatureRegressor
-from model.features import FrameBatch
+from model.features import FrameBatch, InputFeatures
 from model.fused_network import FusedNetwork
 from model.layers import LEAKY_SLOPE, NORM_EPS
 from model.local_frames import to_global
@@ -172,7 +172,7 @@ class FastRegressor(nn.Module):
         self.network = FusedNetwork(*args, products=products) if fused else FastNetwork(*args)
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()
-        self.features = model.spec.features(new_of[faces], rest[order])
+        self.features = InputFeatures.of(model.spec, new_of[faces], rest[order])
         self.local_output = model.spec.output_frame == "local"
         self.register_buffer("order", torch.as_tensor(order))        # new -> old
         self.register_buffer("new_of", torch.as_tensor(new_of))     # old -> new

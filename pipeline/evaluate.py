@@ -43,16 +43,16 @@ from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
 from model.training_step import LR_SCHEDULES
 from pipeline.core import cli
-from pipeline.artifacts.dataset import LearningData, load_dataset, read_low_res
+from pipeline.artifacts.dataset import LearningData, load_dataset
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
 from pipeline.core.h5 import atomic_write, check_same_mesh
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.core.errors import PipelineError
-from pipeline.tasks import frames_of, task_of
+from pipeline.tasks import task_of
 from pipeline.tasks.task import Task
-from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_decoder, time_inference
+from pipeline.tasks.timing import WARMUP_RUNS, pick_frames
 from pipeline.core.torch_setup import configure_torch
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
@@ -226,19 +226,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     check_same_mesh(args.operators, args.dataset)   # operators of a moved copy of the mesh have the same faces
     task = task_of(data.task, args.dataset)
     model, mesh, state = load_model(args.model, args.operators, str(device))
-    if state["spec"]["arch"].strip()[:1] != task.letter:
-        raise PipelineError(f"{args.model}: not a network of task '{task.name}' (the task of {args.dataset})")
-    if task.letter == "D":
-        same_mesh = np.array_equal(model.features.faces.cpu().numpy(), data.faces)
-        low_positions, low_faces = read_low_res(args.dataset)
-    else:         # the operators' level 0 is the mesh the decoder writes (load_model checked they are its own)
-        same_mesh = mesh.vertex_counts[0] == data.targets.shape[1]
-        low_positions, low_faces = data.predictor, data.faces      # the first panel shows the predictor
-    if not same_mesh:
+    task.check_model(state, args.model, args.dataset)
+    if not task.trained_on(model, mesh, data):
         raise PipelineError(f"{args.dataset}: its mesh is not the one the model in {args.model} was trained on")
+    low_positions, low_faces = task.shown_input(data, args.dataset)
     train_log = read_train_log(args.train_log) if args.train_log else None
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
-    frames = frames_of(data, device)
+    frames = task.frames(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
     predicted_all = infer_all(model, mesh, frames.store)      # the network runs once: every split is scored on it
     splits = {split: torch.as_tensor(ids, device=device) for split, ids in data.splits().items()}
@@ -250,8 +244,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     del predicted_all
     steps.update()
     timed = pick_frames(data.test, args.timing_frames)
-    timer = time_inference if task.letter == "D" else time_decoder
-    times = timer(model, mesh, frames.store, torch.as_tensor(timed, device=device))
+    times = task.time(model, mesh, frames.store, torch.as_tensor(timed, device=device))
     steps.update()
     truth = data.predictor + data.targets
     predicted = data.predictor + displacement
@@ -437,7 +430,7 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
         training_pieces.append(Picture(plots["training_curve"], "Loss per epoch, train and test (log scale)."))
     sections = [
         Section("Network", [Paragraphs(
-            f"{state['arch_expanded']} ({'encoder-decoder' if task.letter == 'D' else 'decoder'}), conv "
+            f"{state['arch_expanded']} ({task.network.name}), conv "
             f"{spec['conv']}, {spec['pool']} pooling, width "
             f"{spec['width']:g}: **{state['parameter_count']:,} learnable parameters**.")]),
         Section("Errors (x 1e-3 scene units, as paper Table 3)", error_pieces),

@@ -32,23 +32,18 @@ from typing import Any, Sequence
 
 import torch
 
-from model.architecture import ArchitectureError, parse_architecture
-from model.feature_regressor import FRAMES, FeatureRegressor, FeatureSpec
-from model.features import FEATURE_CHANNELS, TANGENTS
+from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
-from model.mesh_hierarchy import MeshHierarchy
-from model.networks import MeshNetwork, NetworkSpec, build_network
-from model.tasks import VectorRegressor, VectorSpec
 from model.training import CheckpointError, TrainSettings, fit
 from model.training_step import LR_SCHEDULES
 from pipeline.core import cli
-from pipeline.artifacts.dataset import LearningData, load_dataset
+from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
-from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
-from pipeline.tasks import frames_of, task_of
+from pipeline.tasks import task_of
+from pipeline.tasks.task import NetworkRequest
 from pipeline.core.torch_setup import configure_torch
 
 
@@ -116,24 +111,16 @@ def main(argv: Sequence[str] | None = None) -> None:
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads, deterministic=args.deterministic,
                              tf32=args.tf32, cuda_graph=args.cuda_graph)
-    try:
-        features = FeatureSpec(tuple(args.inputs.split(",")), args.input_frame, args.output_frame, args.frame_tangent)
-    except ValueError as err:
-        raise PipelineError(f"--inputs/--input-frame/--frame-tangent: {err}") from None
     data = load_dataset(args.dataset)
     task = task_of(data.task, args.dataset)
-    if task.letter == "D":       # per-vertex features of S x_low
-        if "body" in features.inputs and data.context.capsule_a.shape[1] == 0:
-            raise PipelineError(f"{args.dataset}: input 'body' needs the mannequin's capsules; this scene has no "
-                                f"body")
-        spec, net, mesh = _network(args, NetworkSpec(args.arch, args.conv, args.pool, args.width, features.channels,
-                                                     data.targets.shape[2]), data)
-        model = FeatureRegressor(net, features, data.faces, data.rest_vertices)
-    else:                        # one vector per frame
-        spec, net, mesh = _network(args, NetworkSpec(args.arch, args.conv, args.pool, args.width,
-                                                     data.inputs.shape[1], data.targets.shape[2]), data)
-        model = VectorRegressor(net, VectorSpec((task.name,)))
-    frames = frames_of(data, device)
+    features = {"inputs": args.inputs, "input_frame": args.input_frame, "output_frame": args.output_frame,
+                "frame_tangent": args.frame_tangent}
+    built = task.build(NetworkRequest(args.arch, args.conv, args.pool, args.width, features,
+                                      "--inputs/--input-frame/--output-frame/--frame-tangent"),
+                       data, args.operators, args.dataset)
+    spec, model, mesh = built.spec, built.model, built.mesh
+    parameter_count = model.net.parameter_count()
+    frames = task.frames(data, device)
     train_ids = torch.as_tensor(data.train, device=device)
     model = model.to(device)
     model.normalise(frames.store, train_ids, frames.targets)
@@ -154,7 +141,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         except CheckpointError as err:
             raise PipelineError(f"{checkpoint}: {err}") from None
     seconds = time.perf_counter() - start
-    config = {**vars(args), "parameter_count": net.parameter_count()}
+    config = {**vars(args), "parameter_count": parameter_count}
     training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
                 "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
                 "input_noise": args.input_noise,
@@ -163,36 +150,11 @@ def main(argv: Sequence[str] | None = None) -> None:
                 "dataset": args.dataset, "dataset_fingerprint": data.fingerprint}
     save_model(Path(args.model), model.cpu(), spec, mesh, {"training": training})
     try:
-        write_train_log(args.log, history, config, str(device), net.parameter_count(), seconds)
+        write_train_log(args.log, history, config, str(device), parameter_count, seconds)
     except BaseException:
         Path(args.model).unlink(missing_ok=True)      # the two outputs come as a pair, or not at all
         raise
     checkpoint.unlink(missing_ok=True)
-
-
-def _network(args, spec: NetworkSpec, data: LearningData) -> tuple[NetworkSpec, MeshNetwork, MeshHierarchy]:
-    """The network of the dataset's task as `spec` describes it (a decoder onto the vertices of the coarsest
-    level its tokens reach), its complete spec, and the operators' levels it runs on."""
-    letter = task_of(data.task, args.dataset).letter
-    if spec.letter != letter:
-        kind = ("an encoder-decoder, written with D tokens (e.g. 'D62 D124 D248 D D248 D_3 D248')" if letter == "D"
-                else "a decoder, written with U tokens (e.g. 'U208 U U208 U U208 U U208 U104 U52 U3')")
-        raise PipelineError(f"--arch '{args.arch}': the network of task '{data.task}' is {kind}")
-    try:
-        if letter == "U":       # its fully connected layer maps onto the coarsest level: the mesh comes first
-            n_levels = parse_architecture(spec.arch, "U").n_pooling + 1
-            mesh = load_hierarchy(args.operators, args.conv, n_levels, data.faces, args.dataset)
-            spec = dataclasses.replace(spec, coarse_vertices=mesh.vertex_counts[-1])
-        net = build_network(spec)
-    except ArchitectureError as err:
-        raise PipelineError(f"--arch/--conv/--pool/--width: {err}") from None
-    if letter == "D":
-        mesh = load_hierarchy(args.operators, args.conv, net.n_levels, data.faces, args.dataset)
-    try:
-        net.check_mesh(mesh)
-    except ValueError as err:
-        raise PipelineError(f"{args.operators}: {err}") from None
-    return spec, net, mesh
 
 
 if __name__ == "__main__":

@@ -44,7 +44,8 @@ from pipeline.artifacts.train_log import write_train_log
 from pipeline.core.config import read_settings
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
-from pipeline.tasks import frames_of
+from pipeline.core.config import feature_spec
+from pipeline.tasks import TASKS, frames_of
 from pipeline.core.torch_setup import configure_torch
 
 SHARED = ("network", "training", "device")     # what the garments' settings must agree on
@@ -81,33 +82,31 @@ def _first_difference(a: Any, b: Any, where: str) -> str | None:
     return None if a == b else f"{where} {b!r} (not {a!r})"
 
 
-def _network(network: dict, where: str) -> tuple[NetworkSpec, FeatureSpec, MeshNetwork]:
-    """The shared network (freshly initialised from torch's seeded generator, as pipeline.train's), its spec and
-    its inputs as the settings `network.*` describe them; one error naming `where` for settings that do not
-    make an encoder-decoder."""
+def _garment_features(garment: GarmentFiles, data: LearningData, network: dict) -> FeatureSpec:
+    """The shared network's per-vertex inputs as the settings `network.*` name them, checked against what the
+    garment's dataset holds: an upsampling dataset, with the mannequin that input 'body' needs."""
+    if data.task != UPSAMPLING:
+        raise PipelineError(f"{garment.dataset}: a dataset of task '{data.task}'; one network for many garments "
+                            f"learns the upsampling")
+    return feature_spec(network, data.has_body, f"{garment.settings}: network")
+
+
+def _network(network: dict, features: FeatureSpec, where: str) -> tuple[NetworkSpec, MeshNetwork]:
+    """The shared network (freshly initialised from torch's seeded generator, as pipeline.train's) reading
+    `features`, and its spec, as the settings `network.*` describe it; one error naming `where` for settings that
+    do not make the upsampling task's network."""
+    kind = TASKS[UPSAMPLING].network
+    kind.check(network["arch"], f"{where}: network: arch '{network['arch']}': the upsampling network is {kind}")
     try:
-        features = FeatureSpec(tuple(network["inputs"]), network["input_frame"], network["output_frame"],
-                               network["frame_tangent"])
         spec = NetworkSpec(network["arch"], network["conv"], network["pool"], float(network["width"]),
                            features.channels)
-        if spec.letter != "D":
-            raise ArchitectureError(f"arch '{spec.arch}': the upsampling network is an encoder-decoder, written "
-                                    f"with D tokens")
-        return spec, features, build_network(spec)
+        return spec, build_network(spec)
     except (ValueError, ArchitectureError) as err:
         raise PipelineError(f"{where}: network: {err}") from None
 
 
-def _garment_mesh(garment: GarmentFiles, data: LearningData, spec: NetworkSpec, features: FeatureSpec,
-                  net: MeshNetwork) -> MeshHierarchy:
-    """The levels of the garment's operators the network runs on, after checking that its dataset is an
-    upsampling one of that mesh with what the inputs need."""
-    if data.task != UPSAMPLING:
-        raise PipelineError(f"{garment.dataset}: a dataset of task '{data.task}'; one network for many garments "
-                            f"learns the upsampling")
-    if "body" in features.inputs and data.context.capsule_a.shape[1] == 0:
-        raise PipelineError(f"{garment.dataset}: input 'body' needs the mannequin's capsules; this scene has no "
-                            f"body")
+def _garment_mesh(garment: GarmentFiles, data: LearningData, spec: NetworkSpec, net: MeshNetwork) -> MeshHierarchy:
+    """The levels of the garment's operators the network runs on."""
     mesh = load_hierarchy(garment.operators, spec.conv, net.n_levels, data.faces, garment.dataset)
     try:
         net.check_mesh(mesh)
@@ -141,9 +140,11 @@ def _train(argv: Sequence[str]) -> None:
     device = configure_torch(shared["device"], training["seed"], args.threads,
                              deterministic=bool(training["deterministic"]), tf32=bool(training["tf32"]),
                              cuda_graph=bool(training["cuda_graph"]))
-    spec, features, net = _network(shared["network"], garments[0].settings)
     datasets = {g.name: load_dataset(g.dataset) for g in garments}
-    meshes = {g.name: _garment_mesh(g, datasets[g.name], spec, features, net) for g in garments}
+    # The garments share `network.*` (shared_settings), so their inputs are the same; each is checked on its data.
+    features = [_garment_features(g, datasets[g.name], shared["network"]) for g in garments][0]
+    spec, net = _network(shared["network"], features, garments[0].settings)
+    meshes = {g.name: _garment_mesh(g, datasets[g.name], spec, net) for g in garments}
     parts = [Garment(g.name, frames_of(datasets[g.name], device), meshes[g.name].to(device),
                      torch.as_tensor(datasets[g.name].train, device=device),
                      torch.as_tensor(datasets[g.name].test, device=device)) for g in garments]

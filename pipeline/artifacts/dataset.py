@@ -248,6 +248,11 @@ class LearningData:
         if self.predictor is None:
             object.__setattr__(self, "predictor", self.inputs)
 
+    @property
+    def has_body(self) -> bool:
+        """Whether the frames carry a mannequin's capsules (a garment scene), which input 'body' measures."""
+        return self.context.capsule_a.shape[1] > 0
+
     def splits(self) -> dict[str, np.ndarray]:
         """The non-empty splits by name."""
         named = {"train": self.train, "test": self.test, "held_out": self.held_out}

@@ -13,10 +13,9 @@ from typing import Any, Mapping
 
 import torch
 
-from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.mesh_hierarchy import MeshHierarchy
-from model.networks import NetworkSpec, build_network
-from model.tasks import VectorRegressor, VectorSpec
+from model.networks import NetworkSpec
+from model.regressors import Regressor, check_levels, input_spec, rebuild_regressor, saved_fields
 from model.training import CHECKPOINT_FORMAT
 from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
@@ -39,7 +38,7 @@ def read_model_state(path: str | os.PathLike, expected_format: str, what: str) -
     return state
 
 
-def save_model(path: Path, model: FeatureRegressor | VectorRegressor, spec: NetworkSpec, mesh: MeshHierarchy,
+def save_model(path: Path, model: Regressor, spec: NetworkSpec, mesh: MeshHierarchy,
                extra: Mapping[str, Any]) -> None:
     state = {"format": MODEL_FORMAT, "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
              "state_dict": model.state_dict(),
@@ -49,21 +48,15 @@ def save_model(path: Path, model: FeatureRegressor | VectorRegressor, spec: Netw
 
 
 def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
-               device: str) -> tuple[FeatureRegressor | VectorRegressor, MeshHierarchy, dict]:
+               device: str) -> tuple[Regressor, MeshHierarchy, dict]:
     """A trained model and the hierarchy it runs on, after checking the operators are those it was trained on.
-    An encoder-decoder (D tokens) reads per-vertex features (FeatureRegressor), a decoder (U tokens) one vector
-    per frame (model.tasks.VectorRegressor)."""
+    The network's kind decides the regressor it is wrapped in (model.regressors)."""
     state = read_model_state(path, MODEL_FORMAT, "a model written by pipeline.train")
     try:
         check_plain(state, _PLAIN_FIELDS)
         spec, weights, trained = NetworkSpec(**state["spec"]), state["state_dict"], state["operators"]
-        if spec.letter == "U":
-            check_plain(state["spec"], {"coarse_vertices": int}, "spec.")
-            vector = VectorSpec(**state["features"])
-        else:
-            check_plain(state["features"], _FEATURE_FIELDS, "features.")
-            features = FeatureSpec(**state["features"])
-            faces, rest = weights["features.faces"].numpy(), weights["features.rest"].numpy()
+        check_plain(state, saved_fields(spec))
+        inputs = input_spec(spec, state["features"])
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise PipelineError(f"{path}: damaged model file ({type(err).__name__}: {err})") from None
     mesh = load_hierarchy(operators_path, spec.conv, len(trained["vertex_counts"]))
@@ -73,14 +66,13 @@ def load_model(path: str | os.PathLike, operators_path: str | os.PathLike,
     if mesh.fingerprint() != trained["fingerprint"]:
         raise PipelineError(f"{operators_path}: same vertex counts but different operator tables than the ones "
                             f"the model in {path} was trained on")
-    if spec.letter == "U" and spec.coarse_vertices not in mesh.vertex_counts:     # before a huge layer is built
-        raise PipelineError(f"{path}: a decoder onto {spec.coarse_vertices} coarse vertices, but no level of "
-                            f"{operators_path} has that many")
     try:
-        net = build_network(spec)
-        model = VectorRegressor(net, vector) if spec.letter == "U" else FeatureRegressor(net, features, faces, rest)
-        model.load_state_dict(weights)
-    except (ValueError, RuntimeError, IndexError) as err:
+        check_levels(spec, mesh.vertex_counts)
+    except ValueError as err:
+        raise PipelineError(f"{path}: {err} ({operators_path})") from None
+    try:
+        model = rebuild_regressor(spec, inputs, weights)
+    except (KeyError, ValueError, RuntimeError, IndexError) as err:
         # A failed load_state_dict's message spans lines; its type says enough.
         raise PipelineError(f"{path}: its weights do not fit the network it describes ({type(err).__name__})") \
             from None
@@ -97,9 +89,6 @@ _PLAIN_FIELDS = {
     "training": {"epochs": int, "batch_size": int, "lr": _NUMBER, "seed": int, "device": str,
                  "loss_weights": {"l1": _NUMBER, "l2": _NUMBER, "normal": _NUMBER}},
 }
-
-# An encoder-decoder's "features" (model.feature_regressor.FeatureSpec); a decoder's hold `inputs` only.
-_FEATURE_FIELDS = {"inputs": (list, tuple), "input_frame": str, "output_frame": str, "frame_tangent": str}
 
 
 def check_plain(values: dict, fields: dict, where: str = "") -> None:

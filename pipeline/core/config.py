@@ -19,10 +19,11 @@ import json
 import os
 import re
 from pathlib import Path
-from typing import Any, Collection
+from typing import Any, Collection, Mapping
 
 import yaml
 
+from model.feature_spec import FeatureSpec
 from pipeline.core.h5 import FLOAT32_MAX, atomic_write
 from pipeline.core.errors import PipelineError
 from scenes.sequences import clip_key, held_out_clips, training_clips
@@ -191,18 +192,11 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     if settings["network"]["conv"] not in settings["operators"]["conv"]:
         fail(f"network.conv '{settings['network']['conv']}' is not among operators.conv "
              f"{settings['operators']['conv']}")
-    network = settings["network"]
-    if not garment and "body" in network["inputs"]:
-        fail("network.inputs 'body' needs a mannequin (mesh.generator 'garment')")
-    if network["input_frame"] == "local" and "normal" in network["inputs"]:
-        fail("network.inputs 'normal' is (0, 0, 1) everywhere with input_frame local: drop it")
+    feature_spec(settings["network"], garment, f"{source}: {where}: network")
     if not garment and settings["study"]["sequence_counts"] != [1]:
         fail("study.sequence_counts: a grid scene has one sequence, so its study can only count [1]")
     for variant, inputs in settings["study"]["variants"].items():
-        if not garment and "body" in inputs["inputs"]:
-            fail(f"study.variants.{variant}: input 'body' needs a mannequin (mesh.generator 'garment')")
-        if inputs["input_frame"] == "local" and "normal" in inputs["inputs"]:
-            fail(f"study.variants.{variant}: input 'normal' is (0, 0, 1) everywhere with input_frame local")
+        feature_spec(inputs, garment, f"{source}: {where}: study.variants.{variant}")
     for name, application in settings["applications"].items():
         merged = deep_merge({key: settings[key] for key in ("network", "operators")},
                             {key: application[key] for key in ("network", "operators") if key in application})
@@ -227,6 +221,23 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
         for entry in mannequin["clips"] + mannequin["test_clips"]:
             if isinstance(entry, dict) and entry.get("start", 0.0) >= entry.get("end", float("inf")):
                 fail(f"BVH clip {entry['bvh']}: start {entry['start']} must come before end {entry['end']}")
+
+
+def feature_spec(network: Mapping[str, Any], has_body: bool, where: str) -> FeatureSpec:
+    """The per-vertex inputs that `network`'s keys inputs, input_frame, output_frame and frame_tangent name (a
+    scene's `network.*`, a study variant, or train's flags: `inputs` a list, or comma-separated as the --inputs
+    flag spells it), checked the same way wherever they are read: FeatureSpec's own checks (names, frames), and
+    input 'body' only where the scene has a mannequin (`has_body`). One error naming `where` otherwise."""
+    inputs = network["inputs"]
+    try:
+        features = FeatureSpec(tuple(inputs.split(",") if isinstance(inputs, str) else inputs),
+                               network["input_frame"], network["output_frame"], network["frame_tangent"])
+    except ValueError as err:
+        raise PipelineError(f"{where}: {err}") from None
+    if "body" in features.inputs and not has_body:
+        raise PipelineError(f"{where}: input 'body' measures the cloth against the mannequin's capsules, and this "
+                            f"scene has no mannequin (mesh.generator 'garment' has one)")
+    return features
 
 
 def _names(entries: list) -> str:

@@ -1,15 +1,11 @@
-"""Torch as the learning stages (train, evaluate) use it: deterministic and seeded on one device, with the
-dataset's arrays moved onto it."""
+"""Torch as the learning stages (train, evaluate) use it: deterministic and seeded on one device (a task moves a
+dataset's frames onto it: pipeline.tasks)."""
 from __future__ import annotations
 
 import os
 
-import numpy as np
 import torch
 
-from model.features import FrameStore
-from model.training import Frames
-from pipeline.artifacts.dataset import LearningData
 from pipeline.core.cli import check_device
 from pipeline.core.errors import PipelineError
 
@@ -48,15 +44,3 @@ def set_arithmetic(deterministic: bool, tf32: bool) -> None:
     """
     torch.use_deterministic_algorithms(deterministic)
     torch.backends.cuda.matmul.fp32_precision = "tf32" if tf32 else "ieee"
-
-
-def frames_on(data: LearningData, device: torch.device | str) -> Frames:
-    """Every frame of the dataset, and what the network's inputs are made from, as tensors on `device`."""
-    def tensor(array: np.ndarray) -> torch.Tensor:
-        return torch.as_tensor(array, device=device)
-
-    context = data.context
-    store = FrameStore(tensor(data.inputs), tensor(data.previous), tensor(context.capsule_a),
-                       tensor(context.capsule_b), tensor(context.radius_a), tensor(context.radius_b),
-                       tensor(context.gravity), context.frame_time)
-    return Frames(store, tensor(data.targets), tensor(data.faces.astype(np.int64)))

@@ -4,10 +4,8 @@ low-res run → high-res), `pose` (the mannequin's 208 pose scalars → cloth, o
 "Applications", says where each lives."""
 from __future__ import annotations
 
-import numpy as np
 import torch
 
-from model.tasks import VectorStore
 from model.training import Frames
 from pipeline.artifacts.dataset import LearningData
 from pipeline.core.errors import PipelineError
@@ -15,7 +13,6 @@ from pipeline.tasks.pca import PcaTask
 from pipeline.tasks.pose import PoseTask
 from pipeline.tasks.task import Task
 from pipeline.tasks.upsampling import UpsamplingTask
-from pipeline.core.torch_setup import frames_on
 
 TASKS: dict[str, Task] = {task.name: task for task in (UpsamplingTask(), PoseTask(), PcaTask())}
 
@@ -28,10 +25,5 @@ def task_of(name: str, where: str) -> Task:
 
 
 def frames_of(data: LearningData, device: torch.device | str) -> Frames:
-    """Every frame of a dataset on `device` as its task's network reads them: per-vertex features of S x_low
-    (pipeline.core.torch_setup.frames_on) or one input vector per frame, each with the predictor it adds to."""
-    if task_of(data.task, "dataset").letter == "D":
-        return frames_on(data, device)
-    store = VectorStore(torch.as_tensor(data.predictor, device=device), torch.as_tensor(data.inputs, device=device))
-    return Frames(store, torch.as_tensor(data.targets, device=device),
-                  torch.as_tensor(data.faces.astype(np.int64), device=device))
+    """Every frame of a dataset on `device` as its task's network reads them (Task.frames)."""
+    return task_of(data.task, "dataset").frames(data, device)

@@ -2,23 +2,31 @@
 per application over shared operators, networks and stages).
 
 A task says what the network reads (its inputs), what it adds its output to (the predictor), hence its target
-(x_high - predictor), which network reads such inputs (an encoder-decoder reads per-vertex features, a decoder
-one vector per frame), and how a report names the predictor. The dataset stage asks the task for each
-sequence's frames; `train` and `evaluate` read the task from dataset.h5 and are otherwise the same for every
-task.
+(x_high - predictor), which network reads such inputs and how it is built, fed, timed and shown (an
+encoder-decoder reads per-vertex features, a decoder one vector per frame), and how a report names the predictor.
+The dataset stage asks the task for each sequence's frames; `train` and `evaluate` read the task from dataset.h5,
+ask it everything that depends on the network's kind, and are otherwise the same for every task.
 """
 from __future__ import annotations
 
 import abc
 import dataclasses
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
+import torch
 
+from model.architecture import ArchitectureError
+from model.mesh_hierarchy import MeshHierarchy
+from model.networks import MeshNetwork, NetworkSpec, build_network
+from model.regressors import Regressor
+from model.training import Frames
 from pipeline.artifacts.dataset import DatasetLayout, LearningData, SequenceFrames, TaskLayout
 from pipeline.artifacts.scene import MannequinFrames
 from pipeline.artifacts.subdiv import Subdivision
+from pipeline.core.errors import PipelineError
+from pipeline.tasks.timing import InferenceTimes
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -49,12 +57,69 @@ class DatasetRequest:
     components: int | None                        # --components (PCA)
 
 
+@dataclasses.dataclass(frozen=True)
+class NetworkKind:
+    """The network a task trains, as its architecture string writes it (docs/architecture.md, "Grammar")."""
+
+    name: str          # in reports and messages: "encoder-decoder", "decoder"
+    letter: str        # the token letter its architecture is written with
+    example: str       # an architecture of this kind, for messages
+
+    def check(self, arch: str, refusal: str) -> None:
+        """One error, `refusal`, unless `arch` is written with this kind's tokens."""
+        if arch.strip()[:1] != self.letter:
+            raise PipelineError(refusal)
+
+    def __str__(self) -> str:
+        return f"{'an' if self.name[0] in 'aeiou' else 'a'} {self.name}, written with {self.letter} tokens (e.g. " \
+               f"'{self.example}')"
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkRequest:
+    """The network a training asks for: train's --arch, --conv, --pool, --width and the per-vertex input flags
+    (settings `network.*`)."""
+
+    arch: str
+    conv: str
+    pool: str
+    width: float
+    features: Mapping[str, Any]    # inputs, input_frame, output_frame, frame_tangent (pipeline.core.config.feature_spec)
+    features_source: str           # how an error names where `features` came from
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Trainable:
+    """A task's freshly initialised network, wrapped in its regressor, and the operators' levels it runs on."""
+
+    spec: NetworkSpec              # complete: what model.pt stores to rebuild the network
+    model: Regressor
+    mesh: MeshHierarchy
+
+
+def network_of(spec: NetworkSpec) -> MeshNetwork:
+    """The network `spec` describes, initialised from torch's seeded generator; one error naming the flags."""
+    try:
+        return build_network(spec)
+    except ArchitectureError as err:
+        raise PipelineError(f"--arch/--conv/--pool/--width: {err}") from None
+
+
+def check_fits(net: MeshNetwork, mesh: MeshHierarchy, operators: str) -> None:
+    """One error naming the operators file unless `net` can run on its levels `mesh`."""
+    try:
+        net.check_mesh(mesh)
+    except ValueError as err:
+        raise PipelineError(f"{operators}: {err}") from None
+
+
 class Task(abc.ABC):
     """One learning problem; the subclasses are the applications (pipeline/tasks/<name>.py), each of which must
-    say how its frames are made (`prepare`) and what its network reads (`input_rows`)."""
+    say how its frames are made (`prepare`) and what its network reads (`input_rows`); the network kinds
+    (encoder-decoder, decoder: upsampling.py, decoder.py) say how their network is built, fed, timed and shown."""
 
     name = ""
-    letter = ""               # the network: D (encoder-decoder on per-vertex features) or U (decoder from a vector)
+    network: NetworkKind      # the network this task trains
     predictor_label = ""      # "Loop subdivision": how reports name the predictor
     input_label = ""          # the first panel of a render: what the network is given, as a mesh
     timing_reference = ""     # the paper's figures to compare the inference time with
@@ -65,8 +130,38 @@ class Task(abc.ABC):
         """The task's part of dataset.h5's layout (None: the upsampling's) and how a run becomes frames."""
 
     @abc.abstractmethod
-    def input_rows(self, data: LearningData, state: dict) -> list[list]:
+    def input_rows(self, data: LearningData, state: dict, low_vertices: int | None = None) -> list[list]:
         """Rows of a report's "Inputs" table describing what the network read."""
+
+    @abc.abstractmethod
+    def build(self, request: NetworkRequest, data: LearningData, operators: str, dataset: str) -> Trainable:
+        """The network `request` describes for this task's `data` (read from `dataset`), on the levels of the
+        `operators` file it needs, wrapped in the regressor that feeds it."""
+
+    @abc.abstractmethod
+    def frames(self, data: LearningData, device: torch.device | str) -> Frames:
+        """Every frame of the dataset on `device` as the network reads them, each with the predictor it adds to."""
+
+    @abc.abstractmethod
+    def trained_on(self, model: Regressor, mesh: MeshHierarchy, data: LearningData) -> bool:
+        """Whether `model` (on its operators' levels `mesh`) was trained on `data`'s mesh."""
+
+    @abc.abstractmethod
+    def shown_input(self, data: LearningData, dataset: str) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (F, V, 3) and faces of a picture's first panel: what the network is given, as a mesh."""
+
+    @abc.abstractmethod
+    def time(self, model: Regressor, mesh: MeshHierarchy, store, ids: torch.Tensor) -> InferenceTimes:
+        """Milliseconds per frame of the network on each frame of `ids`, as pipeline.tasks.timing measures it."""
+
+    def check_arch(self, arch: str) -> None:
+        """One error naming --arch unless `arch` writes this task's kind of network."""
+        self.network.check(arch, f"--arch '{arch}': the network of task '{self.name}' is {self.network}")
+
+    def check_model(self, state: dict, model_path: str, dataset_path: str) -> None:
+        """One error unless the model.pt `state` holds a network of this task's kind."""
+        self.network.check(state["spec"]["arch"], f"{model_path}: not a network of task '{self.name}' (the task "
+                                                  f"of {dataset_path})")
 
     def extra_error_rows(self, errors: dict, splits: list[str]) -> list[list]:
         """Rows the task adds under the error table's gain row (none by default)."""

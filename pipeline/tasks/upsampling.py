@@ -3,14 +3,23 @@ predictor; the encoder-decoder reads per-vertex features of it (model.features).
 from __future__ import annotations
 
 import numpy as np
+import torch
 
-from pipeline.artifacts.dataset import LearningData, SequenceFrames
-from pipeline.tasks.task import DatasetRequest, SequenceRun, Task
+from model.feature_regressor import FeatureRegressor
+from model.features import FrameStore
+from model.training import Frames
+from model.networks import NetworkSpec
+from pipeline.artifacts.dataset import LearningData, SequenceFrames, read_low_res
+from pipeline.artifacts.operators import load_hierarchy
+from pipeline.core.config import feature_spec
+from pipeline.tasks.task import (DatasetRequest, NetworkKind, NetworkRequest, SequenceRun, Task, Trainable,
+                                 check_fits, network_of)
+from pipeline.tasks.timing import time_inference
 
 
 class UpsamplingTask(Task):
     name = "upsampling"
-    letter = "D"
+    network = NetworkKind("encoder-decoder", "D", "D62 D124 D248 D D248 D_3 D248")
     predictor_label = "Loop subdivision"
     input_label = "low-res input"
     timed = "input features and network, S x_low given"
@@ -36,3 +45,34 @@ class UpsamplingTask(Task):
                 ["network inputs (model.features)", ", ".join(features["inputs"])],
                 ["input vectors in", axes[features["input_frame"]]],
                 ["displacement predicted in", axes[features["output_frame"]]]]
+
+    def build(self, request: NetworkRequest, data: LearningData, operators: str, dataset: str) -> Trainable:
+        self.check_arch(request.arch)
+        features = feature_spec(request.features, data.has_body, f"{dataset}: {request.features_source}")
+        spec = NetworkSpec(request.arch, request.conv, request.pool, request.width, features.channels,
+                           data.targets.shape[2])
+        net = network_of(spec)
+        mesh = load_hierarchy(operators, spec.conv, net.n_levels, data.faces, dataset)
+        check_fits(net, mesh, operators)
+        return Trainable(spec, FeatureRegressor(net, features, data.faces, data.rest_vertices), mesh)
+
+    def frames(self, data: LearningData, device: torch.device | str) -> Frames:
+        """Every frame's S x_low and what the input features are made from (the previous frame, the body's
+        capsules, gravity), as tensors on `device`."""
+        def tensor(array: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(array, device=device)
+
+        context = data.context
+        store = FrameStore(tensor(data.inputs), tensor(data.previous), tensor(context.capsule_a),
+                           tensor(context.capsule_b), tensor(context.radius_a), tensor(context.radius_b),
+                           tensor(context.gravity), context.frame_time)
+        return Frames(store, tensor(data.targets), tensor(data.faces.astype(np.int64)))
+
+    def trained_on(self, model, mesh, data: LearningData) -> bool:
+        return np.array_equal(model.features.faces.cpu().numpy(), data.faces)
+
+    def shown_input(self, data: LearningData, dataset: str) -> tuple[np.ndarray, np.ndarray]:
+        return read_low_res(dataset)
+
+    def time(self, model, mesh, store, ids: torch.Tensor):
+        return time_inference(model, mesh, store, ids)

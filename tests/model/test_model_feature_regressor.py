@@ -8,7 +8,7 @@ import torch
 
 import model.feature_regressor as feature_regressor
 from model.feature_regressor import FeatureRegressor, FeatureSpec, mean_square, store_statistics
-from model.features import FrameBatch, FrameStore, previous_frames
+from model.features import FrameBatch, FrameStore, InputFeatures, previous_frames
 from model.networks import NetworkSpec, build_network
 
 
@@ -28,7 +28,7 @@ def _store(vertices: np.ndarray, n_frames: int = 9) -> FrameStore:
 def test_store_statistics_centre_channels_and_scale_each_feature_as_one(grid, monkeypatch):
     vertices, faces, _ = grid
     store = _store(vertices)
-    features = FeatureSpec(("velocity", "body", "gravity", "rest_position")).features(faces, vertices)
+    features = InputFeatures.of(FeatureSpec(("velocity", "body", "gravity", "rest_position")), faces, vertices)
     ids = torch.tensor([0, 2, 3, 5, 6, 8])
     monkeypatch.setattr(feature_regressor, "STATISTICS_FRAMES", 4)       # measured on frames 0, 3, 5, 8
     offset, scale = store_statistics(features, store, ids, batch_size=3)
