@@ -1,0 +1,128 @@
+"""experiments.tradeoff.grid: the trade-off's budgets, high-res runs, folders, settings overlays and the stage's
+argument list, from a hand-made scene's settings (the workflow's plan of them: test_workflow_tradeoff.py)."""
+import copy
+
+import pytest
+
+from experiments.tradeoff import grid
+
+SCENE = "cloth"
+SEQUENCES = ["train_000", "held_out_000"]
+
+
+def scene_settings(shard=1, **tradeoff):
+    """A scene simulated at 2 substeps x 10 iterations, harmonic projection every substep, with a small grid."""
+    block = {"substeps": [1, 2], "matched": [1], "widths": [0.5], "epochs": 3, "high_res_budgets": [[1, 5]],
+             "harmonic_every": [], **tradeoff}
+    return {"solver": {"substeps": 2, "iterations": 10, "relaxation": 1.0}, "high_res": {"harmonic_every": "substep"},
+            "network": {"conv": "RC9", "width": 0.25}, "training": {"epochs": 8, "batch_size": 4},
+            "operators": {"levels": 6}, "evaluation": {"render_frames": 3}, "device": "cpu",
+            "sequences": 1, "shard": shard, "study": {"width": None}, "applications": {}, "tradeoff": block}
+
+
+def test_the_budgets_are_the_grids_and_the_matched_ones_once_in_order_and_the_scenes_own_has_no_matched_network():
+    settings = scene_settings(substeps=[8, 2, 1], matched=[4, 2, 4])
+    assert grid.budgets(settings) == [1, 2, 4, 8]
+    assert grid.matched_budgets(settings) == [4]          # 2 is the scene's own: its network is the scene's
+
+
+def test_the_high_res_runs_keep_config_order_once_each_and_leave_the_reference_out():
+    settings = scene_settings(high_res_budgets=[[1, 5], [2, 10], [3, 7], [1, 5]],
+                              harmonic_every=["iteration", "substep"])
+    assert grid.reference_run(settings) == (2, 10, "substep")
+    assert grid.high_res_runs(settings) == [(1, 5, "substep"), (3, 7, "substep"), (2, 10, "iteration")]
+
+
+def test_the_scenes_own_budget_reuses_the_scenes_runs_and_dataset():
+    settings = scene_settings()
+    assert grid.low_runs(SCENE, settings, SEQUENCES, 2) == [
+        "results/cloth/sequences/train_000/sim_low.h5", "results/cloth/sequences/held_out_000/sim_low.h5"]
+    assert grid.point_dataset(SCENE, settings, 2) == "results/cloth/dataset.h5"
+    assert grid.low_runs(SCENE, settings, SEQUENCES, 1) == [
+        "results/cloth/tradeoff/s1/sequences/train_000/sim_low.h5",
+        "results/cloth/tradeoff/s1/sequences/held_out_000/sim_low.h5"]
+    assert grid.point_dataset(SCENE, settings, 1) == "results/cloth/tradeoff/s1/dataset.h5"
+
+
+def test_each_network_is_the_scenes_model_a_width_folder_or_the_budgets_matched_one():
+    assert grid.network_model(SCENE, 1, "scene") == "results/cloth/model.pt"
+    assert grid.network_model(SCENE, 1, "matched") == "results/cloth/tradeoff/s1/matched/model.pt"
+    assert grid.network_model(SCENE, "1", "w0.5") == "results/cloth/tradeoff/w0.5/model.pt"
+    assert grid.scene_trained_nets(scene_settings(widths=[0.5, 0.125, 1])) == ["scene", "w0.5", "w0.125", "w1"]
+
+
+@pytest.mark.parametrize("width, folder", [(0.5, "w0.5"), ("0.5", "w0.5"), ("0.50", "w0.5"), (1, "w1"),
+                                           ("1.0", "w1"), (0.125, "w0.125"), (1e-5, "w1e-05")])
+def test_a_width_folder_is_the_same_from_the_config_and_from_a_wildcard(width, folder):
+    assert grid.width_folder(width) == folder
+
+
+def test_the_argument_list_of_a_small_grid():
+    """Budget 1 (re-simulated, a smaller network, a matched one) and the scene's own 2; one high-res run."""
+    words = grid.stage_arguments(SCENE, scene_settings(), SEQUENCES)
+    assert words == [
+        "--point", "1", "results/cloth/tradeoff/s1/sequences/train_000/sim_low.h5",
+        "results/cloth/tradeoff/s1/sequences/held_out_000/sim_low.h5",
+        "--eval", "1", "results/cloth/tradeoff/s1/scene/eval.h5", "results/cloth/model.pt",
+        "--eval", "1", "results/cloth/tradeoff/s1/w0.5/eval.h5", "results/cloth/tradeoff/w0.5/model.pt",
+        "--matched", "1", "results/cloth/tradeoff/s1/matched/eval.h5", "results/cloth/tradeoff/s1/matched/model.pt",
+        "--point", "2", "results/cloth/sequences/train_000/sim_low.h5",
+        "results/cloth/sequences/held_out_000/sim_low.h5",
+        "--eval", "2", "results/cloth/tradeoff/s2/scene/eval.h5", "results/cloth/model.pt",
+        "--eval", "2", "results/cloth/tradeoff/s2/w0.5/eval.h5", "results/cloth/tradeoff/w0.5/model.pt",
+        "--high-res", "1", "5", "substep", "results/cloth/tradeoff/h1x5_substep/sequences/train_000/sim_high.h5",
+        "results/cloth/tradeoff/h1x5_substep/sequences/held_out_000/sim_high.h5"]
+
+
+@pytest.mark.parametrize("shard", [1, 2])
+def test_the_stage_inputs_are_the_files_of_its_arguments_each_once(shard):
+    settings = scene_settings(shard=shard, substeps=[1, 4], matched=[1, 2, 4], widths=[0.5, 0.125],
+                              high_res_budgets=[[1, 5], [2, 10]], harmonic_every=["iteration"])
+    words = grid.stage_arguments(SCENE, settings, SEQUENCES)
+    inputs = grid.stage_inputs(SCENE, settings, SEQUENCES)
+    assert len(inputs) == len(set(inputs))
+    assert set(inputs) == {word for word in words if word.startswith("results/")}
+
+
+def test_a_sharded_scene_times_each_budget_and_high_res_run_by_its_first_sequence_alone():
+    settings = scene_settings(shard=2, harmonic_every=["iteration"])
+    runs = [(1, 5, "substep"), (2, 10, "iteration")]
+    assert grid.high_res_runs(settings) == runs
+    assert grid.timed_runs(SCENE, settings, SEQUENCES, 2) == ["results/cloth/tradeoff/s2/timing/sim_low.h5"]
+    assert grid.timed_runs(SCENE, settings, SEQUENCES, 1) == ["results/cloth/tradeoff/s1/timing/sim_low.h5"]
+    timings = grid.high_res_timings(SCENE, settings)
+    assert list(timings) == [(2, 10, "substep"), *runs]          # the reference's first
+    assert timings[(2, 10, "substep")] == "results/cloth/tradeoff/h2x10_substep/timing/sim_high.h5"
+    words = grid.stage_arguments(SCENE, settings, SEQUENCES)
+    assert [words[i + 3] for i, word in enumerate(words) if word == "--point"] == ["--eval", "--eval"]   # one each
+    timing_words = words[words.index("--sim-high-timing"):]
+    assert timing_words == [
+        "--sim-high-timing", "results/cloth/tradeoff/h2x10_substep/timing/sim_high.h5",
+        "--high-res-timing", "1", "5", "substep", "results/cloth/tradeoff/h1x5_substep/timing/sim_high.h5",
+        "--high-res-timing", "2", "10", "iteration", "results/cloth/tradeoff/h2x10_iteration/timing/sim_high.h5"]
+    assert grid.high_res_timings(SCENE, scene_settings(shard=1)) == {}
+
+
+def test_a_high_res_file_from_wildcards_is_the_one_from_the_config():
+    assert (grid.high_res_file(SCENE, ("1", "5", "substep"), "held_out_000")
+            == grid.high_res_files(SCENE, SEQUENCES, (1, 5, "substep"))[1]
+            == "results/cloth/tradeoff/h1x5_substep/sequences/held_out_000/sim_high.h5")
+
+
+def test_each_overlay_changes_only_its_keys_and_leaves_out_what_its_file_never_holds():
+    settings = scene_settings()
+    before = copy.deepcopy(settings)
+    workflow_only = {"sequences", "shard", "study", "applications", "tradeoff"}
+    learning_only = {"operators", "network", "training", "evaluation"}
+    scene_file = {key: value for key, value in settings.items() if key not in workflow_only}
+    simulation_file = {key: value for key, value in scene_file.items() if key not in learning_only}
+
+    point = grid.point_settings(settings, "1")
+    assert point == {**scene_file, "solver": {**settings["solver"], "substeps": 1}}
+    assert grid.point_simulation(settings, "1") == {**simulation_file, "solver": {**settings["solver"], "substeps": 1}}
+    assert grid.network_settings(settings, "0.125") == {**scene_file, "network": {"conv": "RC9", "width": 0.125},
+                                                        "training": {"epochs": 3, "batch_size": 4}}
+    assert grid.high_res_simulation(settings, ("4", "20", "iteration")) == {
+        **simulation_file, "solver": {"substeps": 4, "iterations": 20, "relaxation": 1.0},
+        "high_res": {"harmonic_every": "iteration"}}
+    assert settings == before                                     # the scene's settings are not touched

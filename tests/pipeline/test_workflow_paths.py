@@ -1,0 +1,90 @@
+"""pipeline.workflow_paths: what a scene's targets stand for, its sequences' files, the BVH check, the batch rules'
+names, the wildcard patterns and the applications' paths, from hand-made settings (the workflow's plan of them:
+test_workflow.py, test_workflow_applications.py)."""
+import re
+
+import pytest
+
+from pipeline import workflow_paths
+from pipeline.core.errors import PipelineError
+
+SEQUENCES = ["train_000", "train_001", "held_out_000"]
+
+
+def test_one_of_matches_each_name_exactly_and_nothing_else():
+    pattern = workflow_paths.one_of(["patch", "my.scene", "a+b"])
+    for name in ("patch", "my.scene", "a+b"):
+        assert re.fullmatch(pattern, name)
+    for name in ("myxscene", "aab", "patch2", "", "patch|my"):
+        assert not re.fullmatch(pattern, name), name
+    nothing = workflow_paths.one_of([])
+    assert not any(re.fullmatch(nothing, name) for name in ("", "patch", "(?!)"))
+
+
+@pytest.mark.parametrize("scene, name", [("pants", "simulate_low_batch_pants_003"),
+                                         ("my-scene.v2", "simulate_low_batch_my_scene_v2_003")])
+def test_a_batch_rule_name_is_an_identifier_per_scene_and_shard(scene, name):
+    assert workflow_paths.batch_rule_name("simulate_low", scene, 3) == name and name.isidentifier()
+
+
+def test_a_scenes_target_is_its_sequences_runs_then_its_products():
+    products = workflow_paths.scene_products("cloth", SEQUENCES)
+    assert products[:6] == [f"results/cloth/sequences/{seq}/{name}" for seq in SEQUENCES
+                            for name in ("sim_low.h5", "sim_high.h5")]
+    assert products[6:] == [f"results/cloth/{name}" for name in ("operators.h5", "dataset.h5", "model.pt",
+                                                                 "train.h5", "eval.h5", "report.md", "report.html",
+                                                                 "renders", "videos", "export")]
+    assert workflow_paths.sequence_files("cloth", SEQUENCES, "scene.h5") == [
+        "results/cloth/sequences/train_000/scene.h5", "results/cloth/sequences/train_001/scene.h5",
+        "results/cloth/sequences/held_out_000/scene.h5"]
+
+
+def garment_settings(clips, test_clips):
+    return {"mesh": {"generator": "garment"}, "dataset": {"split": "held_out"}, "sequences": 1,
+            "drivers": {"mannequin": {"clips": clips, "test_clips": test_clips}}}
+
+
+def test_every_bvh_file_a_scene_plays_must_exist_and_a_missing_one_is_named(tmp_path):
+    walk, jump = tmp_path / "walk.bvh", tmp_path / "jump.bvh"
+    walk.write_text("HIERARCHY")
+    settings = garment_settings(["dance", {"bvh": str(jump)}], [{"bvh": str(walk), "start": 0.5}])
+    with pytest.raises(PipelineError, match=f"{re.escape(str(jump))}: BVH file of scene 'cloth' does not exist"):
+        workflow_paths.check_bvh_files("cloth", settings, ["train_000", "held_out_000"])
+    jump.write_text("HIERARCHY")
+    workflow_paths.check_bvh_files("cloth", settings, ["train_000", "held_out_000"])
+    grid = {"mesh": {"generator": "grid"}, "drivers": {}}          # a grid scene plays no clip
+    workflow_paths.check_bvh_files("patch", grid, ["train_000"])
+
+
+def application_scene(generator="garment", pose_operators=None):
+    pose = {"network": {"arch": "U8 U3"}, **({"operators": pose_operators} if pose_operators else {})}
+    return {"mesh": {"generator": generator}, "operators": {"levels": 6, "conv": ["RC9"]},
+            "network": {"arch": "D8 D8"}, "sequences": 2, "shard": 1, "study": {}, "tradeoff": {},
+            "applications": {"pose": pose, "pca": {"components": [16, 4]}}}
+
+
+def test_an_application_reads_the_scenes_operators_unless_its_own_settings_differ():
+    assert workflow_paths.application_of("pca/k16") == "pca" and workflow_paths.application_of("pose") == "pose"
+    assert workflow_paths.application_operators("cloth", application_scene(), "pose") == "results/cloth/operators.h5"
+    assert workflow_paths.application_operators("cloth", application_scene(), "pca") == "results/cloth/operators.h5"
+    deeper = application_scene(pose_operators={"levels": 8})
+    assert workflow_paths.application_operators("cloth", deeper, "pose") == "results/cloth/pose/operators.h5"
+    assert workflow_paths.application_operators("cloth", deeper, "pca") == "results/cloth/operators.h5"
+
+
+def test_the_pca_target_is_a_folder_per_component_count_then_its_table():
+    settings = application_scene()
+    assert workflow_paths.pca_model_dirs(settings) == ["pca/k16", "pca/k4"]
+    assert workflow_paths.pca_summary_arguments("cloth", settings) == [
+        "--model", "16", "results/cloth/pca/k16/eval.h5", "--model", "4", "results/cloth/pca/k4/eval.h5"]
+    products = workflow_paths.application_products("cloth", settings, "pca")
+    assert products[-1] == "results/cloth/pca/report.md" and len(products) == 2 * 9 + 1
+    assert products[:2] == ["results/cloth/pca/k16/dataset.h5", "results/cloth/pca/k16/model.pt"]
+    assert workflow_paths.application_products("cloth", settings, "pose")[0] == "results/cloth/pose/dataset.h5"
+
+
+def test_a_scene_without_a_mannequin_has_no_pose_target_but_a_pca_one():
+    grid = application_scene(generator="grid")
+    with pytest.raises(PipelineError, match="results/patch/pose/: scene 'patch' has no mannequin"):
+        workflow_paths.application_products("patch", grid, "pose")
+    assert workflow_paths.application_products("patch", grid, "pca")[-1] == "results/patch/pca/report.md"
