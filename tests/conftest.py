@@ -1,5 +1,9 @@
-"""The tiny pants of test_workflow.py built once per session, in one Snakemake run, for every test that builds on
-them: `results/pants/` (the garment scene's own test reads this run) and the targets the selected tests name
+"""What the tests of every folder share. pytest's default ("prepend") imports put this folder on sys.path when
+they load this file, as they put each test folder there for its own modules: the tests import the helper modules
+here (workflow_runs.py, stage_inputs.py) by bare name, as they import their own folder's (tests/hostile/hostile.py).
+
+The tiny pants (workflow_runs.tiny_pants) built once per session, in one Snakemake run, for every test that builds
+on them: `results/pants/` (the garment scene's own test reads this run) and the targets the selected tests name
 with `@pytest.mark.tiny_pants_target(TARGET, **blocks)`, each with its block of the scene's config (`study`,
 `tradeoff`: workflow-only settings, so they change none of the scene's jobs). One run lets the study's and the
 trade-off's jobs fill the cores while the scene's chain of jobs waits on its last ones."""
@@ -12,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from test_workflow import build, tiny_pants
+from workflow_runs import build, tiny_pants
 
 SCENE_TARGET = "results/pants/"
 # The longest chain of jobs, when the trade-off is asked for (its re-simulation, dataset, matched training and

@@ -30,6 +30,7 @@ from pipeline.core.h5 import atomic_h5, write_csr
 from pipeline.artifacts.model import load_model, save_model
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.subdiv import read_subdivision
+from stage_inputs import grid
 
 SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
 NETWORK = NetworkSpec("D8 D16 D D16", "RC7", "max", in_channels=SPEC.channels)
@@ -38,15 +39,6 @@ TRAINING = {"epochs": 1, "batch_size": 1, "lr": 1e-3, "seed": 0, "device": "cpu"
 FRAME_TIME = 0.05
 REPO = Path(__file__).resolve().parents[2]
 PROJECT_PACKAGES = ("geometry", "scenes", "sim", "meshops", "model", "viz", "pipeline", "deploy")
-
-
-def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """An n x n square in the xy plane, CCW faces seen from +z."""
-    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    vertices = np.stack([c.ravel() / (n - 1) - 0.5, 1.0 - r.ravel() / (n - 1), np.zeros(n * n)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, d, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
 
 
 def _write_model(folder: Path, spec: FeatureSpec, network: NetworkSpec, name: str) -> Path:
@@ -63,7 +55,7 @@ def _write_model(folder: Path, spec: FeatureSpec, network: NetworkSpec, name: st
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("deploy")
-    low, low_faces = _grid(4)
+    low, low_faces = grid(4)
     subdivision, faces = loop_subdivide(low, low_faces, 2)
     with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
         write_csr(out, "S", subdivision)
@@ -266,7 +258,7 @@ def test_export_stage_errors(work, tmp_path, capsys):
 
 
 def test_coarse_faces_undo_the_subdivision():
-    low, low_faces = _grid(3)
+    low, low_faces = grid(3)
     subdivision, faces = loop_subdivide(low, low_faces, 2)
     assert np.array_equal(coarse_faces(subdivision, faces, subdivision @ low), low_faces)
     other = subdivision.copy()

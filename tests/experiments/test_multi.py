@@ -16,8 +16,9 @@ from pipeline import dataset, evaluate, operators, train
 from pipeline.artifacts.evaluation import read_errors
 from experiments.multi.table import read_multi_table
 from pipeline.core.config import load_config, resolve_scene, write_settings
-from test_learning_stages import REPO, stage, write_simulation
+from stage_inputs import stage, write_waving_sheet
 
+REPO = Path(__file__).resolve().parents[2]
 GARMENTS = {"a": 5, "b": 4}       # grid resolution of each garment's low-res sheet
 
 
@@ -41,7 +42,7 @@ def work(tmp_path_factory) -> Path:
     for name, n in GARMENTS.items():
         folder = root / name
         folder.mkdir()
-        write_simulation(folder, n=n)
+        write_waving_sheet(folder, n=n)
         _settings(folder)
         stage(operators.main, folder / "subdiv.h5", folder / "operators.h5", "--settings", folder / "settings.json",
               "--quiet")

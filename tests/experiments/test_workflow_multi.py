@@ -1,4 +1,4 @@
-"""`results/multi/` end to end on tiny pants, skirt and tshirt (test_workflow.py's tiny pants, one training
+"""`results/multi/` end to end on tiny pants, skirt and tshirt (workflow_runs.py's tiny pants, one training
 sequence each, a small network): one network trained on the three garments' own datasets and operators, its view
 per garment evaluated by the evaluate stage, the table and report against each scene's own network; the plan of
 the default config (jobs, logs, resources, shells of paths only; not part of `results/<scene>/`), a rerun that
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from test_workflow import build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
+from workflow_runs import build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from pipeline.artifacts.evaluation import read_errors, read_parameter_count
 from experiments.multi.table import read_multi_table

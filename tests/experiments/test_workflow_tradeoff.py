@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
-from test_workflow import planned_counts, planned_jobs, snakemake, tail, tiny_pants
+from workflow_runs import planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, read_tradeoff
 
@@ -35,7 +35,7 @@ def why(run):
     return tail(run) + ("" if start < 0 else "\n" + run.stderr[start:start + 3000])
 
 
-# The tests that read the built grid: conftest.py's `tiny_pants_build` builds it with the scene (shard 2), in one
+# The tests that read the built grid: tests/conftest.py's `tiny_pants_build` builds it with the scene (shard 2), in one
 # run.
 built_grid = pytest.mark.tiny_pants_target("results/pants/tradeoff/", tradeoff=GRID)
 

@@ -11,18 +11,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from geometry.loop_subdivision import loop_subdivide
 from pipeline import scene
 from pipeline.core import cli
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, write_csr
 from pipeline.core.config import load_config, resolve_scene, shared_settings, write_settings
+from stage_inputs import write_waving_sheet
 
 REPO = Path(__file__).resolve().parents[2]
-N_FRAMES = 8
-# The solver settings a run records (pipeline.simulate): the dataset reads its frame time and gravity there.
-SIM_CONFIG = {"solver": {"dt": 0.1, "gravity": [0.0, -9.81, 0.0]}}
 ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
 
 
@@ -67,15 +61,6 @@ def assert_refused(run: Run, *words: str, folder: Path | None = None, before: se
         assert files_in(folder) == before, files_in(folder) ^ before
 
 
-def grid(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """An n x n square in the xy plane, CCW faces seen from +z."""
-    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    vertices = np.stack([c.ravel() / (n - 1) - 0.5, 1.0 - r.ravel() / (n - 1), np.zeros(n * n)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, d, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
-
-
 def patch_settings() -> dict:
     """What settings.json holds for the patch scene (a 2 x 2 sheet) on the CPU profile."""
     return shared_settings(resolve_scene(load_config(REPO / "workflow_config.yaml"), "patch", "cpu"))
@@ -93,24 +78,7 @@ def dataset_command(subdiv: Path, out: Path, folder: Path) -> list[Path | str]:
     return [subdiv, out, folder / "sequence", "--quiet"]
 
 
-def write_simulations(folder: Path, n: int = 5) -> None:
-    """subdiv.h5 of a sheet (one Loop subdivision level) and, in sequence/, sim_low.h5 and sim_high.h5 of it
-    waving, each marked as made from that sheet."""
-    vertices, faces = grid(n)
-    source_mesh = mesh_fingerprint(vertices, faces)
-    subdivision, high_faces = loop_subdivide(vertices, faces, 1)
-    t = np.arange(N_FRAMES)[:, None]
-    low = np.repeat(vertices[None], N_FRAMES, axis=0)
-    low[:, :, 2] = 0.1 * np.sin(3 * vertices[:, 0] + 0.5 * t) * (1 - vertices[:, 1])
-    smooth = np.stack([subdivision @ x for x in low])
-    high = smooth + 0.01 * np.sin(12 * smooth[:, :, 0] + 0.3 * t)[..., None] * np.array([0.0, 0.0, 1.0])
-    for name, positions, f in (("sim_low", low, faces), ("sim_high", high, high_faces)):
-        with atomic_h5(folder / "sequence" / f"{name}.h5", "simulate", SIM_CONFIG) as out:
-            out["positions"] = positions.astype(np.float32)
-            out["faces"] = f.astype(np.int32)
-            out.attrs[SOURCE_MESH] = source_mesh
-    with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
-        out.attrs[SOURCE_MESH] = source_mesh
-        write_csr(out, "S", subdivision)
-        out["vertices"] = subdivision @ vertices
-        out["faces"] = high_faces.astype(np.int32)
+def write_simulations(folder: Path) -> None:
+    """subdiv.h5 of a 5 x 5 sheet (one Loop subdivision level) and, in sequence/, sim_low.h5 and sim_high.h5 of it
+    waving for 8 frames, each marked as made from that sheet."""
+    write_waving_sheet(folder, levels=1, n_frames=8, runs_folder="sequence", source_mesh=True)

@@ -102,8 +102,8 @@ def test_spoiled_operators_are_one_clear_error_for_train(valid, tmp_path, capsys
 def test_valid_subdivision_reads_back_exactly(valid):
     """The checks refuse only what is wrong: the valid file's S is the matrix that was written."""
     from geometry.loop_subdivision import loop_subdivide
-    from hostile import grid
     from pipeline.artifacts.subdiv import read_subdivision
+    from stage_inputs import grid
 
     vertices, faces = grid(5)
     S, high_faces = loop_subdivide(vertices, faces, 1)

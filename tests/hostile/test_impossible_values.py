@@ -14,12 +14,13 @@ import torch
 
 from geometry.loop_subdivision import loop_subdivide
 from geometry.shapes import torus
-from hostile import ARCH, assert_refused, files_in, grid, run_in_process, run_stage, write_patch_scene
+from hostile import ARCH, assert_refused, files_in, run_in_process, run_stage, write_patch_scene
 from pipeline import operators, subdivide, train
 from pipeline.core.cli import check_device
 from pipeline.core.errors import PipelineError
 from pipeline.subdivide import subdivision_cost
 from pipeline.core.torch_setup import configure_torch
+from stage_inputs import grid
 
 
 @pytest.fixture(scope="module")

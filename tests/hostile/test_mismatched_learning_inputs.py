@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from geometry.loop_subdivision import loop_subdivide
-from hostile import ARCH, assert_refused, files_in, grid, run_in_process
+from hostile import ARCH, assert_refused, files_in, run_in_process
 from pipeline import operators, train
 from pipeline.core import cli
 from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, write_csr
+from stage_inputs import grid
 
 
 def _train(dataset: Path, operators_h5: Path, out: Path, capsys):

@@ -21,50 +21,17 @@ import trimesh
 
 from experiments.tradeoff import stage as tradeoff
 from pipeline import dataset, evaluate, operators, train
-from pipeline.core import cli
 from pipeline.tasks import timing as tradeoff_timing
 from pipeline.artifacts.evaluation import read_errors
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.core.errors import PipelineError
 from experiments.tradeoff.stage import Network
-from pipeline.core.h5 import atomic_h5, config_of, read_csr, write_csr
+from pipeline.core.h5 import atomic_h5, config_of, read_csr
 from pipeline.core.config import load_config, resolve_scene, write_settings
-from geometry.loop_subdivision import loop_subdivide
+from stage_inputs import N_FRAMES, stage, write_waving_sheet
 
 REPO = Path(__file__).resolve().parents[2]
-N_FRAMES = 12
-# The solver settings a run records (pipeline.simulate): the dataset reads its frame time and gravity there.
-SIM_CONFIG = {"solver": {"dt": 0.1, "gravity": [0.0, -9.81, 0.0]}}
 ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
-
-
-def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """A hanging n x n square in the xy plane, CCW faces seen from +z."""
-    r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    vertices = np.stack([c.ravel() / (n - 1) - 0.5, 1.0 - r.ravel() / (n - 1), np.zeros(n * n)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, d, e = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-    return vertices, np.concatenate([np.stack([a, d, b], 1), np.stack([b, d, e], 1)])
-
-
-def write_simulation(folder: Path, n: int = 5, transform=lambda x, f: x) -> None:
-    """sim_low/sim_high/subdiv artifacts: a waving low-res sheet, and high-res wrinkles that depend on it.
-    `transform(positions, frame)` moves both runs rigidly (for the reference-frame test)."""
-    vertices, faces = _grid(n)
-    subdivision, high_faces = loop_subdivide(vertices, faces, 2)
-    t = np.arange(N_FRAMES)[:, None]
-    low = np.repeat(vertices[None], N_FRAMES, axis=0)
-    low[:, :, 2] = 0.1 * np.sin(3 * vertices[:, 0] + 0.5 * t) * (1 - vertices[:, 1])
-    smooth = np.stack([subdivision @ x for x in low])
-    high = smooth + 0.01 * np.sin(12 * smooth[:, :, 0] + 0.3 * t)[..., None] * np.array([0.0, 0.0, 1.0])
-    for name, positions, f in (("sim_low", low, faces), ("sim_high", high, high_faces)):
-        with atomic_h5(folder / f"{name}.h5", "simulate", SIM_CONFIG) as out:
-            out["positions"] = np.stack([transform(p, i) for i, p in enumerate(positions)]).astype(np.float32)
-            out["faces"] = f.astype(np.int32)
-    with atomic_h5(folder / "subdiv.h5", "subdivide") as out:
-        write_csr(out, "S", subdivision)
-        out["vertices"] = subdivision @ vertices
-        out["faces"] = high_faces.astype(np.int32)
 
 
 def write_sequence_scene(folder: Path, **datasets) -> None:
@@ -78,14 +45,10 @@ def write_sequence_scene(folder: Path, **datasets) -> None:
             f[name] = data
 
 
-def stage(main, *args) -> None:
-    cli.run(main, [str(a) for a in args])
-
-
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("learning")
-    write_simulation(folder)
+    write_waving_sheet(folder)
     stage(operators.main, folder / "subdiv.h5", folder / "operators.h5", "--conv", "RC7", "--levels", "4", "--quiet")
     stage(dataset.main, folder / "subdiv.h5", folder / "dataset.h5", folder, "--quiet")
     return folder
@@ -121,7 +84,7 @@ def test_torso_frame_removes_a_rigid_motion(work, tmp_path):
     angles = np.linspace(0, 1.0, N_FRAMES)
     rotations = np.stack([[[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]] for a in angles])
     shifts = np.stack([np.array([0.3, -0.2, 1.0]) * a for a in angles])
-    write_simulation(tmp_path, transform=lambda x, f: x @ rotations[f].T + shifts[f])
+    write_waving_sheet(tmp_path, transform=lambda x, f: x @ rotations[f].T + shifts[f])
     transforms = np.tile(np.eye(4), (N_FRAMES, 1, 1))
     transforms[:, :3, :3], transforms[:, :3, 3] = rotations, shifts
     write_sequence_scene(tmp_path, torso_transforms=transforms)
@@ -132,7 +95,7 @@ def test_torso_frame_removes_a_rigid_motion(work, tmp_path):
 
 
 def test_torso_frame_without_transforms_is_a_clear_error(work, tmp_path, capsys):
-    write_simulation(tmp_path)
+    write_waving_sheet(tmp_path)
     write_sequence_scene(tmp_path)
     with pytest.raises(SystemExit) as exit_info:
         stage(dataset.main, work / "subdiv.h5", tmp_path / "d.h5", tmp_path, "--frame", "torso")
@@ -341,7 +304,7 @@ def test_training_options_of_a_hand_made_model_file_are_shown_only_when_well_typ
 def test_model_on_other_operators_is_one_clear_error(trained, tmp_path, capsys):
     other = tmp_path / "other"
     other.mkdir()
-    write_simulation(other, n=4)
+    write_waving_sheet(other, n=4)
     stage(operators.main, other / "subdiv.h5", other / "operators.h5", "--conv", "RC7", "--levels", "4", "--quiet")
     with pytest.raises(SystemExit) as exit_info:
         stage(evaluate.main, trained / "dataset.h5", other / "operators.h5", trained / "model.pt",

@@ -7,7 +7,6 @@ schema beside itself, and its jobs import the installed project (`pip install -e
 """
 import re
 import shlex
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,56 +14,14 @@ import h5py
 import numpy as np
 import pytest
 import yaml
+from workflow_runs import REPO, TINY_FRAMES, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
-REPO = Path(__file__).resolve().parents[2]
-SNAKEMAKE = Path(sys.executable).parent / "snakemake"
 CONFIG = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
 SETTINGS_RULES = {"settings", "simulation_settings"}                 # write JSON in Snakemake: no shell command
 STAGES = {*SETTINGS_RULES, "scene", "sequence", "subdivide", "simulate_low", "simulate_high", "operators", "dataset",
           "train", "evaluate"}
 PER_SEQUENCE = {"sequence", "simulate_low", "simulate_high"}          # one job per sequence of the scene
 ON_DEVICE = {"simulate_low", "simulate_high", "train", "evaluate"}   # the jobs that run on the scene's device
-
-
-def snakemake(workdir, *args):
-    return subprocess.run([str(SNAKEMAKE), "--cores", "2", "--snakefile", str(REPO / "Snakefile"),
-                           "--directory", str(workdir), *args], capture_output=True, text=True)
-
-
-# How the builds of the tiny scenes run (`build`), for time on CI's two cores; what they make is the same:
-# - the rules that take every core (`threads: workflow.cores`) take one: at these sizes they are single-threaded in
-#   practice (imports, renders, networks of a few thousand weights), so two run side by side;
-# - the `run:` rules (settings files, links) run in Snakemake's own process instead of a new Snakemake process
-#   each, which parses the Snakefile and config again (~3 s of CPU for a job of milliseconds).
-# The smoke test runs the default way.
-TINY_BUILD = ("--force-use-threads", "--set-threads", *(f"{rule}=1" for rule in (
-    "train", "evaluate", "study_train", "study_evaluate", "application_train", "application_evaluate",
-    "multi_train", "multi_evaluate", "tradeoff_train", "tradeoff_train_matched", "tradeoff_evaluate", "tradeoff")))
-
-
-def build(workdir, *args):
-    """`snakemake` for a build of the tiny scenes, run as TINY_BUILD says."""
-    return snakemake(workdir, *args, *TINY_BUILD)
-
-
-def tail(run):
-    """What a failed run said: Snakemake logs on stderr, a stage's own messages come through `tee` on stdout."""
-    return run.stdout[-2000:] + run.stderr[-3000:]
-
-
-def planned_jobs(run) -> dict[str, dict[str, str]]:
-    """The jobs of a dry run (`-n -p`): rule name -> its printed fields (log, benchmark, resources, shell...);
-    for a rule with several jobs (one per sequence), those of its last."""
-    jobs, current = {}, None
-    for line in run.stdout.splitlines():
-        if line.startswith("rule "):
-            current = jobs[line[len("rule "):].rstrip(":")] = {}
-        elif current is not None and line.startswith("Shell command: "):
-            current["shell"] = line[len("Shell command: "):]
-        elif current is not None and re.match(r"    \w+: ", line):
-            key, value = line.strip().split(": ", 1)
-            current[key] = value
-    return jobs
 
 
 @pytest.fixture(scope="module")
@@ -136,37 +93,13 @@ def test_bad_config_key_stops_the_workflow_with_its_name(workdir, tmp_path):
     assert "unknown key 'substepz' in scenes.patch.solver" in run.stdout + run.stderr
 
 
-TINY_FRAMES = 24
-
-
-def tiny_pants(tmp_path, name="tiny.yaml", sequences=2, shard=1, **mannequin) -> Path:
-    """A config file shrinking pants to seconds: `sequences` training sequences of TINY_FRAMES frames, simulated
-    `shard` at a time."""
-    config = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
-    config["profiles"]["cpu"]["scenes"]["pants"] = {
-        "frames": TINY_FRAMES, "sequences": sequences, "shard": shard, "mesh": {"max_edge": 0.25},
-        "drivers": {"mannequin": {"settle_frames": 3, "blend_frames": 5, **mannequin}},
-        "solver": {"substeps": 2, "iterations": 10}, "high_res": {"subdivision_levels": 1},
-        "training": {"epochs": 1},
-        "evaluation": {"render_frames": 2, "video_frames": 2, "export_frames": 2, "timing_frames": 2}}
-    path = tmp_path / name
-    path.write_text(yaml.safe_dump(config))
-    return path
-
-
-def planned_counts(run) -> dict[str, int]:
-    """Jobs per rule of a dry run, from its job-stats table."""
-    table = run.stdout.split("Job stats:")[1].split("\n\n")[0]
-    return {words[0]: int(words[1]) for words in map(str.split, table.splitlines()[3:]) if len(words) == 2}
-
-
 def test_tiny_garment_scene_gathers_its_sequences_and_more_sequences_reuse_the_made_ones(tiny_pants_build,
                                                                                           tmp_path):
     """pants on the moving mannequin, shrunk to seconds: two training sequences and the held-out walk, each
     simulated with body and self collision, gathered in the torso frame; renders with the body. The default
     `make run` is the same chain at full CPU-profile size (one job per sequence; here the two training
     sequences are one batch job, `shard: 2`). A third sequence then costs its own jobs and the learning stages,
-    nothing else. The build is conftest.py's `tiny_pants_build` (the first run in its folder), which the study
+    nothing else. The build is tests/conftest.py's `tiny_pants_build` (the first run in its folder), which the study
     and trade-off tests build on."""
     run, workdir = tiny_pants_build.run, tiny_pants_build.workdir
     assert run.returncode == 0, tail(run)
@@ -217,7 +150,7 @@ def test_a_high_res_batch_job_takes_a_thread_a_sequence_on_a_gpu(tmp_path, devic
 def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(tiny_pants_build):
     """`results/pants/study/` on the tiny pants: datasets of the first 1 and 2 training sequences (each with the
     held-out walk), both input variants trained on each for the same number of optimiser steps, one table. Built
-    by conftest.py's `tiny_pants_build` with the scene (the mark above: the target and its study block)."""
+    by tests/conftest.py's `tiny_pants_build` with the scene (the mark above: the target and its study block)."""
     run, workdir = tiny_pants_build.run, tiny_pants_build.workdir
     assert "results/pants/study/" in tiny_pants_build.targets
     assert run.returncode == 0, tail(run)

@@ -1,4 +1,4 @@
-"""`results/<scene>/pose/` and `results/<scene>/pca/` end to end on the tiny pants of test_workflow.py: each
+"""`results/<scene>/pose/` and `results/<scene>/pca/` end to end on the tiny pants of workflow_runs.py: each
 folder's artifacts, finite errors, each network below its predictor on the frames it trained on, the PCA table;
 a grid scene asked for pose says in one line that it has no pose input; neither target is part of
 `results/<scene>/`. A decoder small enough for seconds: the tiny mesh has 6 levels."""
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from test_workflow import build, planned_counts, snakemake, tail, tiny_pants
+from workflow_runs import build, planned_counts, snakemake, tail, tiny_pants
 
 DECODER = {"network": {"arch": "U32 U U32 U16 U3"}, "operators": {"levels": 5}, "training": {"epochs": 10},
            "evaluation": {"render_frames": 1, "video_frames": 1}}    # a still and two one-frame videos each
