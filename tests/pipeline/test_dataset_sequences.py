@@ -1,58 +1,24 @@
 """The dataset stage gathering a garment scene's sequences: frames in order with their sequence ids, the settle
 period kept once, the split (a random share of the training sequences' frames; every frame of the held-out ones),
 the torso frame per sequence, each frame's mannequin under scene.h5's names, and clear errors."""
-from pathlib import Path
-
 import h5py
 import numpy as np
 import pytest
-import yaml
 
-from geometry.loop_subdivision import loop_subdivide
 from geometry.rigid import apply_rigid_inverse
+from pants_sequences import FRAMES, SEQUENCES, SETTLE, write_pants_sequences
 from pipeline import dataset
 from pipeline.core import cli
 from pipeline.artifacts.dataset import load_dataset
-from pipeline.core.h5 import atomic_h5, write_csr
-from pipeline.artifacts.scene import read_body, read_torso_transforms, write_scene
-from pipeline.core.config import resolve_scene
-from scenes.registry import build_scene
-
-CONFIG = yaml.safe_load(open("workflow_config.yaml"))
-FRAMES, SETTLE = 24, 3
-SEQUENCES = ("train_000", "train_001", "held_out_000")
-
-
-def write_sequence(folder: Path, settings: dict, name: str, S) -> np.ndarray:
-    """A sequence folder: its real scene.h5 and made-up runs (the rest mesh waving, high-res wrinkles on S x_low)
-    that differ per sequence. Returns the low-res positions."""
-    scene = build_scene(settings, name)
-    write_scene(folder / "scene.h5", scene, settings)
-    rest, faces = scene.rest.vertices, scene.rest.faces
-    t = np.arange(scene.n_frames)[:, None, None] + 100 * SEQUENCES.index(name)
-    low = rest + 0.01 * np.sin(0.3 * t + rest[None, :, :1] * 5)
-    high = np.stack([S @ x for x in low]) + 0.002 * np.cos(0.2 * t)
-    high_faces = loop_subdivide(rest, faces, 1)[1]
-    for level, positions, f in (("low", low, faces), ("high", high, high_faces)):
-        with atomic_h5(folder / f"sim_{level}.h5", f"simulate_{level}", settings) as out:
-            out["positions"], out["faces"] = positions.astype(np.float32), f.astype(np.int32)
-    return low
+from pipeline.core.h5 import atomic_h5
+from pipeline.artifacts.scene import read_body, read_torso_transforms
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     """Two training sequences and a held-out one of a tiny pants scene, their subdivision, and the dataset."""
     root = tmp_path_factory.mktemp("sequences")
-    settings = resolve_scene(CONFIG, "pants", "cpu")
-    settings.update(frames=FRAMES)
-    settings["mesh"]["max_edge"] = 0.3
-    settings["drivers"]["mannequin"].update(settle_frames=SETTLE, blend_frames=4)
-    rest = build_scene(settings, "train_000").rest
-    S, high_faces = loop_subdivide(rest.vertices, rest.faces, 1)
-    with atomic_h5(root / "subdiv.h5", "subdivide") as out:
-        write_csr(out, "S", S)
-        out["vertices"], out["faces"] = S @ rest.vertices, high_faces.astype(np.int32)
-    low = {name: write_sequence(root / name, settings, name, S) for name in SEQUENCES}
+    S, low = write_pants_sequences(root)
     cli.run(dataset.main, [str(root / "subdiv.h5"), str(root / "dataset.h5"), *(str(root / n) for n in SEQUENCES),
                            "--frame", "torso", "--quiet"])
     return root, S, low

@@ -11,6 +11,7 @@ import pytest
 from geometry.loop_subdivision import loop_subdivide
 from geometry.rigid import apply_rigid_inverse
 from geometry.rotations import quat_conjugate, quat_multiply, quat_rotate
+from pants_sequences import CONFIG, FRAMES, SEQUENCES, write_pants_sequences
 from pipeline import dataset
 from pipeline.core import cli
 from pipeline.artifacts.dataset import load_dataset
@@ -19,7 +20,6 @@ from pipeline.artifacts.scene import read_body, read_skinning, read_torso_transf
 from pipeline.core.config import resolve_scene
 from scenes.kinematics import rest_transforms
 from scenes.registry import build_scene
-from test_dataset_sequences import CONFIG, FRAMES, SEQUENCES, SETTLE, write_sequence
 
 K = 5
 
@@ -29,17 +29,7 @@ def scene(tmp_path_factory):
     """Two training sequences and a held-out one of a tiny pants scene, their subdivision, and the pose and PCA
     datasets."""
     root = tmp_path_factory.mktemp("tasks")
-    settings = resolve_scene(CONFIG, "pants", "cpu")
-    settings.update(frames=FRAMES)
-    settings["mesh"]["max_edge"] = 0.3
-    settings["drivers"]["mannequin"].update(settle_frames=SETTLE, blend_frames=4)
-    rest = build_scene(settings, "train_000").rest
-    S, high_faces = loop_subdivide(rest.vertices, rest.faces, 1)
-    with atomic_h5(root / "subdiv.h5", "subdivide") as out:
-        write_csr(out, "S", S)
-        out["vertices"], out["faces"] = S @ rest.vertices, high_faces.astype(np.int32)
-    for name in SEQUENCES:
-        write_sequence(root / name, settings, name, S)
+    S, _ = write_pants_sequences(root)
     folders = [str(root / n) for n in SEQUENCES]
     cli.run(dataset.main, [str(root / "subdiv.h5"), str(root / "pose.h5"), *folders, "--frame", "torso",
                            "--task", "pose", "--quiet"])
