@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from geometry.shapes import grid_patch
-from test_viz_render import box, cloth_mask, column_groups, tube
+from render_checks import box, cloth_mask, column_groups, tube
 from viz.comparison import Comparison, FrameMeshes, comparison_image, fit_comparison
 from viz.render import fit_view, shading, value_colors
 
