@@ -31,15 +31,15 @@ import warp as wp
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
 from newton_peer import newton_hanging, newton_missing, ours_hanging  # bench/ is the script's own folder
-from pipeline.simulate import BasisProducts, harmonic_targets_of
+from pipeline.solvers.harmonic_targets import BasisProducts, harmonic_targets_of
 from scenes.capsules import capsules_world
 from scenes.garments import make_garment
 from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
-from sim.xpbd.body import SubdividedOutsideBody
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd.clearance import SubdividedOutsideBody
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
@@ -74,7 +74,7 @@ def harmonics(vertices, faces, pins):
 
 def harmonic_targets(constraint, S, x_low, capsules, radii, settings, device):
     """B^T M S x_low (F, B, K, 3) of low-res positions (F, B, V_low, 3), S x_low moved clear of each world's
-    capsules (B, F', P, 2, 3) first: the simulate stage's own path (pipeline.simulate.simulate_high)."""
+    capsules (B, F', P, 2, 3) first: the simulate stage's own path (pipeline.solvers.xpbd.prepare_high)."""
     products = BasisProducts(constraint.mass_basis.T, S)
     clear = SubdividedOutsideBody(S, radii, settings.collision_thickness, device)
     f = x_low.shape[0]
@@ -84,8 +84,8 @@ def harmonic_targets(constraint, S, x_low, capsules, radii, settings, device):
 
 def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n_frames):
     """(F, B, V_low, 3) positions of the worlds' low-res runs, frame 0 the rest state."""
-    solver = ClothSolver(*low, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
-                         worlds=worlds)
+    solver = ClothSolver(ClothModel(*low, settings, pins, capsule_radii=radii), device, worlds=worlds,
+                         initial_inputs=FrameInputs(capsules=capsules[:worlds, 0]))
     frames = [solver.state.read_world_positions().astype(np.float64)]
     for f in range(1, n_frames):
         solver.step(solver.state, frame_inputs(f, worlds, targets, capsules, None))
@@ -95,12 +95,12 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
 
 def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start,
                 lanes=None):
-    extra = dict(sweep_lanes=lanes)
-    if constraint is not None:
-        extra.update(harmonic=constraint, harmonic_target=goals[0], initial_positions=start)
-    if settings.body_collision:
-        extra.update(capsules=capsules[:worlds, 0], capsule_radii=radii)
-    return ClothSolver(vertices, faces, settings, device, pins, worlds=worlds, **extra)
+    """The solver of a batch of `worlds` (with the harmonic constraint: starting at `start`, held to `goals`)."""
+    body = settings.body_collision
+    model = ClothModel(vertices, faces, settings, pins, harmonic=constraint, capsule_radii=radii if body else None)
+    inputs = FrameInputs(harmonic_target=None if constraint is None else goals[0],
+                         capsules=capsules[:worlds, 0] if body else None)
+    return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes)
 
 
 def frame_inputs(f, worlds, targets, capsules, goals, body=True):
@@ -111,7 +111,8 @@ def frame_inputs(f, worlds, targets, capsules, goals, body=True):
 def time_batch(solver, harmonic_target, targets, capsules, frames, warmup) -> float:
     times = []
     for f in range(1, warmup + frames + 1):
-        inputs = frame_inputs(f, solver.worlds, targets, capsules, harmonic_target, solver.settings.body_collision)
+        inputs = frame_inputs(f, solver.worlds, targets, capsules, harmonic_target,
+                              solver.model.settings.body_collision)
         start = time.perf_counter()
         solver.step(solver.state, inputs)
         solver.state.positions.numpy()  # what a stage stores each frame; also synchronises the device

@@ -28,7 +28,7 @@ from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
@@ -48,8 +48,8 @@ def time_run(vertices, faces, settings, device, pins, frames, warmup, lanes, har
     if harmonic is not None:
         constraint, basis, mass = harmonic
         target = (mass[:, None] * basis).T @ vertices
-    solver = ClothSolver(vertices, faces, settings, device, pins, harmonic=harmonic and harmonic[0],
-                         harmonic_target=target, sweep_lanes=lanes)
+    model = ClothModel(vertices, faces, settings, pins, harmonic=harmonic and harmonic[0])
+    solver = ClothSolver(model, device, initial_inputs=FrameInputs(harmonic_target=target), sweep_lanes=lanes)
     sway = np.array([0.05, 0.0, 0.03])
     times = []
     for f in range(warmup + frames):
@@ -79,8 +79,9 @@ def garment_inputs(kind: str, n_frames: int):
 
 def time_garment(vertices, faces, settings, device, pins, targets, capsules, radii, frames, warmup, lanes):
     body = settings.body_collision
-    solver = ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[0] if body else None,
-                         capsule_radii=radii if body else None, sweep_lanes=lanes)
+    model = ClothModel(vertices, faces, settings, pins, capsule_radii=radii if body else None)
+    solver = ClothSolver(model, device, initial_inputs=FrameInputs(capsules=capsules[0] if body else None),
+                         sweep_lanes=lanes)
     times = []
     for f in range(1, warmup + frames + 1):
         start = time.perf_counter()

@@ -12,15 +12,15 @@ import numpy as np
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
 from scenes.grid import first_row_pins, grid_cloth
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 
 CHECKPOINTS = (1, 10, 30, 60)
 
 
 def run(vertices, faces, pins, device, harmonic, frames):
     target = None if harmonic is None else harmonic[1]
-    solver = ClothSolver(vertices, faces, SolverSettings(), device, pins,
-                         harmonic=None if harmonic is None else harmonic[0], harmonic_target=target)
+    model = ClothModel(vertices, faces, SolverSettings(), pins, harmonic=None if harmonic is None else harmonic[0])
+    solver = ClothSolver(model, device, initial_inputs=FrameInputs(harmonic_target=target))
     out = {}
     for f in range(1, frames + 1):
         pin_targets = vertices[pins] + np.array([0.1, 0.0, 0.05]) * math.sin(f / 8)

@@ -21,15 +21,15 @@ import numpy as np
 
 from batched_sim import harmonic_targets, harmonics, pants
 from geometry.loop_subdivision import loop_subdivide
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
 
 
 def run(vertices, faces, settings, device, pins, targets, capsules, radii, worlds, frames, harmonic=None,
         goals=None, initial=None):
     """(F, B, V, 3) positions (frame 0 the initial state) and the ms of each frame after frame 0."""
-    extra = {} if harmonic is None else dict(harmonic=harmonic, harmonic_target=goals[0])
-    solver = ClothSolver(vertices, faces, settings, device, pins, capsules=capsules[:worlds, 0], capsule_radii=radii,
-                         worlds=worlds, initial_positions=initial, **extra)
+    model = ClothModel(vertices, faces, settings, pins, harmonic=harmonic, capsule_radii=radii)
+    start = FrameInputs(harmonic_target=None if harmonic is None else goals[0], capsules=capsules[:worlds, 0])
+    solver = ClothSolver(model, device, worlds=worlds, initial_inputs=start, initial_positions=initial)
     positions, times = [solver.state.read_world_positions()], []
     for f in range(1, frames):
         inputs = FrameInputs(pin_targets=targets[:worlds, f], capsules=capsules[:worlds, f],

@@ -29,7 +29,7 @@ import warp as wp
 
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
 
 NEWTON_VERSION = "1.8.0"
 BENDING_KE = 1.0e-2   # Newton's dihedral stiffness: soft, as our bending links are (its cost does not depend on it)
@@ -54,7 +54,7 @@ def ours_hanging(vertices: np.ndarray, faces: np.ndarray, pins: np.ndarray, worl
                  device: str, frames: int, warmup: int) -> HangingRun:
     """This project's solver on B hanging copies (pins held still, no contact)."""
     hanging = dataclasses.replace(settings, body_collision=False, self_collision=False)
-    solver = ClothSolver(vertices, faces, hanging, device, pins, worlds=worlds)
+    solver = ClothSolver(ClothModel(vertices, faces, hanging, pins), device, worlds=worlds)
     held = FrameInputs(pin_targets=np.broadcast_to(vertices[pins], (worlds, len(pins), 3)).copy())
 
     def frame() -> None:

@@ -1,5 +1,6 @@
-"""sim_low.h5 and sim_high.h5, written by the `simulate` stage: one cloth run, frame by frame
-(docs/artifacts.md, section "sim_low.h5 / sim_high.h5")."""
+"""sim_low.h5 and sim_high.h5, written by the `simulate` stage: one solver run, frame by frame, of any solver kind
+(pipeline/solvers/): the positions of its output mesh, the mesh, timing, and per-frame measures only some solvers
+make, such as the cloth's harmonic residual (docs/artifacts.md, section "sim_low.h5 / sim_high.h5")."""
 from __future__ import annotations
 
 import contextlib
@@ -15,17 +16,35 @@ from pipeline.core.errors import PipelineError
 
 
 @dataclasses.dataclass(frozen=True)
-class SimulationRun:
-    """What one run of the solver produced."""
+class RunMeasure:
+    """A per-frame quantity a solver kind reports beside a run's positions: dataset `name` with its `meaning`
+    attr, and the file attrs that go with it. Made by the functions below, one per measure, so that each dataset
+    name is written here."""
 
-    positions: np.ndarray          # (F, V, 3) float32, frame 0 = the initial state
+    name: str
+    values: np.ndarray             # (F,) float64
+    meaning: str
+    attrs: Mapping[str, Any]
+
+
+def harmonic_residual(values: np.ndarray, n_harmonics: int) -> RunMeasure:
+    """The cloth's high-res run: how far each frame is from its harmonic constraint, with the number of modes."""
+    return RunMeasure("harmonic_residual", np.asarray(values, dtype=np.float64),
+                      "|B^T M x_high - t| / |B^T M x_high| per frame, t = B^T M S x_low (S x_low moved clear of the "
+                      "body where it collides)", {"n_harmonics": n_harmonics})
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulationRun:
+    """What one run of a solver produced."""
+
+    positions: np.ndarray          # (F, V, 3) float32 of the output mesh, frame 0 = the initial state
     faces: np.ndarray              # (T, 3)
     rest_vertices: np.ndarray      # (V, 3) float64
-    pin_ids: np.ndarray            # (P,) vertices that follow their pin targets
+    pin_ids: np.ndarray            # (P,) vertices the solver moves kinematically (the cloth's pins)
     solve_ms: np.ndarray           # (F,) wall time of each frame's solve (frame 0: 0)
-    n_constraints: int
-    harmonic_residual: np.ndarray | None = None   # (F,) high-res run only
-    n_harmonics: int | None = None                # high-res run only
+    n_constraints: int             # the solver's constraint count (the cloth's distance constraints)
+    measures: tuple[RunMeasure, ...] = ()         # the solver kind's per-frame measures of this run
     batch_worlds: int = 1                         # sequences stepped together (solve_ms is the whole batch's)
     setup_seconds: float = 0.0                    # the batch's work before its first step (reading, targets,
                                                   # the solver's construction)
@@ -66,12 +85,10 @@ class SimulationWriter:
                                           "sequences stepped together (frame 0: initial state, 0)")
         f.attrs.update(n_constraints=run.n_constraints, level=level, device=self._device, frames=len(run.positions),
                        batch=run.batch_worlds, setup_seconds=run.setup_seconds)
-        if run.harmonic_residual is not None:
-            f.create_dataset("harmonic_residual", data=run.harmonic_residual.astype(np.float64))
-            f["harmonic_residual"].attrs["meaning"] = ("|B^T M x_high - t| / |B^T M x_high| per frame, "
-                                                       "t = B^T M S x_low (S x_low moved clear of the body where "
-                                                       "it collides)")
-            f.attrs["n_harmonics"] = run.n_harmonics
+        for measure in run.measures:
+            f.create_dataset(measure.name, data=measure.values.astype(np.float64))
+            f[measure.name].attrs["meaning"] = measure.meaning
+            f.attrs.update(measure.attrs)
         self.finished = True
 
 

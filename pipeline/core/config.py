@@ -155,11 +155,13 @@ def resolve_scene(config: dict, scene: str, profile: str | None = None, device: 
 def _require_complete(settings: dict, schema: dict, where: str | None, source: str, hint: str = "",
                       optional: Collection[str] = ()) -> None:
     """Every key the schema knows must be set, except those `x-required-when` reserves for other cases (a grid
-    scene needs no garment, a garment scene no rod motion) and, at this level, `optional`; a key of another case
+    scene needs no garment, a garment scene no rod motion), those the schema's `x-optional` lists (a key whose
+    absence has a meaning: `solver.kind` absent is xpbd) and, at this level, `optional`; a key of another case
     is an error, not ignored. `where` names this level in messages (None: the top level); `hint` ends the
     message of a missing key."""
     conditional = schema.get("x-required-when")
-    needed, foreign = set(schema.get("properties", {})) - set(optional), set()
+    needed = set(schema.get("properties", {})) - set(optional) - set(schema.get("x-optional", ()))
+    foreign: set[str] = set()
     if conditional:
         cases = conditional["cases"]
         case = settings.get(conditional["key"])

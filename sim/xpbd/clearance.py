@@ -1,11 +1,69 @@
-"""Shapes held clear of the mannequin's capsules outside the solver's step."""
+"""Shapes held clear of the mannequin's capsules outside the solver's step (host code and its kernels): the high-res
+run's harmonic targets are taken from S x_low moved clear of the body, the way the solver's substeps end
+(`sim.xpbd.body_contact.keep_outside`, capsules taking turns FINAL_PASSES times)."""
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 import warp as wp
 
-from sim.xpbd import collision
+# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
+wp.set_module_options({"fast_math": True})
+
+from sim.xpbd.body_contact import FINAL_PASSES, keep_outside
+
+
+@wp.func
+def outside_frame_capsules(x: wp.vec3, f: int, ends: wp.array3d(dtype=wp.vec3), radii: wp.array2d(dtype=float),
+                           thickness: float) -> wp.vec3:
+    """x to `thickness` outside frame f's capsules (ends (F, P, 2), radii (P, 2)): the nearest-point projection of
+    finish_substep, capsules taking turns FINAL_PASSES times (the crease where two overlap)."""
+    for _ in range(FINAL_PASSES):
+        total = float(0.0)
+        for c in range(ends.shape[1]):
+            a = ends[f, c, 0]
+            b = ends[f, c, 1]
+            ra = radii[c, 0]
+            rb = radii[c, 1]
+            if wp.length(x - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + thickness:
+                continue
+            x, moved = keep_outside(x, x, a, b, ra, rb, thickness)
+            total = total + moved
+        if total == 0.0:
+            break
+    return x
+
+
+@wp.kernel
+def move_outside_capsules(points: wp.array2d(dtype=wp.vec3), ends: wp.array3d(dtype=wp.vec3),
+                          radii: wp.array2d(dtype=float), thickness: float):
+    """Points (F, N) moved outside frame f's capsules in place (outside_frame_capsules)."""
+    f, i = wp.tid()
+    points[f, i] = outside_frame_capsules(points[f, i], f, ends, radii, thickness)
+
+
+@wp.kernel
+def subdivided_outside_capsules(row_start: wp.array(dtype=int), columns: wp.array(dtype=int),
+                                weights: wp.array(dtype=float), coarse: wp.array2d(dtype=wp.vec3),
+                                ends: wp.array3d(dtype=wp.vec3), radii: wp.array2d(dtype=float), thickness: float,
+                                offsets: wp.array2d(dtype=wp.vec3), moved: wp.array(dtype=int)):
+    """Row i of S (CSR) times frame f's coarse points (F, V_low), moved outside frame f's capsules: the offset of
+    the move in offsets (F, V), and moved[i] = 1 where some frame moved vertex i (moved starts at 0)."""
+    f, i = wp.tid()
+    x = wp.vec3(0.0)
+    for k in range(row_start[i], row_start[i + 1]):
+        x += weights[k] * coarse[f, columns[k]]
+    cleared = outside_frame_capsules(x, f, ends, radii, thickness)
+    offsets[f, i] = cleared - x
+    if wp.length_sq(cleared - x) > 0.0:
+        moved[i] = 1            # every writer writes 1: no race on the value
+
+
+@wp.kernel
+def gather_vertices(points: wp.array2d(dtype=wp.vec3), ids: wp.array(dtype=int), out: wp.array2d(dtype=wp.vec3)):
+    """out[f, j] = points[f, ids[j]]."""
+    f, j = wp.tid()
+    out[f, j] = points[f, ids[j]]
 
 
 def _check_body(frames: int, capsules: np.ndarray, radii: np.ndarray) -> None:
@@ -23,7 +81,7 @@ def outside_body(points: np.ndarray, capsules: np.ndarray, radii: np.ndarray, th
         return points.copy()
     x = wp.array(points, dtype=wp.vec3, device=device)
     ends = wp.array(np.ascontiguousarray(capsules, dtype=np.float32), dtype=wp.vec3, device=device)
-    wp.launch(collision.move_outside_capsules, dim=points.shape[:2], device=device,
+    wp.launch(move_outside_capsules, dim=points.shape[:2], device=device,
               inputs=[x, ends, wp.array(np.ascontiguousarray(radii, dtype=np.float32), dtype=float, device=device),
                       float(thickness)])
     return x.numpy()
@@ -59,7 +117,7 @@ class SubdividedOutsideBody:
         device = self.device
         offsets = wp.empty((frames, vertices), dtype=wp.vec3, device=device)
         moved = wp.zeros(vertices, dtype=int, device=device)
-        wp.launch(collision.subdivided_outside_capsules, dim=(frames, vertices), device=device,
+        wp.launch(subdivided_outside_capsules, dim=(frames, vertices), device=device,
                   inputs=[self._rows, self._columns, self._weights, wp.array(coarse, dtype=wp.vec3, device=device),
                           wp.array(np.ascontiguousarray(capsules, dtype=np.float32), dtype=wp.vec3, device=device),
                           self._radii, self.thickness, offsets, moved])
@@ -67,6 +125,6 @@ class SubdividedOutsideBody:
         if len(ids) == 0:
             return ids, np.zeros((frames, 0, 3), dtype=np.float32)
         out = wp.empty((frames, len(ids)), dtype=wp.vec3, device=device)
-        wp.launch(collision.gather_vertices, dim=out.shape, device=device,
+        wp.launch(gather_vertices, dim=out.shape, device=device,
                   inputs=[offsets, wp.array(ids.astype(np.int32), dtype=int, device=device), out])
         return ids, out.numpy()

@@ -9,7 +9,8 @@ kernel does as much as it can per launch:
 - one `update_velocities` per substep, which also flags NaN/blow-up per substep for the host.
 The harmonic-constraint projection of the high-res run adds three launches per iteration (partial reduction,
 finalisation, application) because B^T M x is a reduction over all vertices. The per-vertex work of the first
-three is in wp.funcs, which `sim.xpbd.collision` calls to fuse contacts into the same launches.
+three is in wp.funcs, which the contact kernels (`sim.xpbd.body_contact`, `sim.xpbd.contact_sweep`) call to
+fuse contacts into the same launches.
 
 The kernels take their arrays in structs grouped by what they describe (the substep, the pins, the distance
 constraints, one Jacobi sweep's buffers, the harmonic projection), so that the collision kernels, which replace

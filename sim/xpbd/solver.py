@@ -2,8 +2,9 @@
 
 A frame of length dt is split into `substeps`; each substep predicts positions, runs `iterations` Jacobi sweeps
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
-and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.collision`
-(contacts fused into them) plus, for self-collision, a broad phase once per substep. On CUDA the whole frame is
+and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.body_contact`
+and `sim.xpbd.contact_sweep` (contacts fused into them) plus, for self-collision, a broad phase once per substep
+(`sim.xpbd.self_contact`). On CUDA the whole frame is
 captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
 arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the solver
 makes the state it steps.
@@ -24,10 +25,10 @@ import warp as wp
 
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
-from sim.solver import Solver
-from sim.xpbd import collision, kernels
+from sim.solver import Solver, UnstableSimulation
+from sim.xpbd import body_contact, contact_sweep, kernels, self_contact
 from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
-from sim.xpbd.settings import SolverSettings
+from sim.xpbd.model import ClothModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,23 +58,16 @@ class ClothState:
 
 @dataclass(frozen=True)
 class FrameInputs:
-    """The kinematic inputs of a frame, at its end; the solver interpolates each linearly across the substeps from
-    the previous frame's values. Each is needed exactly when the solver has what it drives (pinned vertices, a
-    harmonic constraint, body collision). Each has a leading world axis (B, ...), optional with one world."""
+    """The kinematic inputs of a frame (Newton's Control), at its end; the solver interpolates each linearly across
+    the substeps from the previous frame's values. Each is needed exactly when the model has what it drives (pinned
+    vertices, a harmonic constraint, body collision). Each has a leading world axis (B, ...), optional with one
+    world."""
     pin_targets: np.ndarray | None = None      # (B, P, 3) positions of the pinned vertices
     harmonic_target: np.ndarray | None = None  # (B, K, 3) B^T M S x_low, for a run with the harmonic constraint
     capsules: np.ndarray | None = None         # (B, N, 2, 3) capsule end points, with body collision
 
 
-class UnstableSimulation(RuntimeError):
-    """Positions became non-finite or a vertex exceeded the speed limit; `world` and `substep` say where first."""
-
-    def __init__(self, world: int, substep: int):
-        super().__init__(f"world {world}, substep {substep}")
-        self.world, self.substep = world, substep
-
-
-# Worlds' boxes in the shared self-contact BVH lie this many rest-mesh diagonals apart (collision.world_offset):
+# Worlds' boxes in the shared self-contact BVH lie this many rest-mesh diagonals apart (self_contact.world_offset):
 # far enough that no two worlds' cloths meet unless one strays several garment sizes from the others.
 WORLD_SPACING = 8.0
 
@@ -108,29 +102,30 @@ BODY_MARGIN = 1.0
 SELF_MARGIN = 0.25
 
 
-class ClothSolver(Solver[ClothState, FrameInputs]):
-    """Steps a cloth mesh frame by frame on one Warp device.
+class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
+    """Steps a cloth model frame by frame on one Warp device.
 
     `step(state, inputs)` advances `solver.state`, the one state the solver makes: a CUDA graph replays its launches
     with the device arrays it was captured with, and the solver also keeps memory of the trajectory (the previous
     frame's inputs, from which a frame interpolates, and the sides of the self-contacts), so a second trajectory
-    needs a second solver (or a second world of one). `worlds` copies of the cloth are stepped together, all with
-    the same mesh, settings and pinned vertices. The state starts at `initial_positions` ((V, 3) for every world,
-    or (B, V, 3); default: the rest positions) with zero velocities; the pins start where the state has them, and
-    `harmonic_target` (B, K, 3) and `capsules` (B, N, 2, 3) give the other inputs at frame 0, `capsule_radii`
-    (N, 2) the capsules' radii at a and b (one body shape for every world). `sweep_lanes` threads share a vertex
-    in each Jacobi sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics,
-    depends on it).
+    needs a second solver (or a second world of one). `worlds` copies of the model are stepped together, each with
+    its own inputs. The state starts at `initial_positions` ((V, 3) for every world, or (B, V, 3); default: the
+    rest positions) with zero velocities; the pins start where the state has them, and `initial_inputs` gives the
+    other inputs at frame 0: the harmonic target (B, K, 3) of a model with the harmonic constraint (default 0) and,
+    with body collision, the capsules' end points (B, N, 2, 3). `sweep_lanes` threads share a vertex in each Jacobi
+    sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics, depends on it);
+    `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
     """
 
-    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, device: str,
-                 pinned: np.ndarray, initial_positions: np.ndarray | None = None,
-                 harmonic: HarmonicConstraint | None = None, harmonic_target: np.ndarray | None = None,
-                 capsules: np.ndarray | None = None, capsule_radii: np.ndarray | None = None, worlds: int = 1,
-                 contact_capacity: int = CONTACT_CAPACITY, sweep_lanes: int | None = None):
+    def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
+                 initial_positions: np.ndarray | None = None, contact_capacity: int = CONTACT_CAPACITY,
+                 sweep_lanes: int | None = None):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
-        self.settings = settings
+        if initial_inputs.pin_targets is not None:
+            raise ValueError("the pins start where initial_positions put them: initial_inputs takes no pin_targets")
+        self.model = model
+        rest_vertices, faces, pinned = model.rest_vertices, model.faces, model.pinned
         self.device = wp.get_device(device)
         if sweep_lanes is None:
             sweep_lanes = cuda_sweep_lanes(worlds * len(rest_vertices)) if self.device.is_cuda else 1
@@ -140,10 +135,9 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         self.sweep_lanes = sweep_lanes
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
-        s = settings
+        s = model.settings
         h = s.dt / s.substeps
         mass = s.density * lumped_mass(rest_vertices, faces)
-        pinned = np.asarray(pinned, dtype=np.int64)
         inv_mass = 1.0 / mass
         inv_mass[pinned] = 0.0
         x0 = rest_vertices if initial_positions is None else np.asarray(initial_positions, dtype=np.float64)
@@ -165,14 +159,14 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         total = worlds * self.n_constraints
         lambdas = (self._zeros(total, float), self._zeros(total, float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
-        self.harmonic_projection = (None if harmonic is None
-                                    else self._harmonic_projection(harmonic, harmonic_target, n))
+        self.harmonic_projection = (None if model.harmonic is None
+                                    else self._harmonic_projection(model.harmonic, initial_inputs.harmonic_target, n))
 
         edges = unique_edges(faces)
         mean_edge = float(np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1).mean())
-        self.capsules = self._capsules(capsules, capsule_radii, s.collision_thickness + BODY_MARGIN * mean_edge, n)
+        self.capsules = self._capsules(initial_inputs.capsules, s.collision_thickness + BODY_MARGIN * mean_edge, n)
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
-        self.contacts = self._self_contacts(np.asarray(faces), s.self_thickness + SELF_MARGIN * mean_edge, n,
+        self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
@@ -214,7 +208,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     def _substep_structs(self, h: float, x_prev: wp.array, inv_mass: wp.array) -> list[kernels.Substep]:
         """The kernels' view of each substep of a frame: the state's arrays, the integration constants and the
         substep's place in the frame."""
-        s = self.settings
+        s = self.model.settings
         substeps = []
         for index in range(s.substeps):
             sub = kernels.Substep()
@@ -244,7 +238,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     def _distance_constraints(self, rest_vertices: np.ndarray, faces: np.ndarray, h: float, n: int,
                               inv_mass: np.ndarray) -> tuple[kernels.DistanceConstraints, int]:
         """The cloth's constraints listed per vertex, one world's (kernels.DistanceConstraints), and their count."""
-        s = self.settings
+        s = self.model.settings
         con = cloth_constraints(rest_vertices, faces, s)
         offsets, neighbor, constraint = vertex_incidence(con.pairs, n)
         count = np.diff(offsets)
@@ -263,7 +257,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         array, multipliers between two arrays, and the first iteration starts from zero multipliers. The last
         iteration's x_out holds the solved positions."""
         sweeps = []
-        for it in range(self.settings.iterations):
+        for it in range(self.model.settings.iterations):
             sweep = kernels.JacobiSweep()
             sweep.x_in, sweep.x_out = buffers[it % 2], buffers[(it + 1) % 2]
             sweep.lambda_in, sweep.lambda_out = lambdas[it % 2], lambdas[(it + 1) % 2]
@@ -288,35 +282,32 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         hp.target_start, hp.target_end = self._array(target, wp.vec3), self._array(target, wp.vec3)
         return hp
 
-    def _capsules(self, ends, radii, reach: float, n: int) -> collision.Capsules:
-        """The capsules and per-vertex body-contact state (with body collision off: no capsules, so the kernels'
-        capsule loops are empty)."""
-        s = self.settings
-        capsules = collision.Capsules()
+    def _capsules(self, ends, reach: float, n: int) -> body_contact.Capsules:
+        """The capsules at frame 0 (`ends`) and per-vertex body-contact state (with body collision off: no capsules,
+        so the kernels' capsule loops are empty)."""
+        s = self.model.settings
+        capsules = body_contact.Capsules()
         capsules.near = self._zeros(self.worlds * n, int)
         capsules.push = self._zeros(self.worlds * n, float)
         capsules.per_world = 0
         if not s.body_collision:
-            if ends is not None or radii is not None:
+            if ends is not None:
                 raise ValueError("capsules were given but settings.body_collision is off")
             return capsules
-        if ends is None or radii is None:
-            raise ValueError("body_collision needs capsules (N, 2, 3) and capsule_radii (N, 2) at frame 0")
+        if ends is None:
+            raise ValueError("body_collision needs capsules at frame 0: initial_inputs.capsules (B, N, 2, 3)")
         ends = np.asarray(ends, dtype=np.float64)
-        radii = np.asarray(radii, dtype=np.float64)
+        radii = self.model.capsule_radii
         if ends.ndim == 3 and self.worlds == 1:
             ends = ends[None]
         if ends.ndim != 4 or ends.shape[0] != self.worlds or ends.shape[2:] != (2, 3) or radii.shape != ends.shape[1:3]:
             raise ValueError(f"capsules must be (B, N, 2, 3) with B = {self.worlds} worlds and capsule_radii (N, 2); "
                              f"got {ends.shape} and {radii.shape}")
         ends = ends.reshape(-1, 2, 3)
-        if not 1 <= len(radii) <= 255:  # a vertex lists the capsules it watches as bytes of one int32
-            raise ValueError(f"body collision takes 1 to 255 capsules, got {len(radii)}")
         length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
         radii = np.tile(radii, (self.worlds, 1))
-        if (radii <= 0).any() or (length <= np.abs(radii[:, 0] - radii[:, 1])).any():
-            raise ValueError("capsule radii must be positive and each segment longer than the difference of its "
-                             "end radii")
+        if (length <= np.abs(radii[:, 0] - radii[:, 1])).any():
+            raise ValueError("each capsule segment must be longer than the difference of its end radii")
         capsules.start = self._array(ends, wp.vec3)
         capsules.end = self._array(ends, wp.vec3)
         capsules.radius = self._array(radii, float)
@@ -327,23 +318,23 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         return capsules
 
     def _self_contacts(self, faces: np.ndarray, reach: float, n: int, spacing: float,
-                       capacity: int) -> collision.SelfContacts:
+                       capacity: int) -> self_contact.SelfContacts:
         """Mesh, broad phase and contact lists for self-collision (with it off: empty lists only), every world's.
 
         The triangle BVH is built once over the initial boxes with the same (SAH) builder on every device, so CPU
         and CUDA traverse identical trees; each substep only refits it. Worlds share it, their boxes `spacing`
-        apart on a lattice (collision.world_offset)."""
-        s = self.settings
+        apart on a lattice (self_contact.world_offset)."""
+        s = self.model.settings
         total = self.worlds * n
-        sc = collision.SelfContacts()
+        sc = self_contact.SelfContacts()
         sc.vertex_count = self._zeros(total, int)
         sc.corner_count = self._zeros(total, int)
         if not s.self_collision:  # no lists and no triangles around any vertex: the iterations find no contact
             sc.face_offsets = self._zeros(total + 1, int)
             return sc
         edge_offsets, neighbors, _ = vertex_incidence(unique_edges(faces), n)
-        if np.diff(edge_offsets).max() > collision.MAX_VALENCE:
-            raise ValueError(f"self-collision handles vertices of up to {collision.MAX_VALENCE} neighbours; this "
+        if np.diff(edge_offsets).max() > self_contact.MAX_VALENCE:
+            raise ValueError(f"self-collision handles vertices of up to {self_contact.MAX_VALENCE} neighbours; this "
                              f"mesh has one with {np.diff(edge_offsets).max()}")
         arr = self._array
         every_face = self._tile_ids(faces, n)
@@ -366,12 +357,12 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         sc.lattice = math.ceil(self.worlds ** (1 / 3) - 1e-9)
         sc.spacing = spacing
         x = self.state.positions
-        wp.launch(collision.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
+        wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
         self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
         sc.face_bvh = self._face_bvh.id
         return sc
 
-    def _size_contact_lists(self, sc: collision.SelfContacts, capacity: int, vertex_lists: np.ndarray) -> None:
+    def _size_contact_lists(self, sc: self_contact.SelfContacts, capacity: int, vertex_lists: np.ndarray) -> None:
         """(Re)allocate the contact lists with `capacity` entries, the vertices' lists starting as `vertex_lists`
         (the previous substep's, whose sides the next search keeps)."""
         shape = (len(vertex_lists), capacity)
@@ -405,7 +396,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         if state is not self.state:
             raise ValueError("a ClothSolver steps the state it made (solver.state); a second trajectory needs a "
                              "second solver")
-        if self.settings.body_collision:
+        if self.model.settings.body_collision:
             if inputs.capsules is None:
                 raise ValueError("body_collision needs the capsules at the end of the frame")
             per_world = self.capsules.per_world
@@ -434,14 +425,15 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         blown = flags[:, :-1]
         if blown.any():
             world = int(np.flatnonzero(blown.any(axis=1))[0])
-            raise UnstableSimulation(world, int(np.argmax(blown[world])))
+            raise UnstableSimulation(world, int(np.argmax(blown[world])), "NaN or speed > max_speed")
 
     def _run_frame(self) -> np.ndarray:
         """Launch one frame (replaying its graph on CUDA); the flags it raised, (B, substeps + 1)."""
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                for module in (kernels, collision):  # compile before capture: no JIT inside a graph
+                # compile before capture: no JIT inside a graph
+                for module in (kernels, body_contact, self_contact, contact_sweep):
                     wp.load_module(module, device=self.device)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
@@ -452,7 +444,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         return self.flags.numpy()
 
     def _launch_frame(self) -> None:
-        s = self.settings
+        s = self.model.settings
         if s.self_collision:
             for saved, live in ((self._frame_start.positions, self.state.positions),
                                 (self._frame_start.velocities, self.state.velocities),
@@ -464,7 +456,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
         collide = s.body_collision or s.self_collision
         for sub in self._substeps:
             if s.body_collision:
-                wp.launch(collision.predict_with_body, dim=n, device=dev, inputs=[sub, self.pins, self.capsules])
+                wp.launch(body_contact.predict_with_body, dim=n, device=dev, inputs=[sub, self.pins, self.capsules])
             else:
                 wp.launch(kernels.predict_positions, dim=n, device=dev, inputs=[sub, self.pins])
             if s.self_collision:
@@ -473,7 +465,7 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             for sweep in self._sweeps:
                 lanes = self.sweep_lanes
                 if collide:
-                    wp.launch(collision.solve_with_collisions, dim=n * lanes, device=dev,
+                    wp.launch(contact_sweep.solve_with_collisions, dim=n * lanes, device=dev,
                               inputs=[sub, self.constraints, sweep, self.contacts, self.capsules, lanes])
                 else:
                     wp.launch(kernels.solve_distance_constraints, dim=n * lanes, device=dev,
@@ -485,13 +477,13 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
             # friction first, then the body and the constraint take turns, converging to a shape that meets both.
             rounds = self.harmonic_projection is not None and s.body_collision and s.contact_rounds > 0
             if rounds:
-                wp.launch(collision.body_friction, dim=n, device=dev, inputs=[sub, solved, self.capsules])
+                wp.launch(body_contact.body_friction, dim=n, device=dev, inputs=[sub, solved, self.capsules])
                 last = sub is self._substeps[-1]
                 for _ in range(s.contact_rounds + (s.frame_end_rounds if last else 0)):
-                    wp.launch(collision.clear_of_body, dim=n, device=dev, inputs=[sub, solved, self.capsules])
+                    wp.launch(body_contact.clear_of_body, dim=n, device=dev, inputs=[sub, solved, self.capsules])
                     self._launch_projection(solved, sub.f1)
             if collide:
-                wp.launch(collision.finish_substep, dim=n, device=dev,
+                wp.launch(body_contact.finish_substep, dim=n, device=dev,
                           inputs=[sub, solved, self.capsules, int(not rounds)])
             else:
                 wp.launch(kernels.update_velocities, dim=n, device=dev, inputs=[sub, solved])
@@ -499,12 +491,12 @@ class ClothSolver(Solver[ClothState, FrameInputs]):
     def _launch_broad_phase(self, sub: kernels.Substep) -> None:
         """Self-contact candidates of the substep, from the start positions (x_prev) and the predictions (x)."""
         n_faces = self.contacts.faces.shape[0]
-        wp.launch(collision.contact_bounds, dim=n_faces, device=self.device,
+        wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device,
                   inputs=[sub.x, sub.x_prev, self.contacts])
         self._face_bvh.refit()
-        wp.launch(collision.find_self_contacts, dim=sub.x.shape[0], device=self.device,
-                  inputs=[sub, self.contacts, self.settings.substeps])
-        wp.launch(collision.sort_face_lists, dim=n_faces, device=self.device, inputs=[self.contacts])
+        wp.launch(self_contact.find_self_contacts, dim=sub.x.shape[0], device=self.device,
+                  inputs=[sub, self.contacts, self.model.settings.substeps])
+        wp.launch(self_contact.sort_face_lists, dim=n_faces, device=self.device, inputs=[self.contacts])
 
     def _launch_projection(self, x: wp.array, fraction: float) -> None:
         hp = self.harmonic_projection

@@ -112,7 +112,7 @@ def test_too_few_frames_for_the_clips_is_one_clear_error(tmp_path):
 
 
 def test_high_res_pins_follow_their_parts_rigidly(pants):
-    from pipeline.simulate import subdivided_pins
+    from pipeline.solvers.xpbd import subdivided_pins
     from geometry.loop_subdivision import loop_subdivide
     _, a, _ = pants
     S, _ = loop_subdivide(a["rest/vertices"], a["rest/faces"].astype(np.int64), 2)
@@ -130,15 +130,16 @@ def test_high_res_pins_follow_their_parts_rigidly(pants):
 def test_every_garment_scene_builds_and_simulates(scene, tmp_path):
     """The first frames of each shipped garment scene (CPU profile) with its physics switches: finite, pins on
     their targets, and the cloth outside the moving body up to a small tolerance."""
-    from pipeline.simulate import solver_settings
+    from pipeline.solvers.xpbd import solver_settings
     from scenes.capsules import capsule_signed_distance
-    from sim.xpbd import ClothSolver, FrameInputs
+    from sim.xpbd import ClothModel, ClothSolver, FrameInputs
     settings = resolve_scene(CONFIG, scene, "cpu")
     a = scene_datasets(settings, tmp_path / "scene.h5")
     capsules = np.stack([a["capsules/a"], a["capsules/b"]], axis=2).astype(np.float64)
     radii = np.stack([a["capsules/radius_a"], a["capsules/radius_b"]], axis=1).astype(np.float64)
-    solver = ClothSolver(a["rest/vertices"], a["rest/faces"].astype(np.int64), solver_settings(settings), "cpu",
-                         a["pins/ids"].astype(np.int64), capsules=capsules[0], capsule_radii=radii)
+    model = ClothModel(a["rest/vertices"], a["rest/faces"].astype(np.int64), solver_settings(settings),
+                       a["pins/ids"].astype(np.int64), capsule_radii=radii)
+    solver = ClothSolver(model, "cpu", initial_inputs=FrameInputs(capsules=capsules[0]))
     start = settings["drivers"]["mannequin"]["settle_frames"]
     for f in range(1, start + 25):   # the settle period, then the first clip fading in
         solver.step(solver.state, FrameInputs(pin_targets=a["pins/targets"][f], capsules=capsules[f]))

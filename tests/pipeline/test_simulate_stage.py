@@ -205,7 +205,7 @@ def test_threads_below_one_are_refused_with_one_line(tmp_path):
 def test_per_frame_product_is_a_matrix_product_per_frame():
     """The harmonic targets' B^T M (S x_low) over all frames at once, dense and sparse, against a loop of products."""
     import scipy.sparse as sp
-    from pipeline.simulate import per_frame_product
+    from pipeline.solvers.harmonic_targets import per_frame_product
     rng = np.random.default_rng(0)
     x = rng.normal(size=(5, 7, 3)).astype(np.float32)
     for A in (rng.normal(size=(4, 7)), sp.random(9, 7, density=0.4, random_state=1, format="csr")):
@@ -217,7 +217,7 @@ def test_factored_harmonic_targets_equal_the_product_over_every_high_res_vertex(
     """(B^T M S) x_low plus the moved vertices' offsets equals B^T M over the whole cleared S x_low, with and
     without a body; a body that moves no vertex leaves the targets those of S x_low."""
     import scipy.sparse as sp
-    from pipeline.simulate import BasisProducts, harmonic_targets_of
+    from pipeline.solvers.harmonic_targets import BasisProducts, harmonic_targets_of
     rng = np.random.default_rng(3)
     S = sp.random(40, 12, density=0.3, random_state=2, format="csr")
     x_low = rng.normal(size=(6, 12, 3)).astype(np.float32)

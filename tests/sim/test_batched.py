@@ -13,7 +13,7 @@ from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
 
 FRAMES = 12
 MOTIONS = ("karate", "walk", "rest")
@@ -40,8 +40,8 @@ def run(garment, ids, radii, drives, settings, device="cpu"):
     """(B, FRAMES, V, 3) positions of len(drives) worlds stepped together."""
     capsules = np.stack([c for c, _ in drives])
     targets = np.stack([t for _, t in drives])
-    solver = ClothSolver(garment.vertices, garment.faces, settings, device, ids, capsules=capsules[:, 0],
-                         capsule_radii=radii, worlds=len(drives))
+    solver = ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), device,
+                         worlds=len(drives), initial_inputs=FrameInputs(capsules=capsules[:, 0]))
     frames = []
     for f in range(1, FRAMES + 1):
         solver.step(solver.state, FrameInputs(pin_targets=targets[:, f], capsules=capsules[:, f]))
@@ -79,8 +79,8 @@ def test_harmonic_targets_are_per_world():
     sag = np.array([0.0, -0.05, 0.0]), np.array([0.03, -0.02, 0.04])
     targets = np.stack([mass_basis_t @ (high + d) for d in sag])
     settings = SolverSettings(substeps=2, iterations=10)
-    batch = ClothSolver(high, faces, settings, "cpu", pins, harmonic=constraint, harmonic_target=targets,
-                        worlds=2)
+    batch = ClothSolver(ClothModel(high, faces, settings, pins, harmonic=constraint), "cpu", worlds=2,
+                        initial_inputs=FrameInputs(harmonic_target=targets))
     pin_targets = np.stack([high[pins]] * 2)
     for _ in range(3):
         batch.step(batch.state, FrameInputs(pin_targets=pin_targets, harmonic_target=targets))
@@ -88,7 +88,8 @@ def test_harmonic_targets_are_per_world():
     for w in range(2):
         content = mass_basis_t @ x[w]
         assert np.linalg.norm(content - targets[w]) / np.linalg.norm(content) < 1e-5
-        alone = ClothSolver(high, faces, settings, "cpu", pins, harmonic=constraint, harmonic_target=targets[w])
+        alone = ClothSolver(ClothModel(high, faces, settings, pins, harmonic=constraint), "cpu",
+                            initial_inputs=FrameInputs(harmonic_target=targets[w]))
         for _ in range(3):
             alone.step(alone.state, FrameInputs(pin_targets=high[pins], harmonic_target=targets[w]))
         np.testing.assert_array_equal(x[w], alone.state.read_positions())
@@ -96,7 +97,7 @@ def test_harmonic_targets_are_per_world():
 
 def test_a_blow_up_names_its_world():
     rest, faces = grid_cloth(0.2, 0.2, 0.1, plane="xz")
-    solver = ClothSolver(rest, faces, SolverSettings(max_speed=1.0), "cpu", np.zeros(0, int), worlds=3)
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(max_speed=1.0), np.zeros(0, int)), "cpu", worlds=3)
     velocities = np.zeros((3 * len(rest), 3))
     velocities[2 * len(rest):] = [0.0, 5.0, 0.0]   # only the last world is too fast
     solver.state.write_velocities(velocities)
@@ -109,14 +110,14 @@ def test_per_world_inputs_are_checked(pants_drives):
     settings = SolverSettings(substeps=1, iterations=1, body_collision=True)
     capsules = np.stack([c for c, _ in drives[:2]])
     with pytest.raises(ValueError, match="capsules must be"):
-        ClothSolver(garment.vertices, garment.faces, settings, "cpu", ids, capsules=capsules[0, 0],
-                    capsule_radii=radii, worlds=2)
-    solver = ClothSolver(garment.vertices, garment.faces, settings, "cpu", ids, capsules=capsules[:, 0],
-                         capsule_radii=radii, worlds=2)
+        ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), "cpu", worlds=2,
+                    initial_inputs=FrameInputs(capsules=capsules[0, 0]))
+    solver = ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), "cpu",
+                         worlds=2, initial_inputs=FrameInputs(capsules=capsules[:, 0]))
     with pytest.raises(ValueError, match="pin_targets must have shape"):
         solver.step(solver.state, FrameInputs(pin_targets=drives[0][1][1], capsules=capsules[:, 1]))
     with pytest.raises(ValueError, match="worlds must be"):
-        ClothSolver(garment.vertices, garment.faces, settings, "cpu", ids, worlds=0)
+        ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids), "cpu", worlds=0)
 
 
 @pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")

@@ -13,10 +13,10 @@ from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings
-from sim.xpbd import collision
-from sim.xpbd.collision import SelfContacts, contact_side, neighbor_list
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
+from sim.xpbd import self_contact
 from sim.xpbd.kernels import Substep
+from sim.xpbd.self_contact import SelfContacts, contact_side, neighbor_list
 
 THICKNESS = SolverSettings().collision_thickness
 SELF_THICKNESS = SolverSettings().self_thickness
@@ -64,8 +64,9 @@ def test_sheet_drapes_over_a_tapered_capsule_and_stays_outside():
     rest, faces = grid_cloth(0.5, 0.5, 0.05, plane="xz", origin=(-0.25, 0.2, -0.25))
     capsule = np.array([[[-0.15, 0.0, 0.0], [0.15, 0.0, 0.05]]])
     radii = np.array([[0.1, 0.07]])
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=4, iterations=20, body_collision=True, damping=2.0),
-                         "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=radii)
+    settings = SolverSettings(substeps=4, iterations=20, body_collision=True, damping=2.0)
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int), capsule_radii=radii), "cpu",
+                         initial_inputs=FrameInputs(capsules=capsule))
     for _ in range(45):
         solver.step(solver.state, FrameInputs(capsules=capsule))
         x = solver.state.read_positions()
@@ -81,7 +82,7 @@ def test_fast_capsule_pushes_a_curtain_instead_of_passing_through():
     # A 4 cm-radius limb moves at 5 units/s, 8.3 cm per frame, through a curtain pinned at its top and bottom, with
     # one substep a frame: in one substep its axis jumps past the cloth. The projection to the nearest surface
     # point alone then pushes the cloth out behind the limb (checked by disabling the sweep in
-    # sim.xpbd.collision.keep_outside: all 70 vertices of the band end behind the axis after the first frame).
+    # sim.xpbd.body_contact.keep_outside: all 70 vertices of the band end behind the axis after the first frame).
     rest, faces = grid_cloth(0.6, 0.6, 0.025, plane="xy", origin=(-0.3, 1.2, 0.0))
     pins = np.flatnonzero(np.isclose(rest[:, 1], 1.2) | np.isclose(rest[:, 1], 0.6))
     radii = np.array([[0.04, 0.04]])
@@ -90,8 +91,9 @@ def test_fast_capsule_pushes_a_curtain_instead_of_passing_through():
         z = -0.05 + 5.0 * frame / 60.0
         return np.array([[[-0.5, 0.9, z], [0.5, 0.9, z]]])
 
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=1, iterations=20, body_collision=True), "cpu", pins,
-                         capsules=limb(0), capsule_radii=radii)
+    model = ClothModel(rest, faces, SolverSettings(substeps=1, iterations=20, body_collision=True), pins,
+                       capsule_radii=radii)
+    solver = ClothSolver(model, "cpu", initial_inputs=FrameInputs(capsules=limb(0)))
     for frame in range(1, 6):
         solver.step(solver.state, FrameInputs(pin_targets=rest[pins], capsules=limb(frame)))
         x = solver.state.read_positions()
@@ -132,7 +134,8 @@ def test_friction_drags_a_towel_along_a_bar_moving_along_its_axis(mu):
         return np.array([[[-1.0 + shift, 1.0, 0.0], [1.0 + shift, 1.0, 0.0]]])
 
     settings = SolverSettings(substeps=4, iterations=20, body_collision=True, friction=mu, damping=0.0)
-    solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int), capsules=bar(0), capsule_radii=radii)
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int), capsule_radii=radii), "cpu",
+                         initial_inputs=FrameInputs(capsules=bar(0)))
     for frame in range(1, frames + 1):
         solver.step(solver.state, FrameInputs(capsules=bar(frame)))
         if frame == 30:
@@ -165,8 +168,8 @@ def garment_run(kind, motion_kind, max_edge, settings, frames, settle_frames=100
     ids = garment.attachment
     targets = linear_blend_skinning(garment.vertices[ids], garment.attachment_part[:, None], np.ones((len(ids), 1)),
                                     rest_transforms(skel), state.transforms)
-    solver = ClothSolver(garment.vertices, garment.faces, settings, "cpu", ids, capsules=capsules[0],
-                         capsule_radii=radii)
+    solver = ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), "cpu",
+                         initial_inputs=FrameInputs(capsules=capsules[0]))
     for frame in range(1, frames + 1):
         solver.step(solver.state, FrameInputs(pin_targets=targets[frame], capsules=capsules[frame]))
         yield frame, solver, (skel, state, ids)
@@ -207,7 +210,7 @@ def stacked_sheets():
 def test_a_sheet_falling_onto_another_stays_on_top(self_collision):
     vertices, faces, pins, n_bottom, bottom_faces = stacked_sheets()
     settings = SolverSettings(substeps=4, iterations=20, self_collision=self_collision, damping=1.0)
-    solver = ClothSolver(vertices, faces, settings, "cpu", pins)
+    solver = ClothSolver(ClothModel(vertices, faces, settings, pins), "cpu")
     clearance = []
     for _ in range(40):
         solver.step(solver.state, FrameInputs(pin_targets=vertices[pins]))
@@ -228,7 +231,7 @@ def test_a_folding_sheet_does_not_pass_through_itself(self_collision):
     half_a = np.flatnonzero(rest[:, 2] < -0.05)
     faces_b = faces[(rest[faces][:, :, 2] >= -1e-9).all(axis=1)]
     settings = SolverSettings(substeps=4, iterations=20, self_collision=self_collision, damping=0.5)
-    solver = ClothSolver(rest, faces, settings, "cpu", hinge)
+    solver = ClothSolver(ClothModel(rest, faces, settings, hinge), "cpu")
     side = []
     for _ in range(60):
         solver.step(solver.state, FrameInputs(pin_targets=rest[hinge]))
@@ -252,8 +255,9 @@ def test_collision_switches_change_nothing_without_contact():
     runs = {}
     for body, self_collision in [(False, False), (True, False), (False, True), (True, True)]:
         settings = SolverSettings(substeps=2, iterations=10, body_collision=body, self_collision=self_collision)
-        kw = dict(capsules=far, capsule_radii=np.array([[0.1, 0.1]])) if body else {}
-        solver = ClothSolver(rest, faces, settings, "cpu", pins, **kw)
+        radii = np.array([[0.1, 0.1]]) if body else None
+        solver = ClothSolver(ClothModel(rest, faces, settings, pins, capsule_radii=radii), "cpu",
+                             initial_inputs=FrameInputs(capsules=far if body else None))
         for f in range(10):
             solver.step(solver.state, FrameInputs(pin_targets=rest[pins] + np.array([0.05, 0.0, 0.03]) * np.sin(f / 3),
                                                   capsules=far if body else None))
@@ -271,8 +275,8 @@ def contact_scene(device, sweep_lanes=None):
         return np.array([[[-0.3, 0.9 + 0.002 * frame, 0.0], [0.3, 0.9, 0.01 * frame]]])
 
     settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
-    solver = ClothSolver(vertices, faces, settings, device, np.zeros(0, int), capsules=capsule(0),
-                         capsule_radii=radii, sweep_lanes=sweep_lanes)
+    solver = ClothSolver(ClothModel(vertices, faces, settings, np.zeros(0, int), capsule_radii=radii), device,
+                         initial_inputs=FrameInputs(capsules=capsule(0)), sweep_lanes=sweep_lanes)
     positions = []
     for frame in range(1, 31):
         solver.step(solver.state, FrameInputs(capsules=capsule(frame)))
@@ -311,19 +315,22 @@ def test_collision_inputs_are_checked():
     capsule, radii = np.array([[[0.0, -1.0, 0.0], [0.1, -1.0, 0.0]]]), np.array([[0.05, 0.05]])
     body = SolverSettings(body_collision=True)
     with pytest.raises(ValueError, match="needs capsules"):
-        ClothSolver(rest, faces, body, "cpu", np.zeros(0, int))
+        ClothSolver(ClothModel(rest, faces, body, np.zeros(0, int)), "cpu")
     with pytest.raises(ValueError, match="body_collision is off"):
-        ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=radii)
+        ClothSolver(ClothModel(rest, faces, SolverSettings(), np.zeros(0, int), capsule_radii=radii), "cpu",
+                    initial_inputs=FrameInputs(capsules=capsule))
     with pytest.raises(ValueError, match="longer than the difference"):
-        ClothSolver(rest, faces, body, "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=[[0.2, 0.05]])
-    solver = ClothSolver(rest, faces, body, "cpu", np.zeros(0, int), capsules=capsule, capsule_radii=radii)
+        ClothSolver(ClothModel(rest, faces, body, np.zeros(0, int), capsule_radii=[[0.2, 0.05]]), "cpu",
+                    initial_inputs=FrameInputs(capsules=capsule))
+    solver = ClothSolver(ClothModel(rest, faces, body, np.zeros(0, int), capsule_radii=radii), "cpu",
+                         initial_inputs=FrameInputs(capsules=capsule))
     with pytest.raises(ValueError, match="end of the frame"):
         solver.step(solver.state)
     with pytest.raises(ValueError, match="body_collision is off"):
-        solver = ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int))
+        solver = ClothSolver(ClothModel(rest, faces, SolverSettings(), np.zeros(0, int)), "cpu")
         solver.step(solver.state, FrameInputs(capsules=capsule))
     with pytest.raises(ValueError, match="sweep_lanes"):  # the CPU's threads run one after the other: no shuffles
-        ClothSolver(rest, faces, SolverSettings(), "cpu", np.zeros(0, int), sweep_lanes=4)
+        ClothSolver(ClothModel(rest, faces, SolverSettings(), np.zeros(0, int)), "cpu", sweep_lanes=4)
     for field, value in [("collision_thickness", 0.0), ("friction", -0.1), ("self_thickness", -1.0)]:
         with pytest.raises(ValueError, match=field):
             SolverSettings(**{field: value})
@@ -344,8 +351,8 @@ def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
     settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
     runs = {}
     for capacity in (2, 64):
-        solver = ClothSolver(vertices, faces, settings, "cpu", np.zeros(0, int), capsules=capsules(0),
-                             capsule_radii=radii, worlds=worlds, contact_capacity=capacity)
+        solver = ClothSolver(ClothModel(vertices, faces, settings, np.zeros(0, int), capsule_radii=radii), "cpu",
+                             worlds=worlds, initial_inputs=FrameInputs(capsules=capsules(0)), contact_capacity=capacity)
         with warnings.catch_warnings():
             warnings.simplefilter("error")   # an overflow that was not absorbed would warn
             for frame in range(1, 31):
@@ -393,15 +400,15 @@ def test_the_search_tests_every_hit_of_long_sweeps():
     both sheets hit several batches' worth of triangles, and their lists must be those of a one-pass search."""
     vertices, faces, _, n_bottom, _ = stacked_sheets()
     settings = SolverSettings(substeps=1, iterations=1, self_collision=True)
-    solver = ClothSolver(vertices, faces, settings, "cpu", np.zeros(0, int), contact_capacity=512)
+    solver = ClothSolver(ClothModel(vertices, faces, settings, np.zeros(0, int)), "cpu", contact_capacity=512)
     sub, sc = solver._substeps[0], solver.contacts
     moved = vertices.copy()
     moved[n_bottom:] += np.random.default_rng(3).normal(scale=0.25, size=(len(vertices) - n_bottom, 3))
     sub.x_prev.assign(vertices.astype(np.float32))
     sub.x.assign(moved.astype(np.float32))
-    wp.launch(collision.contact_bounds, dim=len(faces), device="cpu", inputs=[sub.x, sub.x_prev, sc])
+    wp.launch(self_contact.contact_bounds, dim=len(faces), device="cpu", inputs=[sub.x, sub.x_prev, sc])
     solver._face_bvh.refit()
-    wp.launch(collision.find_self_contacts, dim=len(vertices), device="cpu", inputs=[sub, sc, settings.substeps])
+    wp.launch(self_contact.find_self_contacts, dim=len(vertices), device="cpu", inputs=[sub, sc, settings.substeps])
     lists = wp.zeros((len(vertices), len(faces)), dtype=int, device="cpu")
     counts = wp.zeros(len(vertices), dtype=int, device="cpu")
     wp.launch(contacts_in_one_pass, dim=len(vertices), device="cpu", inputs=[sub, sc, lists, counts])
@@ -410,7 +417,7 @@ def test_the_search_tests_every_hit_of_long_sweeps():
     lower, upper = sc.face_lower.numpy(), sc.face_upper.numpy()
     low, high = np.minimum(vertices, moved), np.maximum(vertices, moved)
     hits = ((low[:, None] <= upper[None]) & (high[:, None] >= lower[None])).all(axis=2).sum(axis=1)
-    assert hits.max() > 3 * collision.HIT_BATCH
+    assert hits.max() > 3 * self_contact.HIT_BATCH
     counts = counts.numpy()
     np.testing.assert_array_equal(sc.vertex_count.numpy(), counts)
     assert counts.sum() > 100 and solver.flags.numpy()[0, -1] == 0

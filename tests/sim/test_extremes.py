@@ -3,8 +3,8 @@
 Every test asserts that positions stay finite and a bound: energy (kinetic + gravitational) never above what the
 cloth started with when nothing drives it, edge stretch, a reference computed another way (scipy's static
 equilibrium, free fall, the same cloth without the extreme), or the error that ends a run the solver cannot do
-(naming frame and substep). The cloth is test_xpbd's hanging 0.6 m square (10 x 10 vertices, top edge pinned),
-mostly laid flat at the height of its pins so that it swings down.
+(naming frame and substep). The cloth is the hanging 0.6 m square of tests/sim/conftest.py (10 x 10 vertices, top
+edge pinned), mostly laid flat at the height of its pins so that it swings down.
 """
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.optimize import minimize
-from test_xpbd import edge_ratios, hanging_cloth  # noqa: F401  (hanging_cloth is a fixture)
 
 from geometry.harmonics import harmonic_basis, lumped_mass
 from geometry.loop_subdivision import loop_subdivide
@@ -23,9 +22,11 @@ from pipeline import scene, simulate
 from pipeline.core import cli
 from pipeline.artifacts.scene import read_rest_mesh, read_scene_drive
 from pipeline.core.config import load_config, resolve_scene, write_settings
+from pipeline.solvers.xpbd import solver_settings
 from scenes.grid import first_row_pins, grid_cloth
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints, \
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints, \
     harmonic_constraint
+from tests.sim.cloth_checks import edge_ratios
 
 REPO = Path(__file__).resolve().parents[2]
 BASE = {"substeps": 4, "iterations": 20}   # the budget every extreme departs from (test_xpbd's)
@@ -42,7 +43,7 @@ def simulate_cloth(rest, faces, pins, settings: SolverSettings, frames: int, sta
     """`frames` frames from `start` (default: rest) at zero velocity; `pin_targets(f)` moves the pins (default:
     held where they start)."""
     start = rest if start is None else start
-    solver = ClothSolver(rest, faces, settings, "cpu", pins, initial_positions=start)
+    solver = ClothSolver(ClothModel(rest, faces, settings, pins), "cpu", initial_positions=start)
     x, v = [start.copy()], [np.zeros_like(start)]
     for f in range(1, frames + 1):
         targets = start[pins] if pin_targets is None else pin_targets(f)
@@ -234,7 +235,7 @@ def test_a_pin_faster_than_max_speed_ends_the_run_with_its_substep(hanging_cloth
     """The same 1 m jump in a 1/1000 s frame is 1000 m/s, past max_speed: an error naming world and substep (the
     simulate stage adds the frame, see below), not a silently shredded cloth."""
     rest, faces, pins = hanging_cloth
-    solver = ClothSolver(rest, faces, SolverSettings(**BASE, dt=1 / 1000), "cpu", pins)
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(**BASE, dt=1 / 1000), pins), "cpu")
     solver.step(solver.state, FrameInputs(pin_targets=rest[pins]))
     with pytest.raises(UnstableSimulation, match="world 0, substep 0"):
         solver.step(solver.state, FrameInputs(pin_targets=rest[pins] + [0.0, 0.0, 1.0]))
@@ -242,7 +243,7 @@ def test_a_pin_faster_than_max_speed_ends_the_run_with_its_substep(hanging_cloth
 
 def test_non_finite_positions_end_the_run_with_their_substep(hanging_cloth):
     rest, faces, pins = hanging_cloth
-    solver = ClothSolver(rest, faces, SolverSettings(**BASE), "cpu", pins)
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(**BASE), pins), "cpu")
     targets = rest[pins].copy()
     solver.step(solver.state, FrameInputs(pin_targets=targets))
     targets[3] = np.nan   # one pin: NaN reaches its neighbours in the first sweep
@@ -262,7 +263,7 @@ def test_a_blow_up_in_the_simulate_stage_is_one_error_naming_frame_and_substep(t
 
     rest, faces = read_rest_mesh(scene_path)
     pins = read_scene_drive(scene_path, body_collision=False).pins
-    solver = ClothSolver(rest, faces, simulate.solver_settings(settings), "cpu", pins.ids)
+    solver = ClothSolver(ClothModel(rest, faces, solver_settings(settings), pins.ids), "cpu")
     frame = 0
     with pytest.raises(UnstableSimulation) as stopped:
         for frame in range(1, len(pins.targets)):
@@ -358,8 +359,8 @@ def test_a_high_res_run_with_one_harmonic(every):
     pins = first_row_pins(high, "xy", "corners")
     targets = np.einsum("vk,v,fvc->fkc", basis, mass, np.stack([S @ x for x in low_run.positions]))
     start = S @ low_run.positions[0]
-    solver = ClothSolver(high, faces, settings, "cpu", pins, initial_positions=start,
-                         harmonic=harmonic_constraint(basis, mass, pins), harmonic_target=targets[0])
+    solver = ClothSolver(ClothModel(high, faces, settings, pins, harmonic=harmonic_constraint(basis, mass, pins)),
+                         "cpu", initial_inputs=FrameInputs(harmonic_target=targets[0]), initial_positions=start)
     for f in range(1, len(targets)):
         solver.step(solver.state, FrameInputs(pin_targets=start[pins], harmonic_target=targets[f]))
         x = solver.state.read_positions()

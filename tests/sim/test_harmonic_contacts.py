@@ -15,8 +15,8 @@ from scenes.kinematics import rest_transforms
 from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
-from sim.xpbd import ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
-from sim.xpbd.body import SubdividedOutsideBody, outside_body
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd.clearance import SubdividedOutsideBody, outside_body
 
 FRAMES = 40
 BUDGET = dict(substeps=4, iterations=20, body_collision=True)
@@ -78,8 +78,8 @@ def pants_on_a_dancer():
     pins = garment.attachment
     targets = linear_blend_skinning(garment.vertices[pins], garment.attachment_part[:, None], np.ones((len(pins), 1)),
                                     rest_transforms(skel), state.transforms)
-    low = ClothSolver(garment.vertices, garment.faces, SolverSettings(**BUDGET), "cpu", pins,
-                      capsules=capsules[None, 0], capsule_radii=radii)
+    low = ClothSolver(ClothModel(garment.vertices, garment.faces, SolverSettings(**BUDGET), pins, capsule_radii=radii),
+                      "cpu", initial_inputs=FrameInputs(capsules=capsules[None, 0]))
     x_low = [low.state.read_positions().astype(np.float64)]
     for f in range(1, FRAMES):
         low.step(low.state, FrameInputs(pin_targets=targets[None, f], capsules=capsules[None, f]))
@@ -97,8 +97,10 @@ def residuals(case, contact_rounds: int, frame_end_rounds: int = 0) -> np.ndarra
     high, faces, pins, targets, capsules, radii, basis, mass, goals, start = case
     settings = SolverSettings(**BUDGET, harmonic_every="substep", contact_rounds=contact_rounds,
                               frame_end_rounds=frame_end_rounds)
-    solver = ClothSolver(high, faces, settings, "cpu", pins, capsules=capsules[None, 0], capsule_radii=radii,
-                         harmonic=harmonic_constraint(basis, mass, pins), harmonic_target=goals[None, 0],
+    model = ClothModel(high, faces, settings, pins, harmonic=harmonic_constraint(basis, mass, pins),
+                       capsule_radii=radii)
+    solver = ClothSolver(model, "cpu", initial_inputs=FrameInputs(harmonic_target=goals[None, 0],
+                                                                  capsules=capsules[None, 0]),
                          initial_positions=start[None])
     out = []
     for f in range(1, FRAMES):

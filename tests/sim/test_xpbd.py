@@ -6,19 +6,9 @@ from scenes.grid import first_row_pins, grid_cloth
 from geometry.harmonics import harmonic_basis, lumped_mass
 from geometry.loop_subdivision import loop_subdivide
 from geometry.mesh import unique_edges
-from sim.xpbd import (ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints,
+from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints,
                       harmonic_constraint)
-
-
-def edge_ratios(x, rest, faces):
-    e = unique_edges(faces)
-    return np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1)
-
-
-@pytest.fixture(scope="module")
-def hanging_cloth():
-    vertices, faces = grid_cloth(0.6, 0.6, 0.1, plane="xy", origin=(0, 1, 0))
-    return vertices, faces, first_row_pins(vertices, "xy", "top_edge")
+from tests.sim.cloth_checks import edge_ratios
 
 
 def test_pinned_hanging_cloth_settles(hanging_cloth):
@@ -28,7 +18,7 @@ def test_pinned_hanging_cloth_settles(hanging_cloth):
     start[:, 2] = rest[:, 1] - 1.0
     start[:, 1] = 1.0
     settings = SolverSettings(substeps=8, iterations=30, damping=4.0)
-    solver = ClothSolver(rest, faces, settings, "cpu", pins, initial_positions=start)
+    solver = ClothSolver(ClothModel(rest, faces, settings, pins), "cpu", initial_positions=start)
     for _ in range(300):
         solver.step(solver.state, FrameInputs(pin_targets=start[pins]))
     x = solver.state.read_positions()
@@ -43,7 +33,7 @@ def test_pinned_hanging_cloth_settles(hanging_cloth):
 
 def test_pins_follow_their_targets(hanging_cloth):
     rest, faces, pins = hanging_cloth
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=2, iterations=5), "cpu", pins)
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(substeps=2, iterations=5), pins), "cpu")
     target = rest[pins] + np.array([0.1, 0.0, -0.05])
     solver.step(solver.state, FrameInputs(pin_targets=target))
     np.testing.assert_allclose(solver.state.read_positions()[pins], target, atol=1e-6)
@@ -56,7 +46,7 @@ def test_kinetic_energy_never_grows_without_damping_or_forces():
     # so any kinetic energy gained would be made by the solver.
     settings = SolverSettings(substeps=4, iterations=20, damping=0.0, gravity=(0.0, 0.0, 0.0),
                               stretch_compliance=0.0, bending=False)
-    solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int)), "cpu")
     solver.state.write_velocities(rng.normal(scale=0.5, size=rest.shape))
     mass = lumped_mass(rest, faces)
     energies = []
@@ -70,7 +60,7 @@ def test_kinetic_energy_never_grows_without_damping_or_forces():
 def test_momentum_is_conserved_by_the_constraints():
     rest, faces = grid_cloth(0.4, 0.4, 0.1, plane="xz")
     settings = SolverSettings(substeps=2, iterations=10, damping=0.0, gravity=(0.0, 0.0, 0.0))
-    solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int)), "cpu")
     rng = np.random.default_rng(0)
     solver.state.write_velocities(rng.normal(size=rest.shape))
     mass = lumped_mass(rest, faces)
@@ -89,11 +79,12 @@ def test_compression_is_free_down_to_the_allowance():
     # Squash the cloth to 85 % along x: within the allowance, so nothing moves.
     squashed = rest * np.array([0.85, 1.0, 1.0])
     no_gravity = SolverSettings(bending=False, gravity=(0.0, 0.0, 0.0), substeps=2, iterations=20)
-    solver = ClothSolver(rest, faces, no_gravity, "cpu", np.zeros(0, int), initial_positions=squashed)
+    solver = ClothSolver(ClothModel(rest, faces, no_gravity, np.zeros(0, int)), "cpu", initial_positions=squashed)
     solver.step(solver.state)
     np.testing.assert_allclose(solver.state.read_positions(), squashed, atol=1e-6)
     # Squash to 50 %: edges come back to at least 75 %.
-    solver = ClothSolver(rest, faces, no_gravity, "cpu", np.zeros(0, int), initial_positions=rest * [0.5, 1, 1])
+    solver = ClothSolver(ClothModel(rest, faces, no_gravity, np.zeros(0, int)), "cpu",
+                         initial_positions=rest * [0.5, 1, 1])
     for _ in range(10):
         solver.step(solver.state)
     assert edge_ratios(solver.state.read_positions(), rest, faces).min() > 0.74
@@ -116,7 +107,7 @@ def test_stable_at_the_extremes(changes):
     rest, faces = grid_cloth(0.5, 0.5, 0.2, plane="xz", origin=(0, 1, 0))  # a 2x2-ish patch
     pins = first_row_pins(rest, "xz", "corners")
     settings = SolverSettings(**{"substeps": 4, "iterations": 20, **changes})
-    solver = ClothSolver(rest, faces, settings, "cpu", pins)
+    solver = ClothSolver(ClothModel(rest, faces, settings, pins), "cpu")
     for _ in range(20):
         solver.step(solver.state, FrameInputs(pin_targets=rest[pins]))
     x = solver.state.read_positions()
@@ -130,7 +121,7 @@ def test_stable_at_the_extremes(changes):
 def test_sliver_triangle_stays_finite():
     rest = np.array([[0, 1, 0], [1, 1, 0], [0.5, 1, 1e-4], [0.5, 1, -1.0]], float)
     faces = np.array([[0, 2, 1], [0, 1, 3]])
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=8, iterations=75), "cpu", np.array([3]))
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(substeps=8, iterations=75), np.array([3])), "cpu")
     for _ in range(30):
         solver.step(solver.state, FrameInputs(pin_targets=rest[[3]]))
     assert np.isfinite(solver.state.read_positions()).all()
@@ -138,8 +129,8 @@ def test_sliver_triangle_stays_finite():
 
 def test_blow_up_is_reported_with_its_substep():
     rest, faces = grid_cloth(0.3, 0.3, 0.2, plane="xz")
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=4, iterations=2, max_speed=1.0), "cpu",
-                         np.zeros(0, int))
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(substeps=4, iterations=2, max_speed=1.0),
+                                    np.zeros(0, int)), "cpu")
     solver.state.write_velocities(np.full(rest.shape, 50.0))
     with pytest.raises(UnstableSimulation, match="substep 0"):
         solver.step(solver.state)
@@ -171,8 +162,9 @@ def test_harmonic_constraint_holds_the_high_res_run_to_the_low_res_one(every):
     # A target that the low-res cloth would give after sagging 5 cm: the high-res run must match it.
     target_positions = high + np.array([0.0, -0.05, 0.0])
     target = (mass[:, None] * basis).T @ target_positions
-    solver = ClothSolver(high, faces, SolverSettings(substeps=2, iterations=10, harmonic_every=every), "cpu", pins,
-                         harmonic=constraint, harmonic_target=target)
+    model = ClothModel(high, faces, SolverSettings(substeps=2, iterations=10, harmonic_every=every), pins,
+                       harmonic=constraint)
+    solver = ClothSolver(model, "cpu", initial_inputs=FrameInputs(harmonic_target=target))
     for _ in range(3):
         solver.step(solver.state, FrameInputs(pin_targets=high[pins], harmonic_target=target))
     content = (mass[:, None] * basis).T @ solver.state.read_positions()
@@ -182,8 +174,8 @@ def test_harmonic_constraint_holds_the_high_res_run_to_the_low_res_one(every):
 def test_a_solver_steps_only_the_state_it_made():
     rest, faces = grid_cloth(0.2, 0.2, 0.1, plane="xz")
     settings = SolverSettings(substeps=1, iterations=1)
-    solver = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int))
-    other = ClothSolver(rest, faces, settings, "cpu", np.zeros(0, int)).state
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int)), "cpu")
+    other = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int)), "cpu").state
     with pytest.raises(ValueError, match="state it made"):
         solver.step(other)
 
@@ -191,7 +183,7 @@ def test_a_solver_steps_only_the_state_it_made():
 def test_reads_are_copies_that_stepping_leaves_alone(hanging_cloth):
     # On the CPU device a Warp array's numpy() is a view of the live array: a read kept across steps must not be.
     rest, faces, pins = hanging_cloth
-    solver = ClothSolver(rest, faces, SolverSettings(substeps=1, iterations=2), "cpu", pins)
+    solver = ClothSolver(ClothModel(rest, faces, SolverSettings(substeps=1, iterations=2), pins), "cpu")
     reads = [solver.state.read_world_positions(), solver.state.read_positions(), solver.state.read_velocities()]
     kept = [r.copy() for r in reads]
     solver.step(solver.state, FrameInputs(pin_targets=rest[pins]))

@@ -1,0 +1,232 @@
+"""The XPBD cloth's adapter: what turns a scene's artifacts into sim.xpbd's model and per-frame inputs, for the two
+runs it makes of a sequence (LEVELS):
+- `low`: the low-res run (SCENE): the scene's rest mesh, pins following their targets, bending, body and self
+  collision as the scene asks;
+- `high`: the high-res run (SCENE SUBDIV SIM_LOW) on the subdivided mesh: the same pins carried over through the
+  subdivision, the same body, and the hard constraint B^T M (x_high - S x_low) = 0 to the low-res run (paper sec.
+  5, Kavan et al. 2011; projected once a substep by default, `high_res.harmonic_every`), starting at S x_low of
+  frame 0. Its per-sequence work outside the solver (the harmonic targets before stepping, the residual's
+  products while the device steps on) runs on the job's threads, a sequence each.
+Several sequences of one garment are one batch, a solver world each.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from geometry.rigid import apply_rigid
+from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
+from pipeline.artifacts.simulation import SimulationRun, harmonic_residual, read_trajectory
+from pipeline.artifacts.subdiv import read_harmonics, read_subdivision
+from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import check_same_mesh, mesh_fingerprint
+from pipeline.core.meshio import check_mesh
+from pipeline.solvers.harmonic_targets import BasisProducts, harmonic_targets_of
+from pipeline.solvers.level import Level, PreparedBatch, frame_of_each
+from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd.clearance import SubdividedOutsideBody
+
+
+def solver_settings(settings: dict) -> SolverSettings:
+    """The scene's solver, physics and high_res settings as the solver's (`solver.kind` names the solver, it is
+    not one of its settings)."""
+    solver = {key: value for key, value in settings["solver"].items() if key != "kind"}
+    solver["gravity"] = tuple(solver["gravity"])
+    physics = settings["physics"]
+    try:
+        return SolverSettings(**solver, bending=physics["bending"], body_collision=physics["body_collision"],
+                              self_collision=physics["self_collision"],
+                              harmonic_every=settings["high_res"]["harmonic_every"],
+                              contact_rounds=settings["high_res"]["contact_rounds"],
+                              frame_end_rounds=settings["high_res"]["frame_end_rounds"])
+    except ValueError as err:
+        raise PipelineError(f"scene '{settings['scene']}': {err}") from None
+
+
+def subdivided_pins(S: sp.csr_matrix, low_pins: np.ndarray, low_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """High-res vertices that follow the low-res pins, and the rigid group each follows: the even copies of
+    pinned vertices (Loop subdivision keeps old vertices first, in order) with their vertex's group, and every
+    vertex whose stencil touches pinned vertices only, with the group of its largest stencil weight."""
+    pinned = np.zeros(S.shape[1], dtype=bool)
+    pinned[low_pins] = True
+    free_weight = np.asarray(abs(S) @ (~pinned).astype(np.float64)).ravel()
+    high_pins = np.union1d(low_pins, np.flatnonzero(free_weight == 0.0)).astype(np.int64)
+    # Largest stencil weight among the pinned columns: for an even copy that is its own vertex.
+    strongest = np.asarray(abs(S[high_pins][:, low_pins]).argmax(axis=1)).ravel() if len(low_pins) else []
+    return high_pins, np.asarray(low_part, dtype=np.int64)[strongest]
+
+
+@dataclass(frozen=True)
+class ClothBatch:
+    """The sequences a simulate job steps together (one world each): their scene files and drives, checked to
+    share the mesh, the pinned vertices and the body's shape."""
+    scene_paths: list[str]
+    drives: list[SceneDrive]
+    mesh: str                      # mesh_fingerprint of the shared low-res rest mesh
+
+    @property
+    def n_frames(self) -> list[int]:
+        return [d.n_frames for d in self.drives]
+
+    @property
+    def capsule_radii(self) -> np.ndarray | None:
+        """The body's shape, the same in every sequence (None without body collision)."""
+        return self.drives[0].capsule_radii
+
+    def capsules(self, f: int) -> np.ndarray | None:
+        """(B, N, 2, 3) frame f's capsules of every sequence (None without body collision)."""
+        return None if self.drives[0].capsules is None else frame_of_each([d.capsules for d in self.drives], f)
+
+    def model(self, rest_vertices: np.ndarray, faces: np.ndarray, settings: SolverSettings, pinned: np.ndarray,
+              **harmonic) -> ClothModel:
+        """The batch's cloth model on a mesh of its garment; an error names the first scene file, whose body
+        shape every sequence shares."""
+        try:
+            return ClothModel(rest_vertices, faces, settings, pinned, capsule_radii=self.capsule_radii, **harmonic)
+        except ValueError as err:
+            raise PipelineError(f"{self.scene_paths[0]}: {err}") from None
+
+
+def read_batch(scene_paths: Sequence[str], body_collision: bool) -> ClothBatch:
+    """Each sequence's drive; one error naming the file if a sequence is not of the first one's garment."""
+    drives, mesh = [], None
+    for path in scene_paths:
+        rest, faces = read_rest_mesh(path)
+        fingerprint = mesh_fingerprint(rest, faces)
+        if mesh is None:    # the others must be this mesh: checked once (8 ms a paper-pants file, 0.5 s for 64)
+            check_mesh(path, rest, faces)
+        drive = read_scene_drive(path, body_collision)
+        if mesh is None:
+            mesh, first = fingerprint, drive
+        elif fingerprint != mesh:
+            raise PipelineError(f"{path}: not the same mesh as {scene_paths[0]}: a batch steps sequences of one "
+                                f"garment")
+        elif (not np.array_equal(drive.pins.ids, first.pins.ids)
+              or (drive.capsule_radii is not None and not np.array_equal(drive.capsule_radii, first.capsule_radii))):
+            raise PipelineError(f"{path}: its pinned vertices or body shape differ from those of {scene_paths[0]}")
+        drives.append(drive)
+    return ClothBatch(list(scene_paths), drives, mesh)
+
+
+def frame_work(solver: ClothSolver) -> str:
+    """What one frame of one world costs, for the log (the schema bounds substeps and iterations)."""
+    s = solver.model.settings
+    return (f"{s.substeps} substeps x {s.iterations} iterations over {solver.world_vertices:,} vertices and "
+            f"{solver.n_constraints:,} constraints")
+
+
+def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
+                threads: int) -> PreparedBatch:
+    """The low-res runs of a batch of sequences, each group (SCENE,)."""
+    scene_paths = [group[0] for group in groups]
+    s = solver_settings(settings)
+    batch = read_batch(scene_paths, s.body_collision)
+    rest, faces = read_rest_mesh(scene_paths[0])
+    pin_ids = batch.drives[0].pins.ids
+    solver = ClothSolver(batch.model(rest, faces, s, pin_ids), device, worlds=len(scene_paths),
+                         initial_inputs=FrameInputs(capsules=batch.capsules(0)))
+    targets = [d.pins.targets for d in batch.drives]
+
+    def inputs(f: int) -> FrameInputs:
+        return FrameInputs(pin_targets=frame_of_each(targets, f), capsules=batch.capsules(f))
+
+    def run(w: int, positions: np.ndarray, solve_ms: np.ndarray, setup_seconds: float) -> SimulationRun:
+        return SimulationRun(positions, faces, rest, pin_ids, solve_ms, solver.n_constraints,
+                             batch_worlds=solver.worlds, setup_seconds=setup_seconds)
+
+    return PreparedBatch("low-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run)
+
+
+def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
+                 threads: int) -> PreparedBatch:
+    """The high-res runs of a batch of sequences, each group (SCENE, SUBDIV, SIM_LOW), one subdivision; each
+    sequence's harmonic targets (here) and residual (`measure`, while the device steps on) computed on `threads`
+    threads (numpy, scipy and the products release the GIL; the same numbers whatever the count)."""
+    start = time.perf_counter()
+    if len({group[1] for group in groups}) > 1:
+        raise PipelineError(f"{groups[1][1]}: a batch is one garment: every sequence takes the same SUBDIV")
+    scene_paths, subdiv_path, low_paths = [group[0] for group in groups], groups[0][1], [group[2] for group in groups]
+    s = solver_settings(settings)
+    batch = read_batch(scene_paths, s.body_collision)
+    for path in (subdiv_path, *low_paths):  # before any work: S of another mesh would multiply without complaint
+        check_same_mesh(path, scene_paths[0], batch.mesh)
+    subdivision, harmonics = read_subdivision(subdiv_path), read_harmonics(subdiv_path)
+    S, rest, faces = subdivision.S, subdivision.vertices, subdivision.faces
+    basis, mass = harmonics.basis, harmonics.mass
+    x_lows = [read_trajectory(path).positions for path in low_paths]
+    read_done = time.perf_counter()
+    for x_low, low_path, drive, scene_path in zip(x_lows, low_paths, batch.drives, scene_paths):
+        if S.shape != (len(rest), x_low.shape[1]):
+            raise PipelineError(f"{subdiv_path}: S is {S.shape}, but the high-res mesh has {len(rest)} vertices and "
+                                f"{low_path} has {x_low.shape[1]}")
+        if len(x_low) != drive.n_frames:
+            raise PipelineError(f"{low_path}: has {len(x_low)} frames, the scene {scene_path} {drive.n_frames}")
+    low_pins = batch.drives[0].pins
+    pins, part = subdivided_pins(S, low_pins.ids, low_pins.part)
+    targets = [apply_rigid(d.pins.transforms[:, part], rest[pins]) for d in batch.drives]
+    try:
+        constraint = harmonic_constraint(basis, mass, pins)
+    except ValueError as err:
+        raise PipelineError(f"{subdiv_path}: {err}") from None
+    # B^T M (S x_low) per frame: the low-frequency content the high-res run must reproduce. Loop subdivision pulls
+    # a convex surface inward, so where the low-res cloth rests on the body S x_low dips into it; a target taken
+    # there would pull the cloth into the body at every projection and the contacts would push it back out (the
+    # residual stayed at ~1e-3 on the CPU pants). With the body, the target is taken from S x_low moved clear of
+    # it, the way the solver moves the cloth, so that one shape meets both constraints.
+    products = BasisProducts((mass[:, None] * basis).T, S)
+    clearance = (SubdividedOutsideBody(S, batch.capsule_radii, s.collision_thickness, device)
+                 if s.body_collision else None)
+    # Each sequence's clearance here, one after another (~3 ms a paper-pants sequence on the H100: Warp's launches
+    # stay on this thread), then the targets' products on the job's threads while this thread builds the solver
+    # from frame 0's (~1 s each, for a 64-sequence batch).
+    moved = [clearance(x_low, d.capsules) if clearance else None for x_low, d in zip(x_lows, batch.drives)]
+    clearance_done = time.perf_counter()
+    model = batch.model(rest, faces, s, pins, harmonic=constraint)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        computing = [pool.submit(harmonic_targets_of, x_low, products, m) for x_low, m in zip(x_lows, moved)]
+        frame0_targets = [harmonic_targets_of(x_low[:1], products, None if m is None else (m[0], m[1][:1]))
+                          for x_low, m in zip(x_lows, moved)]
+        solver = ClothSolver(model, device, worlds=len(scene_paths),
+                             initial_inputs=FrameInputs(harmonic_target=np.concatenate(frame0_targets),
+                                                        capsules=batch.capsules(0)),
+                             initial_positions=np.stack([S @ x[0] for x in x_lows]))
+        solver_done = time.perf_counter()
+        harmonic_targets = [job.result() for job in computing]
+    if not quiet:   # where the setup goes (issue 12: a batch job's wall against its stepping)
+        print(f"high-res setup: reading {read_done - start:.1f} s, body clearance {clearance_done - read_done:.1f} s, "
+              f"solver {solver_done - clearance_done:.1f} s with the harmonic targets' products on {threads} "
+              f"thread(s) meanwhile, then waiting for those {time.perf_counter() - solver_done:.1f} s",
+              file=sys.stderr)
+
+    def inputs(f: int) -> FrameInputs:
+        return FrameInputs(pin_targets=frame_of_each(targets, f), harmonic_target=frame_of_each(harmonic_targets, f),
+                           capsules=batch.capsules(f))
+
+    # B^T M x of the stepped frames for the residual, on the job's threads while the device steps the next ones
+    # (numpy's BLAS releases the GIL; the main thread mostly waits on the device).
+    contents = [np.empty((n, basis.shape[1], 3)) for n in batch.n_frames]
+
+    def measure(w: int, first: int, end: int, positions: np.ndarray) -> None:
+        contents[w][first:end] = products.high(positions[first:end, w])
+
+    def run(w: int, positions: np.ndarray, solve_ms: np.ndarray, setup_seconds: float) -> SimulationRun:
+        n_frames = len(positions)
+        residual = (np.linalg.norm((contents[w] - harmonic_targets[w]).reshape(n_frames, -1), axis=1)
+                    / np.linalg.norm(contents[w].reshape(n_frames, -1), axis=1))
+        return SimulationRun(positions, faces, rest, pins, solve_ms, solver.n_constraints,
+                             (harmonic_residual(residual, basis.shape[1]),), batch_worlds=solver.worlds,
+                             setup_seconds=setup_seconds)
+
+    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure)
+
+
+LEVELS = {
+    "low": Level(("SCENE",), "the low-res run", prepare_low),
+    "high": Level(("SCENE", "SUBDIV", "SIM_LOW"), "the high-res run held to the low-res one", prepare_high),
+}
