@@ -272,3 +272,115 @@ def test_a_run_written_while_stepping_appears_only_once_finished(tmp_path):
             writer.frames(0, x[:3])
             writer.finish(run)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sim.h5"]
+
+
+def test_the_solver_kind_is_optional_and_names_a_registered_solver(tmp_path):
+    """`solver.kind` absent (every settings file written before it existed) or `xpbd` is the cloth's adapter, with
+    the same solver settings; an unknown kind is refused by the schema and, were it to get past it, by the
+    registry; `x-optional` spares `kind` only: a missing `solver.substeps` is still an error."""
+    from pipeline.core.config import read_settings
+    from pipeline.core.errors import PipelineError
+    from pipeline.solvers import registry, xpbd
+    settings = resolve_scene(CONFIG, "patch", "cpu")
+    assert "kind" not in settings["solver"] and registry.level_names() == ["low", "high"]
+    named = dict(settings, solver=dict(settings["solver"], kind="xpbd"))
+    for path, written in (("absent.json", settings), ("named.json", named)):
+        write_settings(written, tmp_path / path)
+        read = read_settings(tmp_path / path)
+        assert registry.solver_level(read, "high", path) is xpbd.LEVELS["high"]
+        assert xpbd.solver_settings(read) == xpbd.solver_settings(settings)
+    write_settings(dict(settings, solver=dict(settings["solver"], kind="fem")), tmp_path / "fem.json")
+    with pytest.raises(PipelineError, match=r"solver\.kind: 'fem' is not one of \['xpbd'\]"):
+        read_settings(tmp_path / "fem.json")
+    with pytest.raises(PipelineError, match=r"^fem\.json: solver\.kind 'fem' is not a solver kind \(known: xpbd\)$"):
+        registry.solver_level(dict(settings, solver={"kind": "fem"}), "low", "fem.json")
+    with pytest.raises(PipelineError, match=r"the xpbd solver makes no 'middle' run \(its runs: low, high\)"):
+        registry.solver_level(settings, "middle", "patch.json")
+    write_settings(dict(settings, solver={k: v for k, v in settings["solver"].items() if k != "substeps"}),
+                   tmp_path / "no_substeps.json")
+    with pytest.raises(PipelineError, match="missing key 'substeps' in solver"):
+        read_settings(tmp_path / "no_substeps.json")
+
+
+def drifting_level(offsets: np.ndarray, unstable_at: int | None = None):
+    """A solver kind's level that is no cloth: every vertex of world w moves by offsets[w] a frame (and, at frame
+    `unstable_at`, world 1 blows up); its run measures each frame's index, as its `measure` sees the frames."""
+    from pipeline.artifacts.scene import read_rest_mesh, read_scene_drive
+    from pipeline.artifacts.simulation import SimulationRun, harmonic_residual
+    from pipeline.solvers.level import Level, PreparedBatch
+    from sim.solver import UnstableSimulation
+
+    class DriftState:
+        def __init__(self, positions):
+            self.positions = positions
+
+        def read_world_positions(self):
+            return self.positions.astype(np.float32)
+
+    class DriftSolver:
+        def __init__(self, rest, worlds):
+            self.model, self.worlds = rest, worlds
+            self.state = DriftState(np.repeat(rest[None], worlds, axis=0))
+            self.frame = 0
+
+        def step(self, state, inputs):
+            self.frame += 1
+            if self.frame == unstable_at:
+                raise UnstableSimulation(1, 2, "drifted off")
+            state.positions = state.positions + inputs
+
+    def prepare(settings, groups, device, quiet, threads):
+        scene_paths = [group[0] for group in groups]
+        rest, faces = read_rest_mesh(scene_paths[0])
+        n_frames = [read_scene_drive(path, False).n_frames for path in scene_paths]
+        solver = DriftSolver(rest, len(groups))
+        seen = [np.zeros(n) for n in n_frames]
+
+        def measure(w, first, end, positions):
+            seen[w][first:end] += np.arange(first, end)
+
+        def run(w, positions, solve_ms, setup_seconds):
+            return SimulationRun(positions, faces, rest, np.array([0]), solve_ms, 7,
+                                 (harmonic_residual(seen[w], 1),), batch_worlds=solver.worlds,
+                                 setup_seconds=setup_seconds)
+
+        return PreparedBatch("drift", solver, scene_paths, n_frames, "one translation",
+                             lambda f: offsets[:len(groups), None], run, measure)
+
+    return {"low": Level(("SCENE",), "a drift", prepare)}
+
+
+@pytest.mark.parametrize("unstable_at", [None, 5])
+def test_the_stage_steps_whatever_solver_the_registry_holds(tmp_path, monkeypatch, capsys, unstable_at):
+    """The xpbd kind replaced in the registry by a solver that only translates the mesh: the stage steps it over
+    40 frames (three chunks of stepped frames) as a batch of two worlds and writes each world's file with its
+    positions, mesh and measure (each frame measured once); a blow-up in world 1 is one error naming its scene
+    and frame, and leaves no file."""
+    from pipeline import scene, simulate
+    from pipeline.artifacts.scene import read_rest_mesh
+    from pipeline.core import cli
+    from pipeline.solvers import registry
+    write_settings(dict(resolve_scene(CONFIG, "patch", "cpu"), frames=40), tmp_path / "settings.json")
+    scene.main([str(tmp_path / "settings.json"), str(tmp_path / "scene.h5"), "--sequence", "train_000"])
+    offsets = np.array([[0.0, 0.01, 0.0], [0.02, 0.0, 0.0]])
+    monkeypatch.setitem(registry.KINDS, "xpbd", drifting_level(offsets, unstable_at))
+    outputs = [tmp_path / "a.h5", tmp_path / "b.h5"]
+    argv = ["low", str(tmp_path / "settings.json"), str(tmp_path / "scene.h5"), str(outputs[0]),
+            str(tmp_path / "scene.h5"), str(outputs[1]), "--quiet"]
+    if unstable_at:
+        with pytest.raises(SystemExit):
+            cli.run(simulate.main, argv)
+        assert capsys.readouterr().err.splitlines() == [
+            f"error: {tmp_path / 'scene.h5'}: drift: simulation blew up (drifted off) at frame 5, substep 2"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.h5", "settings.json"]
+        return
+    cli.run(simulate.main, argv)
+    rest, faces = read_rest_mesh(tmp_path / "scene.h5")
+    for w, path in enumerate(outputs):
+        with h5py.File(path) as f:
+            expected = rest[None] + np.arange(40)[:, None, None] * offsets[w]
+            np.testing.assert_allclose(f["positions"][()], expected, atol=1e-6)
+            np.testing.assert_array_equal(f["faces"][()], faces)
+            np.testing.assert_array_equal(f["harmonic_residual"][()], np.arange(40))
+            assert (f.attrs["batch"], f.attrs["n_constraints"], f.attrs["n_harmonics"]) == (2, 7, 1)
+            assert f.attrs["stage"] == "simulate_low" and f["solve_ms"].shape == (40,)
