@@ -1,7 +1,10 @@
 """pipeline.workflow_paths: what a scene's targets stand for, its sequences' files, the BVH check, the batch rules'
 names, the wildcard patterns and the applications' paths, from hand-made settings (the workflow's plan of them:
 test_workflow.py, test_workflow_applications.py)."""
+import json
 import re
+import subprocess
+import sys
 
 import pytest
 
@@ -88,3 +91,17 @@ def test_a_scene_without_a_mannequin_has_no_pose_target_but_a_pca_one():
     with pytest.raises(PipelineError, match="results/patch/pose/: scene 'patch' has no mannequin"):
         workflow_paths.application_products("patch", grid, "pose")
     assert workflow_paths.application_products("patch", grid, "pca")[-1] == "results/patch/pca/report.md"
+
+
+def test_the_workflows_helper_modules_add_no_import_to_the_snakefiles_own():
+    """The Snakefile imports them at every start (a dry run, every job's start): beyond the config module it
+    imports anyway, they bring in nothing but themselves, and no torch or Warp."""
+    modules = ["pipeline.workflow_paths", "experiments.tradeoff.grid", "experiments.study.points",
+               "experiments.multi.garments"]
+    code = ("import json, sys\nimport pipeline.core.config\nbefore = set(sys.modules)\n"
+            f"for name in {modules!r}: __import__(name)\n"
+            "print(json.dumps([sorted(set(sys.modules) - before), 'torch' in sys.modules or 'warp' in sys.modules]))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    added, heavy = json.loads(run.stdout)
+    packages = {"experiments", "experiments.tradeoff", "experiments.study", "experiments.multi"}
+    assert set(added) == set(modules) | packages and not heavy
