@@ -1,12 +1,11 @@
 """Stage `pca_summary`: the PCA details-recovery models side by side, how much of the truncation error each
 recovers (paper Table 4 "cape PCA 32 / 64", Fig. 10).
 
-    python -m pipeline.tasks.summary REPORT.md --model K EVAL.h5 [--model K EVAL.h5 ...]
+    python -m experiments.pca REPORT.md --model K EVAL.h5 [--model K EVAL.h5 ...]
 
 Each EVAL.h5 is the evaluation of the network trained on the K PCA coefficients (results/<scene>/pca/k<K>/); the
 table gives per split the PCA reconstruction's L1 and L2 (the truncation error), the network's, and the share of
-the truncation error recovered, 1 - network / PCA. Lives with the tasks rather than beside the stages because
-only the PCA task has such a family of models.
+the truncation error recovered, 1 - network / PCA.
 """
 from __future__ import annotations
 
@@ -44,7 +43,7 @@ def summary_rows(models: list[tuple[int, dict]]) -> tuple[list[str], list[list[s
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.tasks.summary", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m experiments.pca", description=__doc__.splitlines()[0])
     parser.add_argument("report", help="report.md to write")
     parser.add_argument("--model", nargs=2, action="append", required=True, metavar=("K", "EVAL.h5"))
     args = parser.parse_args(argv)
@@ -63,6 +62,3 @@ def main(argv: Sequence[str] | None = None) -> None:
     with atomic_write(report) as f:
         f.write(report_markdown("PCA details recovery", sections, str).encode())
 
-
-if __name__ == "__main__":
-    cli.run(main)

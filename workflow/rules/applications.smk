@@ -131,7 +131,7 @@ rule pca_summary:
     benchmark: "results/{scene}/pca/benchmarks/summary.tsv"
     threads: 1
     resources: mem_mb=1000
-    shell: "{PY:q} -m pipeline.tasks.summary {output:q} {params.models:q} 2>&1 | tee {log:q}"
+    shell: "{PY:q} -m experiments.pca {output:q} {params.models:q} 2>&1 | tee {log:q}"
 
 
 # `results/<scene>/pose/` and `results/<scene>/pca/` as targets (see the Snakefile's `results/<scene>/`), with and
