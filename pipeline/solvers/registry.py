@@ -19,14 +19,10 @@ def level_names() -> list[str]:
     return list(dict.fromkeys(name for levels in KINDS.values() for name in levels))
 
 
-def solver_kind(settings: dict) -> str:
-    return settings["solver"].get("kind", DEFAULT_KIND)
-
-
 def solver_level(settings: dict, level: str, source: str) -> Level:
     """The level `level` of the settings' solver kind; an error naming `source` (the settings file) for a kind or
     a level that is not there."""
-    kind = solver_kind(settings)
+    kind = settings["solver"].get("kind", DEFAULT_KIND)
     if kind not in KINDS:
         raise PipelineError(f"{source}: solver.kind '{kind}' is not a solver kind (known: {', '.join(KINDS)})")
     if level not in KINDS[kind]:

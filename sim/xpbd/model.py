@@ -67,7 +67,3 @@ class ClothModel:
         if not (np.isfinite(radii).all() and (radii > 0).all()):
             raise ValueError("capsule radii must be finite and positive")
         return radii
-
-    @property
-    def n_vertices(self) -> int:
-        return len(self.rest_vertices)
