@@ -109,7 +109,7 @@ def test_the_default_plan_has_its_jobs_logs_and_resources_and_only_paths_in_shel
         assert job["log"].startswith("results/multi/") and "mem_mb=" in job["resources"] and "benchmark" in job
         assert ("gpu=1" in job["resources"]) == (name != "multi_report"), name
         words = shlex.split(job["shell"])[1:]
-        assert [w for w in words if not (w.startswith(("results/", "-", "pipeline.")) or w in
+        assert [w for w in words if not (w.startswith(("results/", "-", "pipeline.", "experiments.")) or w in
                                          {*GARMENTS, "train", "2", "2>&1", "|", "tee"})] == [], job["shell"]
     plan = snakemake(tmp_path, "-n", "results/pants/")
     assert plan.returncode == 0 and not set(planned_counts(plan)) & MULTI_RULES

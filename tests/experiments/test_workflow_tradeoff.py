@@ -182,7 +182,7 @@ def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_
             words = shlex.split(job["shell"])[1:]
             assert [w for w in words if not (w.startswith(("results/patch/", "-")) or w.isdigit() or w in
                                              {"low", "high", "iteration", "substep", "2>&1", "|", "tee"}
-                                             or w.startswith("pipeline."))] == [], job["shell"]
+                                             or w.startswith(("pipeline.", "experiments.")))] == [], job["shell"]
     stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
     assert (" --point 4 results/patch/sequences/train_000/sim_low.h5 --eval 4 results/patch/tradeoff/s4/scene/eval.h5"
             in stage)
