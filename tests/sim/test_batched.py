@@ -117,7 +117,7 @@ def test_per_world_inputs_are_checked(pants_drives):
     with pytest.raises(ValueError, match="pin_targets must have shape"):
         solver.step(solver.state, FrameInputs(pin_targets=drives[0][1][1], capsules=capsules[:, 1]))
     with pytest.raises(ValueError, match="worlds must be"):
-        ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids), "cpu", worlds=0)
+        ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), "cpu", worlds=0)
 
 
 @pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
