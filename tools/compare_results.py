@@ -3,8 +3,9 @@
     python tools/compare_results.py OLD_DIR NEW_DIR
 
 HDF5 files: every dataset (dtype, shape, values bit for bit, NaN equal to NaN) and every attr. model.pt: every
-entry, tensors bit for bit. Every other file byte for byte. Wall-clock measurements (solve and inference times,
-training seconds) and the package-version attr differ between any two runs and are listed, not compared.
+entry, tensors bit for bit. Reports (report.md, report.html) line by line, but for lines quoting the timings below.
+Every other file byte for byte. Wall-clock measurements (solve and inference times, training seconds) and the
+package-version attr differ between any two runs and are listed, not compared.
 Exit status 1 and one line per difference if anything else differs.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 # Wall-clock figures: datasets and attrs that measure time, not results.
 TIMINGS = {"solve_ms", "setup_seconds", "inference_ms", "epoch/seconds", "wall_seconds", "inference_ms_median"}
 PROVENANCE = {"versions"}
-# report.md lines quoting the timings above.
+# Report lines (report.md, and the same paragraph in report.html) quoting the timings above.
 TIMED_REPORT_WORDS = ("ms per frame", "min ")
 # Files that record a run rather than its results (Snakemake's per-rule logs and benchmarks).
 RUN_RECORDS = ("logs", "benchmarks")
@@ -103,7 +104,7 @@ def compare_dirs(old: Path, new: Path) -> tuple[list[str], int]:
             problems += compare_h5(a, b)
         elif rel.suffix == ".pt":
             problems += compare_model(a, b)
-        elif rel.suffix == ".md":
+        elif rel.suffix in (".md", ".html"):
             problems += compare_text(a, b)
         elif a.read_bytes() != b.read_bytes():
             problems.append(f"{b}: bytes differ")

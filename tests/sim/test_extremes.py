@@ -26,7 +26,7 @@ from pipeline.solvers.xpbd import solver_settings
 from scenes.grid import first_row_pins, grid_cloth
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints, \
     harmonic_constraint
-from tests.sim.cloth_checks import edge_ratios
+from cloth_checks import edge_ratios
 
 REPO = Path(__file__).resolve().parents[2]
 BASE = {"substeps": 4, "iterations": 20}   # the budget every extreme departs from (test_xpbd's)

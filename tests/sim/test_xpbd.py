@@ -8,7 +8,7 @@ from geometry.loop_subdivision import loop_subdivide
 from geometry.mesh import unique_edges
 from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, cloth_constraints,
                       harmonic_constraint)
-from tests.sim.cloth_checks import edge_ratios
+from cloth_checks import edge_ratios
 
 
 def test_pinned_hanging_cloth_settles(hanging_cloth):
