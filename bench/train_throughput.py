@@ -13,8 +13,8 @@ per input variant, batch size and mode, through the training loop's own step (mo
 Torch is set up as the training stage sets it up (deterministic, seeded). Median seconds per step over `--steps`
 steps after `--warmup` (synchronised on CUDA; a graph mode captures during its warm-up), as samples/s; the ratio
 column is against the eager mode of the same variant and batch size in the same run, with the first `--arithmetic`
-listed (pipeline.core.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also prints
-what the dataset occupies on the device (inputs + targets): the whole of it stays there during training.
+listed (pipeline.core.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also
+prints what the dataset occupies on the device (inputs + targets): the whole of it stays there during training.
 """
 from __future__ import annotations
 

@@ -11,13 +11,12 @@ ordinary displacements.
 """
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import torch
 from torch import nn
 
-from model.feature_spec import FRAMES, FeatureSpec
+from model.feature_spec import FeatureSpec
 from model.features import FrameBatch, FrameStore, InputFeatures
 from model.local_frames import to_global
 from model.mesh_hierarchy import MeshHierarchy

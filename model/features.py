@@ -18,7 +18,7 @@ import torch
 from torch import nn
 
 from geometry.mesh import unique_edges
-from model.feature_spec import FEATURE_CHANNELS, TANGENTS, FeatureSpec, check_features
+from model.feature_spec import FEATURE_CHANNELS, FeatureSpec, check_features
 from model.local_frames import to_local, vertex_frames
 
 # name -> the channels that hold a vector of the current frame, which turn with the local frame when inputs are

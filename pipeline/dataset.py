@@ -34,14 +34,14 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from geometry.rigid import apply_rigid_inverse
-from pipeline.core import cli
 from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
-from pipeline.core.h5 import check_same_mesh, source_mesh_of
 from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
+from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import check_same_mesh, source_mesh_of
 from pipeline.tasks import TASKS, task_of
 from pipeline.tasks.task import DatasetRequest, FrameMaker, SequenceRun
 from scenes.sequences import HELD_OUT, TRAIN

@@ -42,18 +42,18 @@ from model.features import FrameStore
 from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
 from model.training_step import LR_SCHEDULES
-from pipeline.core import cli
 from pipeline.artifacts.dataset import LearningData, load_dataset
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
-from pipeline.core.h5 import atomic_write, check_same_mesh
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_write, check_same_mesh
+from pipeline.core.torch_setup import configure_torch
 from pipeline.tasks import task_of
 from pipeline.tasks.task import Task
 from pipeline.tasks.timing import WARMUP_RUNS, pick_frames
-from pipeline.core.torch_setup import configure_torch
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
 from viz.comparison import Comparison, FrameMeshes, comparison_image, fit_comparison

@@ -20,11 +20,11 @@ import numpy as np
 from tqdm import tqdm
 
 from deploy.export import EXPORT_FILES, export_upsampler
-from pipeline.core import cli
-from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.subdiv import read_subdivision
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_write
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:

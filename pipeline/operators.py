@@ -20,10 +20,10 @@ import h5py
 
 from meshops import Level, build_operators, parse_conv_kinds
 from meshops.levels import DEFAULT_CONV, DEFAULT_POOLING_STEPS, DEFAULT_QUADRIC_THRESHOLD
-from pipeline.core.h5 import source_mesh_of
 from pipeline.artifacts.operators import write_operators
 from pipeline.core.cli import add_quiet, parse_with_settings, run
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import source_mesh_of
 from pipeline.core.meshio import load_mesh
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import argparse
 from typing import Sequence
 
-from pipeline.core import cli
 from pipeline.artifacts.scene import write_scene, write_scene_rest
+from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
 from pipeline.core.errors import PipelineError
 from scenes.registry import build_rest, build_scene

@@ -23,15 +23,15 @@ from typing import Any, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.core.h5 import mesh_fingerprint
+from geometry.harmonics import harmonic_basis, harmonic_count
+from geometry.loop_subdivision import loop_subdivide
+from geometry.mesh import unique_edges
 from pipeline.artifacts.subdiv import Harmonics, Subdivision, write_subdiv
 from pipeline.core.cli import add_quiet, parse_with_settings, run
 from pipeline.core.config import LEARNING_ONLY
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import mesh_fingerprint
 from pipeline.core.meshio import load_mesh
-from geometry.harmonics import harmonic_basis, harmonic_count
-from geometry.loop_subdivision import loop_subdivide
-from geometry.mesh import unique_edges
 
 MAX_VERTICES = 1_000_000           # subdivided vertices: beyond the simulation and dataset this pipeline is sized for
 MAX_EIGENSOLVER_BYTES = 16 * 2**30  # ARPACK keeps a Lanczos basis of 2 K + 1 vectors of V_high float64

@@ -36,15 +36,15 @@ from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
 from model.training import CheckpointError, TrainSettings, fit
 from model.training_step import LR_SCHEDULES
-from pipeline.core import cli
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.train_log import write_train_log
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
+from pipeline.core.torch_setup import configure_torch
 from pipeline.tasks import task_of
 from pipeline.tasks.task import NetworkRequest
-from pipeline.core.torch_setup import configure_torch
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:

@@ -19,13 +19,13 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline.core import cli
-from pipeline.artifacts.evaluation import read_errors, read_network_timing
-from pipeline.core.h5 import atomic_write
 from experiments.multi.model_file import load_multi_model
 from experiments.multi.table import NETWORKS, TERMS, WHO, MultiTable, write_multi_table
+from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.train_log import read_train_log
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_write
 from viz.html_report import Links, Paragraphs, Picture, Section, Table
 from viz.markdown_report import report_markdown
 from viz.plots import figure_bytes, training_curve

@@ -27,26 +27,25 @@ from typing import Any, Sequence
 
 import torch
 
+from experiments.multi.model_file import (check_garment_operators, load_multi_model, save_garment_view,
+                                          save_multi_model, trained_operators)
 from model.architecture import ArchitectureError
-from model.feature_regressor import FeatureSpec
+from model.feature_spec import FeatureSpec
 from model.losses import LossWeights
-from model.multi_mesh import Garment, MultiMeshFrames, MultiMeshRegressor
 from model.mesh_hierarchy import MeshHierarchy
+from model.multi_mesh import Garment, MultiMeshFrames, MultiMeshRegressor
 from model.networks import MeshNetwork, NetworkSpec, build_network
 from model.training import CheckpointError, TrainSettings, fit
-from pipeline.core import cli
 from pipeline.artifacts.dataset import UPSAMPLING, LearningData, load_dataset
 from pipeline.artifacts.model import read_checkpoint, write_checkpoint
-from experiments.multi.model_file import (check_garment_operators, load_multi_model, save_garment_view,
-                                            save_multi_model, trained_operators)
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.train_log import write_train_log
-from pipeline.core.config import read_settings
+from pipeline.core import cli
+from pipeline.core.config import feature_spec, read_settings
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
-from pipeline.core.config import feature_spec
-from pipeline.tasks import TASKS, frames_of
 from pipeline.core.torch_setup import configure_torch
+from pipeline.tasks import TASKS, frames_of
 
 SHARED = ("network", "training", "device")     # what the garments' settings must agree on
 

@@ -9,8 +9,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from pipeline.core.h5 import atomic_h5, open_artifact, read
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, open_artifact, read
 
 STAGE = "multi_report"
 WHO = ("predictor", "own", "shared")       # Loop subdivision alone; the garment's own network; the shared one

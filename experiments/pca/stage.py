@@ -15,10 +15,10 @@ import re
 from pathlib import Path
 from typing import Sequence
 
-from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors
-from pipeline.core.h5 import atomic_write
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_write
 from viz.html_report import Paragraphs, Section, Table
 from viz.markdown_report import report_markdown
 

@@ -18,10 +18,10 @@ from typing import Sequence
 
 import numpy as np
 
-from pipeline.core import cli
 from pipeline.artifacts.evaluation import read_errors, read_parameter_count
-from pipeline.core.h5 import atomic_h5, atomic_write
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, atomic_write
 from viz.study_plot import study_plot
 
 PAPER_UNIT = 1e-3

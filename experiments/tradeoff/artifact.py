@@ -10,8 +10,8 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from pipeline.core.h5 import FLOAT32_MAX, atomic_h5, open_artifact, read
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import FLOAT32_MAX, atomic_h5, open_artifact, read
 
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.

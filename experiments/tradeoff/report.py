@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.h5 import atomic_write
 from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, NO_NETWORK, Tradeoff
+from pipeline.core.h5 import atomic_write
 
 PAPER_UNIT = 1e-3          # errors are shown x 1e-3 scene units, as the scene's report (paper Table 3)
 FRAME_60HZ_MS = 1e3 / 60

@@ -50,22 +50,23 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff,
+                                          write_tradeoff)
+from experiments.tradeoff.report import groups, labels, pareto_front, plotted_errors, write_report
 from geometry.rigid import apply_rigid_inverse
 from model.inference import CapturedCall, padded_stencil
-from pipeline.core import cli
-from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.dataset import load_dataset
+from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
+from pipeline.artifacts.evaluation import read_errors, read_network_timing
 from pipeline.artifacts.model import load_model
-from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.simulation import read_solve_ms, read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
-from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
-from experiments.tradeoff.artifact import COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff, write_tradeoff
+from pipeline.core import cli
 from pipeline.core.errors import PipelineError
-from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_inference
-from pipeline.tasks import frames_of
+from pipeline.core.h5 import atomic_write
 from pipeline.core.torch_setup import configure_torch
-from experiments.tradeoff.report import groups, labels, pareto_front, plotted_errors, write_report
+from pipeline.tasks import frames_of
+from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_inference
 from viz.tradeoff_plot import tradeoff_plot
 
 SCHEDULES = ("iteration", "substep")

@@ -21,9 +21,9 @@ import h5py
 import numpy as np
 
 from model.features import previous_frames
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_indices
 from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames, read_torso_transforms
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_indices
 
 STAGE = "dataset"
 INPUT, TARGET, PREDICTOR = "input", "target", "predictor"

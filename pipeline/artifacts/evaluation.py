@@ -8,8 +8,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from pipeline.core.h5 import atomic_h5, config_of, open_artifact, read
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, config_of, open_artifact, read
 
 STAGE = "evaluate"
 

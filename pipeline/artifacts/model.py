@@ -17,9 +17,9 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.networks import NetworkSpec
 from model.regressors import Regressor, check_levels, input_spec, rebuild_regressor, saved_fields
 from model.training import CHECKPOINT_FORMAT
-from pipeline.core.h5 import atomic_write
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_write
 
 MODEL_FORMAT = "trimesh-cnn/model-2"     # 1: absolute positions only, no feature spec
 

@@ -10,8 +10,8 @@ import h5py
 import numpy as np
 
 from meshops import Level, parse_conv_kind
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, check_same_mesh, open_artifact, read_indices
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, check_same_mesh, open_artifact, read_indices
 
 if TYPE_CHECKING:
     from model.mesh_hierarchy import MeshHierarchy

@@ -14,8 +14,8 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
 from scenes.motion import BodyState
 from scenes.program import ProgramClip
 from scenes.scene import Mannequin, Pins, Scene, SceneRest

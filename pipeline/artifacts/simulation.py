@@ -11,8 +11,8 @@ from typing import Any, Iterator, Literal, Mapping
 import h5py
 import numpy as np
 
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, config_of, open_artifact, read, read_indices
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, config_of, open_artifact, read, read_indices
 
 
 @dataclasses.dataclass(frozen=True)

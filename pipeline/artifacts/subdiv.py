@@ -9,8 +9,8 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
 
 STAGE = "subdivide"
 

@@ -10,8 +10,8 @@ import h5py
 import numpy as np
 
 from model.training import History
-from pipeline.core.h5 import atomic_h5, open_artifact
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import atomic_h5, open_artifact
 
 STAGE = "train"
 TRAIN_TOTAL, TEST_TOTAL = "epoch/train_total", "epoch/test_total"

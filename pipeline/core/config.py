@@ -24,8 +24,8 @@ from typing import Any, Collection, Mapping
 import yaml
 
 from model.feature_spec import FeatureSpec
-from pipeline.core.h5 import FLOAT32_MAX, atomic_write
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import FLOAT32_MAX, atomic_write
 from scenes.sequences import clip_key, held_out_clips, training_clips
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "config.schema.yaml"

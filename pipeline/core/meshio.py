@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.core.h5 import FLOAT32_MAX, open_artifact, read_indices
-from pipeline.core.errors import PipelineError
 from geometry.mesh import validate_mesh
+from pipeline.core.errors import PipelineError
+from pipeline.core.h5 import FLOAT32_MAX, open_artifact, read_indices
 
 # Where each artifact kind keeps its mesh: the first group path found in a file wins.
 _H5_MESH_GROUPS = ("", "rest", "levels/0")

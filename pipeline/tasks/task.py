@@ -84,7 +84,7 @@ class NetworkRequest:
     conv: str
     pool: str
     width: float
-    features: Mapping[str, Any]    # inputs, input_frame, output_frame, frame_tangent (pipeline.core.config.feature_spec)
+    features: Mapping[str, Any]    # inputs, input_frame, output_frame, frame_tangent (core.config.feature_spec)
     features_source: str           # how an error names where `features` came from
 
 

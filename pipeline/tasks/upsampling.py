@@ -7,8 +7,8 @@ import torch
 
 from model.feature_regressor import FeatureRegressor
 from model.features import FrameStore
-from model.training import Frames
 from model.networks import NetworkSpec
+from model.training import Frames
 from pipeline.artifacts.dataset import LearningData, SequenceFrames, read_low_res
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core.config import feature_spec

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from experiments.study import stage as study
-from pipeline.core import cli
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
+from pipeline.core import cli
 
 
 def _evaluation(path: Path, network: dict[str, float], predictor: dict[str, float], parameters: int = 10) -> Path:

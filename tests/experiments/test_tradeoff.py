@@ -10,17 +10,18 @@ import scipy.sparse as sp
 import torch
 from scipy.spatial.transform import Rotation
 
+from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff,
+                                          write_tradeoff)
+from experiments.tradeoff.report import findings, pareto_front
+from experiments.tradeoff.stage import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
+                                        parse_high_res, per_sequence_ms, table_of, time_subdivision)
 from model.losses import l1_loss, l2_loss
 from pipeline.artifacts.dataset import SEQUENCE, SEQUENCE_FRAME, SEQUENCE_NAMES, SPLIT_HELD_OUT, SPLIT_TEST
+from pipeline.artifacts.dataset import read_frame_origins
 from pipeline.artifacts.evaluation import Evaluation, read_network_timing, write_evaluation
 from pipeline.artifacts.scene import TORSO_TRANSFORMS
 from pipeline.artifacts.simulation import SimulationRun, write_simulation
-from pipeline.artifacts.dataset import read_frame_origins
-from experiments.tradeoff.artifact import COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff, write_tradeoff
 from pipeline.core.errors import PipelineError
-from experiments.tradeoff.stage import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
-                               parse_high_res, per_sequence_ms, table_of, time_subdivision)
-from experiments.tradeoff.report import findings, pareto_front
 
 REFERENCE = Reference(4, 30, "substep")
 

@@ -13,8 +13,8 @@ import torch
 import yaml
 from workflow_runs import build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
-from pipeline.artifacts.evaluation import read_errors, read_parameter_count
 from experiments.multi.table import read_multi_table
+from pipeline.artifacts.evaluation import read_errors, read_parameter_count
 from pipeline.artifacts.operators import load_hierarchy
 
 GARMENTS = ["pants", "skirt", "tshirt"]

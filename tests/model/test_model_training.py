@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-import model.training
-from model.losses import LossWeights
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameStore
+from model.losses import LossWeights
 from model.networks import NetworkSpec, build_network
+import model.training
 from model.training import CheckpointError, Frames, TrainSettings, displacement_errors, fit, split_errors
 from model.training_step import learning_rate, set_learning_rate
 

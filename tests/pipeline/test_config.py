@@ -10,7 +10,7 @@ import yaml
 
 from pipeline.core.cli import parse_with_settings
 from pipeline.core.config import (LEARNING_ONLY, deep_merge, load_config, load_schema, read_settings, resolve_scene,
-                             shared_settings, simulation_settings, validate_config, write_settings)
+                                  shared_settings, simulation_settings, validate_config, write_settings)
 from pipeline.core.errors import PipelineError
 from scenes.motion import MOTION_KINDS
 

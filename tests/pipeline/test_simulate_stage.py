@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline.core.config import resolve_scene, write_settings
 from geometry.rigid import apply_rigid
+from pipeline.core.config import resolve_scene, write_settings
 
 CONFIG = yaml.safe_load(open("workflow_config.yaml"))
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.core.h5 import config_of, read_csr
-from pipeline.core.config import load_config, resolve_scene, write_settings
 from geometry.loop_subdivision import loop_subdivide
+from pipeline.core.config import load_config, resolve_scene, write_settings
+from pipeline.core.h5 import config_of, read_csr
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -15,9 +15,9 @@ import pytest
 import yaml
 
 from pipeline import scene, simulate, subdivide
-from pipeline.core import cli
 from pipeline.artifacts.simulation import read_trajectory
 from pipeline.artifacts.subdiv import read_subdivision
+from pipeline.core import cli
 from pipeline.core.config import resolve_scene, write_settings
 from viz.comparison import FrameMeshes, comparison_image, fit_comparison
 from viz.render import CLOTH_RGB, shading
