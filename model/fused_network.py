@@ -2,7 +2,7 @@
 
 `FastNetwork` runs ~150 small kernels a frame (a gather, a matmul, norm statistics, pool and unpool copies,
 concatenations): on an H100 the frame is bound by launches and by the gathers' memory traffic, not by the
-matmuls (docs/performance.md, "Deployment path"). Here the steps between convolutions are folded into few
+matmuls (docs/history/performance-log.md, "Deployment path"). Here the steps between convolutions are folded into few
 launches (model.triton_conv):
 
 * **conv** -> products first where it has >= 16 input channels (`products_first`: a cuBLAS matmul by every
