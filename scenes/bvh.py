@@ -4,6 +4,10 @@ A small parser rather than a library: the format is a dozen keywords, and the on
 two dependencies (PyGLM, spatial-transform), works joint by joint in Python objects and raises its own errors,
 where we want arrays and a one-line ValueError naming the line. Euler angles go through scipy's Rotation.
 
+Files are read as UTF-8 text (a byte-order mark allowed), gunzipped where the name ends in `.gz`, as motion libraries
+are kept; read_bvh_header reads a file only as far as its MOTION header (a library reads every file's header at
+every start), with the same parser as the full read.
+
 Conventions (those of the BVH format as Blender and MotionBuilder read it): a joint's CHANNELS list its Euler
 rotations in the order they compose, R = R_first R_second R_third, in degrees; its local translation is its OFFSET,
 or its position channels where it has them; the rest pose has every rotation the identity. Quaternions are
@@ -12,6 +16,12 @@ axes are kept as in the file (Y-up or Z-up): the retargeting works them out from
 """
 from __future__ import annotations
 
+import gzip
+import math
+import numbers
+import zlib
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
@@ -27,7 +37,7 @@ TYPICAL_EXTENT = 1.7  # metres: a standing adult's rest pose spans about this mu
 @dataclass(frozen=True, eq=False)
 class BvhClip:
     """A BVH file's skeleton and motion, lengths in metres. Joints are in file order (parents first)."""
-    name: str                         # the file's stem, for messages and clip names
+    name: str                         # the file's name without .bvh(.gz), for messages and clip names
     names: tuple[str, ...]            # (J,) joint names
     parents: np.ndarray               # (J,) int64, -1 for the root
     offsets: np.ndarray               # (J, 3) rest position of each joint in its parent's frame
@@ -51,28 +61,48 @@ class BvhClip:
         return _chain_sums(self.parents, self.offsets)
 
 
-def read_bvh(path: str | Path, scale: float | None = None) -> BvhClip:
-    """Read a BVH file. `scale` is metres per file unit; by default it is the unit of UNITS whose rest-pose
-    extent comes closest to TYPICAL_EXTENT (inches, CMU's 1/0.45 inch, cm, mm and m are far apart)."""
+@dataclass(frozen=True)
+class BvhHeader:
+    """What a BVH file says before its motion data."""
+    names: tuple[str, ...]  # joint names in file order (parents first)
+    n_frames: int
+    frame_time: float       # seconds, as the file states it
+
+
+def read_bvh(path: str | Path, scale: float | None = None, frame_time: float | None = None) -> BvhClip:
+    """Read a BVH file (`.bvh`, or gzip-compressed `.bvh.gz`). `scale` is metres per file unit; by default it is
+    the unit of UNITS whose rest-pose extent comes closest to TYPICAL_EXTENT (inches, CMU's 1/0.45 inch, cm, mm
+    and m are far apart). `frame_time` (seconds) replaces the header's where that is wrong (some libraries claim
+    120 fps for trials captured at 60). Errors are one-line ValueErrors that start with the path."""
     path = Path(path)
-    return parse_bvh(path.read_text(), path.stem, str(path), scale)
+    with _lines(path) as lines:
+        return _parse(_Tokens(lines, str(path)), _clip_name(path), scale, frame_time)
 
 
-def parse_bvh(text: str, name: str = "clip", source: str = "<bvh>", scale: float | None = None) -> BvhClip:
+def read_bvh_header(path: str | Path) -> BvhHeader:
+    """The joint names, frame count and frame time of a BVH file (`.bvh` or `.bvh.gz`), read only as far as the
+    'Frame Time:' line: the hierarchy is checked as read_bvh checks it, the motion data is not read."""
+    path = Path(path)
+    with _lines(path) as lines:
+        tree, n_frames, frame_time = _parse_header(_Tokens(lines, str(path)))
+    return BvhHeader(names=tuple(tree.names), n_frames=n_frames, frame_time=frame_time)
+
+
+def parse_bvh(text: str, name: str = "clip", source: str = "<bvh>", scale: float | None = None,
+              frame_time: float | None = None) -> BvhClip:
     """Parse BVH text; errors are one-line ValueErrors that start with `source` and the line number."""
-    tokens = _Tokens(text, source)
-    tokens.expect("HIERARCHY")
-    tokens.expect("ROOT")
-    tree = _Tree()
-    _parse_joint(tokens, tree, -1)
-    tokens.expect("MOTION")
-    tokens.expect("Frames:")
-    n_frames = tokens.count("frame count", 1)
-    tokens.expect("Frame")
-    tokens.expect("Time:")
-    frame_time = tokens.number("frame time")
-    if not frame_time > 0:
-        tokens.fail(f"frame time must be positive, got {frame_time}")
+    return _parse(_Tokens(text.splitlines(), source), name, scale, frame_time)
+
+
+def _parse(tokens: _Tokens, name: str, scale: float | None, frame_time: float | None) -> BvhClip:
+    """The whole file: its header, then the motion data (frame_time, where given, replaces the header's)."""
+    source = tokens.source
+    if frame_time is not None and not (isinstance(frame_time, numbers.Real) and not isinstance(frame_time, bool)
+                                       and math.isfinite(frame_time) and frame_time > 0):
+        raise ValueError(f"{source}: the frame time given must be a positive finite number of seconds, "
+                         f"got {frame_time!r}")
+    tree, n_frames, header_frame_time = _parse_header(tokens)
+    frame_time = header_frame_time if frame_time is None else frame_time
     values = tokens.frames(n_frames, sum(len(c) for c in tree.channels))
     offsets = np.array(tree.offsets)
     if scale is None:
@@ -95,6 +125,43 @@ def parse_bvh(text: str, name: str = "clip", source: str = "<bvh>", scale: float
                    offsets=offsets * scale, end_sites={j: np.asarray(o) * scale for j, o in tree.end_sites.items()},
                    frame_time=float(frame_time), positions=positions * scale, rotations=rotations,
                    unit_scale=float(scale))
+
+
+def _parse_header(tokens: _Tokens) -> tuple[_Tree, int, float]:
+    """The hierarchy and the MOTION header up to the frame time (the last word read)."""
+    tokens.expect("HIERARCHY")
+    tokens.expect("ROOT")
+    tree = _Tree()
+    _parse_joint(tokens, tree, -1)
+    tokens.expect("MOTION")
+    tokens.expect("Frames:")
+    n_frames = tokens.count("frame count", 1)
+    tokens.expect("Frame")
+    tokens.expect("Time:")
+    frame_time = tokens.number("frame time")
+    if not frame_time > 0:
+        tokens.fail(f"frame time must be positive, got {frame_time}")
+    return tree, n_frames, frame_time
+
+
+@contextmanager
+def _lines(path: Path) -> Iterator[Iterable[str]]:
+    """The file's lines, read as they are asked for and gunzipped where its name ends in .gz; a corrupt gzip
+    stream or bytes that are not UTF-8 give one ValueError starting with the path."""
+    opener = gzip.open if path.suffix.lower() == ".gz" else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig") as stream:
+            yield stream
+    except (gzip.BadGzipFile, EOFError, zlib.error) as err:
+        raise ValueError(f"{path}: not a readable gzip file ({err})") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not UTF-8 text (byte 0x{err.object[err.start]:02x}: {err.reason})") from None
+
+
+def _clip_name(path: Path) -> str:
+    """The file's name without .bvh and .gz: '01_01' for 01_01.bvh.gz."""
+    name = path.name[:-3] if path.name.lower().endswith(".gz") else path.name
+    return Path(name).stem
 
 
 def world_transforms(clip: BvhClip, frames: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
@@ -178,27 +245,28 @@ _CHANNEL_NAMES = {f"{axis}{kind}".lower(): (axis, kind) for axis in "XYZ" for ki
 
 
 class _Tokens:
-    """Whitespace-separated words with their line numbers, read front to back; the motion data is read by line."""
+    """Whitespace-separated words with their line numbers, read front to back from lines that are taken only as
+    far as the words asked for; the motion data is read by line."""
 
-    def __init__(self, text: str, source: str):
+    def __init__(self, lines: Iterable[str], source: str):
         self.source = source
-        self.lines = text.splitlines()
-        self.words = [(word, i + 1) for i, line in enumerate(self.lines) for word in line.split()]
-        self.at = 0
-
-    @property
-    def line(self) -> int:
-        """The line of the word read last: the one a problem is found at."""
-        return self.words[self.at - 1][1] if self.at else 1
+        self.lines = iter(lines)
+        self.lines_taken = 0
+        self.pending: list[str] = []   # the words of line `lines_taken` not read yet, last word first
+        self.line = 1                  # the line of the word read last: the one a problem is found at
 
     def fail(self, problem: str) -> NoReturn:
         raise ValueError(f"{self.source}:{self.line}: {problem}")
 
     def word(self, what: str) -> str:
-        if self.at >= len(self.words):
-            self.fail(f"file ends where {what} was expected")
-        self.at += 1
-        return self.words[self.at - 1][0]
+        while not self.pending:
+            line = next(self.lines, None)
+            if line is None:
+                self.fail(f"file ends where {what} was expected")
+            self.lines_taken += 1
+            self.pending = line.split()[::-1]
+        self.line = self.lines_taken
+        return self.pending.pop()
 
     def expect(self, keyword: str) -> None:
         word = self.word(f"'{keyword}'")
@@ -207,10 +275,9 @@ class _Tokens:
 
     def name(self) -> str:
         """A joint name: the words after the keyword on its line, up to an opening brace."""
-        line = self.line
         parts = []
-        while self.at < len(self.words) and self.words[self.at][1] == line and self.words[self.at][0] != "{":
-            parts.append(self.word("a joint name"))
+        while self.pending and self.pending[-1] != "{":
+            parts.append(self.pending.pop())
         if not parts:
             self.fail("joint without a name")
         return " ".join(parts)
@@ -245,7 +312,8 @@ class _Tokens:
     def frames(self, n_frames: int, n_channels: int) -> np.ndarray:
         """The motion data: the lines after 'Frame Time', one frame each with `n_channels` numbers."""
         first = self.line  # the line holding the frame time; data starts on the next
-        rows = [(i + 1, line.split()) for i, line in enumerate(self.lines[first:], start=first) if line.strip()]
+        numbered = enumerate(map(str.split, self.lines), start=self.lines_taken + 1)
+        rows = [(i, words) for i, words in numbered if words]
         if len(rows) != n_frames:
             raise ValueError(f"{self.source}:{first}: 'Frames: {n_frames}' but {len(rows)} data lines follow")
         values = np.empty((n_frames, n_channels))

@@ -163,8 +163,8 @@ def test_unmappable_file_names_the_missing_joints(tmp_path):
         retarget(clip, SKEL, 60.0)
     message = str(error.value)
     assert message.startswith("cannot map BVH 'torso' onto the mannequin: no joint for ") and "\n" not in message
-    assert "chest (Chest2/Spine2/Thorax/Spine1/Chest/UpperBack)" in message
-    assert "thigh_l (LeftUpLeg/LeftUpperLeg/LeftThigh/lfemur/LeftHip)" in message
+    assert "chest (Chest2/Spine2/Thorax/Spine1/Chest/UpperBack/CC_Base_Spine02)" in message
+    assert "thigh_l (LeftUpLeg/LeftUpperLeg/LeftThigh/lfemur/LeftHip/lThigh/CC_Base_L_Thigh)" in message
     missing = [part for part in SKEL.names if f" {part} (" in message]
     assert missing == ["chest", "upper_arm_r", "lower_arm_r", "hand_r", "thigh_l", "shin_l", "foot_l", "thigh_r",
                        "shin_r", "foot_r"]
