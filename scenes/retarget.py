@@ -37,12 +37,15 @@ from scenes.skeleton import Skeleton, default_skeleton
 # LeftForeArm/LeftHand in one, LeftHip/LeftKnee/LeftAnkle and LeftCollar/LeftShoulder (upper arm)/LeftElbow/LeftWrist
 # in another, hence LeftShoulder last among the upper-arm names. The Daz/Poser conversion of CMU names the upper arm
 # lShldr (its collar is lCollar) and puts a fixed lButtock between hip and lThigh, the hip joint. Reallusion's
-# CC_Base rig hangs the thighs from CC_Base_Pelvis (a fixed child of the root CC_Base_Hip); of its back, Waist and
-# Spine01 bend against each other (about x, 21-33° and -19°, on average over the CMU clips) and their sum is what
-# the mannequin's spine can follow; its twist and share bones are left to the joints they ride on. A skeleton with
-# a single torso joint bends only at the chest: the spine then follows the root.
+# CC_Base rig: its root CC_Base_Hip is the pelvis (the thighs hang from its child CC_Base_Pelvis, turned against it by
+# a fixed 11.8° about x, which would tilt a standing mannequin's pelvis by as much); of its back, Waist and Spine01
+# bend against each other (about x, by 21-33° and -19° on average over the CMU clips) and the mannequin's spine
+# follows their sum; its twist and share bones are left to the joints they ride on. Measured on CMU trial 03_01 in
+# both conventions, the mannequin's pelvis, chest and thigh twists agree within 1, 2 and 5° (RMS), its spine 13°
+# apart (the rigs' rest backs differ). A skeleton with a single torso joint bends only at the chest: the spine
+# then follows the root.
 JOINT_NAMES = {
-    "pelvis": ("Hips", "Hip", "Pelvis", "Root", "CC_Base_Pelvis"),
+    "pelvis": ("Hips", "Hip", "Pelvis", "Root", "CC_Base_Hip"),
     "spine": ("LowerBack", "Spine", "Abdomen", "CC_Base_Spine01", "Hips", "Hip", "Pelvis", "Root"),
     "chest": ("Chest2", "Spine2", "Thorax", "Spine1", "Chest", "UpperBack", "CC_Base_Spine02"),
     "head": ("Head", "CC_Base_Head"),

@@ -1,5 +1,8 @@
 """BVH import: every rotation order, End Sites, position channels, forward kinematics, unit detection, one-line
-errors that name the line, and the shared CMU clip (skipped where ../shared/mocap is absent)."""
+errors that name the line, gzip-compressed files, a frame-time override, the header alone, and the shared CMU clips
+(skipped where ../shared/mocap is absent)."""
+import csv
+import gzip
 from pathlib import Path
 
 import numpy as np
@@ -7,9 +10,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bvh_files import Joint, bvh_text, write_bvh
-from scenes.bvh import UNITS, parse_bvh, read_bvh, world_transforms
+from scenes.bvh import UNITS, BvhHeader, parse_bvh, read_bvh, read_bvh_header, world_transforms
 
-CMU_WALK = Path(__file__).resolve().parents[3] / "shared" / "mocap" / "cmu_131_01_walk.bvh"
+MOCAP = Path(__file__).resolve().parents[3] / "shared" / "mocap"
+CMU_WALK = MOCAP / "cmu_131_01_walk.bvh"
 
 
 def elementary(axis: str, degrees: float) -> np.ndarray:
@@ -116,3 +120,120 @@ def test_shared_cmu_walk():
     assert rest[clip.names.index("Head"), 1] - rest[clip.names.index("LeftAnkle"), 1] > 1.0  # Y up, in metres
     _, position = world_transforms(clip)
     assert np.isfinite(position).all() and 0.85 < position[0, 0, 1] < 1.05   # hips height while standing
+
+
+def assert_same_clip(a, b):
+    assert (a.names, a.n_frames, a.frame_time, a.unit_scale) == (b.names, b.n_frames, b.frame_time, b.unit_scale)
+    np.testing.assert_array_equal(a.parents, b.parents)
+    for field in ("offsets", "positions", "rotations"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_gzip_file_reads_as_its_text(tmp_path):
+    text = bvh_text(stick_figure(0.01), np.random.default_rng(0).uniform(-30, 30, (5, 21)), 1 / 120)
+    plain = tmp_path / "01_01.bvh"
+    plain.write_text(text)
+    packed = tmp_path / "01_01.bvh.gz"
+    packed.write_bytes(gzip.compress(text.encode()))
+    clip = read_bvh(packed)
+    assert clip.name == "01_01" and clip.n_frames == 5
+    assert_same_clip(clip, read_bvh(plain))
+    # A byte-order mark, as some Windows exporters write, is not part of the first keyword.
+    marked = tmp_path / "marked.bvh"
+    marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert_same_clip(read_bvh(marked), clip)
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("plain.bvh.gz", GOOD.encode(), "not a readable gzip file"),                      # named .gz, not gzip
+    ("cut.bvh.gz", gzip.compress(GOOD.encode())[:-12], "not a readable gzip file"),   # stream ends early
+    ("latin.bvh", GOOD.replace("Head", "T\xeate").encode("latin-1"), "not UTF-8 text (byte 0xea"),
+    ("latin.bvh.gz", gzip.compress(GOOD.replace("Head", "T\xeate").encode("latin-1")), "not UTF-8 text (byte 0xea"),
+])
+def test_unreadable_bytes_give_one_line_naming_the_file(tmp_path, name, content, message):
+    path = tmp_path / name
+    path.write_bytes(content)
+    for read in (read_bvh, read_bvh_header):
+        if read is read_bvh_header and name.startswith("cut"):
+            continue   # the header comes before the cut: read_bvh_header never reaches it
+        with pytest.raises(ValueError) as error:
+            read(path)
+        assert str(error.value).startswith(f"{path}: {message}") and "\n" not in str(error.value)
+
+
+def test_frame_time_given_replaces_the_header(tmp_path):
+    path = write_bvh(tmp_path / "salsa.bvh", stick_figure(0.01), np.zeros((121, 21)), 1 / 120)
+    header_says = read_bvh(path)
+    clip = read_bvh(path, frame_time=1 / 60)     # captured at 60 fps, the header claims 120
+    assert header_says.duration == pytest.approx(1.0) and clip.duration == pytest.approx(2.0)
+    assert clip.frame_time == 1 / 60
+    np.testing.assert_array_equal(clip.rotations, header_says.rotations)
+    for wrong in (0.0, -1 / 60, float("nan"), float("inf"), "0.0167", True):
+        with pytest.raises(ValueError) as error:
+            read_bvh(path, frame_time=wrong)
+        assert str(error.value).startswith(f"{path}: the frame time given must be a positive finite number")
+
+
+@pytest.mark.parametrize("packed", [False, True])
+def test_header_alone_equals_the_full_read(tmp_path, packed):
+    joints = [Joint("Hips", -1, (0, 95, 0), has_position=True), Joint("Left Up Leg", 0, (10, -5, 0)),
+              Joint("LeftLeg", 1, (0, -45, 0), end_site=(0, -45, 0)), Joint("Head", 0, (0, 60, 0), end_site=(0, 20, 0))]
+    text = bvh_text(joints, np.random.default_rng(1).uniform(-40, 40, (7, 15)), 0.0333)
+    path = tmp_path / ("clip.bvh.gz" if packed else "clip.bvh")
+    path.write_bytes(gzip.compress(text.encode()) if packed else text.encode())
+    clip = read_bvh(path)
+    assert read_bvh_header(path) == BvhHeader(names=clip.names, n_frames=clip.n_frames, frame_time=clip.frame_time)
+    assert clip.names == ("Hips", "Left Up Leg", "LeftLeg", "Head") and clip.frame_time == 0.0333
+    # It stops at the frame time: motion data that a full read refuses (and, gzipped, a stream cut short far
+    # below the header) does not reach it.
+    broken = text[:text.index("Frame Time:")] + "Frame Time: 0.0333\n" + "1 2 x\n" * 20000
+    path.write_bytes(gzip.compress(broken.encode())[:-6] if packed else broken.encode())
+    assert read_bvh_header(path) == BvhHeader(clip.names, clip.n_frames, 0.0333)
+    with pytest.raises(ValueError, match="not a readable gzip file" if packed else "'Frames: 7' but 20000"):
+        read_bvh(path)
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("\tOFFSET 0 1 0\n\tCHANNELS", "\tOFSET 0 1 0\n\tCHANNELS", ":4: expected 'OFFSET', got 'OFSET'"),
+    ("JOINT Head", "JOINT Hips", ":6: joint name 'Hips' appears twice"),
+    ("Frames: 2", "Frames: 2.5", ":17: frame count must be a whole number >= 1, got 2.5"),
+    ("Frame Time: 0.01", "Frame Time: 0", ":18: frame time must be positive, got 0.0"),
+    ("Frame Time: 0.01", "Frame Time:", ":19: frame time must be positive, got 0.0"),   # the first value read
+    ("MOTION\nFrames: 2\nFrame Time: 0.01\n0 0 0 0 0 0 0 0 0\n0 0 0 0 0 0 0 0 0\n", "MOTION\n",
+     ":16: file ends where 'Frames:' was expected"),
+])
+def test_header_errors_name_the_file_and_line(tmp_path, old, new, message):
+    assert old in GOOD
+    path = tmp_path / "bad.bvh.gz"
+    path.write_bytes(gzip.compress(GOOD.replace(old, new, 1).encode()))
+    with pytest.raises(ValueError) as error:
+        read_bvh_header(path)
+    assert str(error.value) == f"{path}{message}"
+
+
+def shared_manifest(folder: str) -> list[dict]:
+    manifest = MOCAP / folder / "MANIFEST.tsv"
+    if not manifest.exists():
+        pytest.skip(f"shared mocap library not found at {manifest.parent}")
+    with manifest.open(newline="") as file:
+        return list(csv.DictReader(file, delimiter="\t"))
+
+
+@pytest.mark.parametrize("folder", ["cmu", "cmu_rigs"])
+def test_shared_library_headers_match_their_manifest(folder):
+    rows = shared_manifest(folder)
+    assert len(rows) == {"cmu": 167, "cmu_rigs": 4}[folder]
+    for row in rows:
+        header = read_bvh_header(MOCAP / folder / row["file"])
+        assert (header.n_frames, len(header.names), header.names[0]) == (int(row["frames"]), int(row["joints"]),
+                                                                         row["root"])
+        assert header.frame_time == pytest.approx(float(row["frame_time"]), rel=1e-6)
+
+
+def test_shared_clip_at_its_true_frame_rate():
+    rows = {row["clip"]: row for row in shared_manifest("cmu")}
+    salsa = rows["60_10"]      # every header says 120 fps; CMU captured the salsa trials at 60
+    assert salsa["cmu_capture_fps"] == "60"
+    clip = read_bvh(MOCAP / "cmu" / salsa["file"], frame_time=1 / 60)
+    assert clip.n_frames == int(salsa["frames"]) and clip.name == "60_10"
+    assert clip.duration == pytest.approx(float(salsa["seconds_corrected"]), abs=0.02)
