@@ -6,7 +6,8 @@ seeded train/test split of the training sequences and the held-out sequences as 
                                [--task upsampling|pose|pca] [--components K] [--quiet]
 
 A SEQUENCE is a folder holding one sequence's sim_low.h5 and sim_high.h5 and, where there is one, its scene.h5
-(results/<scene>/sequences/<name>/, so `results/pants/sequences/*` gathers a scene). Its frames follow those of
+(results/<scene>/sequences/<name>/, so `results/pants/sequences/*` gathers a scene); a sequence dropped on the way
+(a library window that could not be played, a run that tangled) is left out and listed. Its frames follow those of
 the sequences before it, in the order given; the frames before its first clip (the settle period: scene.h5
 `motion/clip` 0, at rest and alike in every sequence) are kept in the first training sequence only. A folder
 without scene.h5 is a training sequence named after the folder, all of whose frames are kept.
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
@@ -35,13 +37,14 @@ import numpy as np
 
 from geometry.rigid import apply_rigid_inverse
 from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
-from pipeline.artifacts.scene import CAPSULE_A, CAPSULE_B, read_mannequin_frames, read_sequence, read_torso_transforms
+from pipeline.artifacts.scene import (CAPSULE_A, CAPSULE_B, read_library_window, read_mannequin_frames, read_sequence,
+                                      read_torso_transforms)
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
 from pipeline.artifacts.subdiv import Subdivision, read_subdivision
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import check_same_mesh, source_mesh_of
+from pipeline.core.h5 import check_same_mesh, dropped_reason, source_mesh_of
 from pipeline.tasks import TASKS, task_of
 from pipeline.tasks.task import DatasetRequest, FrameMaker, SequenceRun
 from scenes.sequences import HELD_OUT, TRAIN
@@ -59,6 +62,7 @@ class SequenceSource:
     first: int                 # first frame kept: 0, or the end of the settle period
     clips: tuple[str, ...]     # the clips it plays, in order (none without a mannequin)
     scene: Path | None         # its scene.h5, if it has one
+    window: dict | None = None     # the motion library window it plays (scene.h5 attr library_window), if any
 
     @property
     def kept(self) -> int:
@@ -74,11 +78,18 @@ def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.nda
     return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
-def find_sequences(folders: Sequence[str]) -> list[SequenceSource]:
-    """The sequences of the given folders, in order, with the frames each keeps (see the module docstring)."""
-    sources, settle_kept = [], False
+def find_sequences(folders: Sequence[str]) -> tuple[list[SequenceSource], list[tuple[str, str]]]:
+    """The sequences of the given folders, in order, with the frames each keeps (see the module docstring), and
+    (name, reason) of each sequence dropped on the way (a library window that could not be played, a run that
+    tangled: pipeline.core.h5.write_dropped), which the dataset passes over."""
+    sources, dropped, settle_kept = [], [], False
     for folder in map(Path, folders):
         scene = folder / SCENE if (folder / SCENE).is_file() else None
+        reason = next((f"{name}: {why}" for name in (SCENE, SIM_LOW, SIM_HIGH) if (folder / name).is_file()
+                       and (why := dropped_reason(folder / name))), "")
+        if reason:
+            dropped.append((folder.name, reason))
+            continue
         n_frames, _ = read_run_outline(folder / SIM_LOW)
         if scene is None:
             sources.append(SequenceSource(folder, folder.name, TRAIN, n_frames, 0, (), None))
@@ -89,14 +100,15 @@ def find_sequences(folders: Sequence[str]) -> list[SequenceSource]:
         keep_settle = info.role == TRAIN and not settle_kept
         settle_kept = settle_kept or keep_settle
         sources.append(SequenceSource(folder, info.name, info.role, n_frames, 0 if keep_settle else info.settle_frames,
-                                      info.clip_names[1:], scene))
+                                      info.clip_names[1:], scene, read_library_window(scene)))
     names = [s.name for s in sources]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise PipelineError(f"sequence '{repeated[0]}' is given twice ({', '.join(str(s.folder) for s in sources)})")
     if not any(s.role == TRAIN for s in sources):
-        raise PipelineError(f"no training sequence among {', '.join(map(str, folders))} (all are held out)")
-    return sources
+        raise PipelineError(f"no training sequence among {', '.join(map(str, folders))} (all are held out or "
+                            f"dropped)")
+    return sources, dropped
 
 
 def shared_physics(sources: list[SequenceSource]) -> RunPhysics:
@@ -112,7 +124,8 @@ def shared_physics(sources: list[SequenceSource]) -> RunPhysics:
 
 
 def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-                   test_fraction: float, seed: int, frame_time: float) -> DatasetLayout:
+                   test_fraction: float, seed: int, frame_time: float,
+                   dropped: Sequence[tuple[str, str]] = ()) -> DatasetLayout:
     """Where every frame comes from, and the split: of the training sequences' frames a seeded random share is
     test, the rest train; every frame of the held-out sequences is held out."""
     sequence = np.concatenate([np.full(s.kept, k) for k, s in enumerate(sources)])
@@ -127,7 +140,8 @@ def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_
         names=tuple(s.name for s in sources), roles=tuple(s.role for s in sources),
         clips=tuple(",".join(s.clips) for s in sources),
         split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips),
-        frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time)
+        frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time,
+        windows=tuple(s.window for s in sources), dropped=tuple(dropped))
 
 
 def read_run(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray, frame: str,
@@ -207,14 +221,16 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError("--components K >= 1 goes with --task pca, and only with it")
     task = task_of(args.task, "--task")
     subdivision = read_subdivision(args.subdiv)
-    sources = find_sequences(args.sequences)
+    sources, dropped = find_sequences(args.sequences)
+    for name, reason in dropped:
+        print(f"dataset: sequence {name} left out: {reason}", file=sys.stderr)
     for source in sources:      # equal vertex counts are not enough: the runs must be of the mesh S subdivides
         for run in (SIM_LOW, SIM_HIGH):
             check_same_mesh(args.subdiv, source.folder / run)
     low_faces = read_run_outline(sources[0].folder / SIM_LOW)[1]
     physics = shared_physics(sources)
     layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed,
-                            physics.dt)
+                            physics.dt, dropped)
     def runs() -> Iterator[SequenceRun]:
         return _all_runs(sources, subdivision, low_faces, args.frame, physics)
 

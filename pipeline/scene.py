@@ -4,19 +4,25 @@ what moves them (a grid scene's rod; a garment scene's animated mannequin: motio
 vectors, torso frames).
 
 CLI: `python -m pipeline.scene SETTINGS.json OUT.h5 [--sequence NAME]` (settings resolved by
-`python -m pipeline.settings`; NAME e.g. train_000 or held_out_000, see scenes/sequences.py). The scene is
-assembled by `scenes.registry` and written by `pipeline.artifacts.scene`; docs/artifacts.md lists every dataset.
+`python -m pipeline.settings`; NAME e.g. train_000, held_out_000 or a library window's train_001-01-01_w00, see
+scenes/sequences.py). The scene is assembled by `scenes.registry` and written by `pipeline.artifacts.scene`;
+docs/artifacts.md lists every dataset. A library window that cannot be played (its file cannot be read or mapped,
+or it drives limbs through each other) is dropped: its scene file says why (pipeline.core.h5.write_dropped), the
+later stages pass the sequence over, and the stage succeeds.
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Sequence
 
-from pipeline.artifacts.scene import write_scene, write_scene_rest
+from pipeline.artifacts.scene import write_dropped_scene, write_scene, write_scene_rest
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
 from pipeline.core.errors import PipelineError
+from scenes.library import UnusableWindow, find_window
 from scenes.registry import build_rest, build_scene
+from scenes.sequences import library_of, window_key
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -31,8 +37,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     try:
         if args.sequence is None:
             write_scene_rest(args.out, build_rest(settings), settings)
-        else:
-            write_scene(args.out, build_scene(settings, args.sequence), settings)
+            return
+        try:
+            scene = build_scene(settings, args.sequence)
+        except UnusableWindow as err:      # one clip of a library: its sequence is dropped, the run goes on
+            window = find_window(library_of(settings), window_key(args.sequence))
+            write_dropped_scene(args.out, build_rest(settings), args.sequence, str(err), window.describe(),
+                                settings)
+            print(f"{where}: dropped: {err}", file=sys.stderr)
+            return
+        write_scene(args.out, scene, settings)
     except ValueError as err:
         raise PipelineError(f"{where}: {err}") from None
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import sys
 import time
@@ -28,12 +29,12 @@ import numpy as np
 import warp as wp
 from tqdm import tqdm
 
-from pipeline.artifacts.scene import read_rest_mesh
+from pipeline.artifacts.scene import read_library_window, read_rest_mesh
 from pipeline.artifacts.simulation import SimulationRun, SimulationWriter, simulation_writer
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import mesh_fingerprint
+from pipeline.core.h5 import SOURCE_MESH, dropped_reason, mesh_fingerprint, source_mesh_of, write_dropped
 from pipeline.solvers.level import Level, PreparedBatch
 from pipeline.solvers.registry import KINDS, level_names, solver_level
 from sim.solver import UnstableSimulation
@@ -60,8 +61,8 @@ def run_frames(batch: PreparedBatch, first_frame: np.ndarray, quiet: bool,
         try:
             solver.step(solver.state, batch.inputs(f))
         except UnstableSimulation as err:
-            raise PipelineError(f"{batch.scene_paths[err.world]}: {label}: simulation blew up ({err.cause}) at "
-                                f"frame {f}, substep {err.substep}") from None
+            raise WorldBlewUp(err.world, f"{batch.scene_paths[err.world]}: {label}: simulation blew up "
+                                         f"({err.cause}) at frame {f}, substep {err.substep}") from None
         positions[f] = solver.state.read_world_positions()
         solve_ms[f] = (time.perf_counter() - start) * 1e3
         if f + 1 - first == STEPPED_CHUNK:
@@ -70,6 +71,14 @@ def run_frames(batch: PreparedBatch, first_frame: np.ndarray, quiet: bool,
     if first < n_frames:
         stepped(positions, first, n_frames)
     return positions, solve_ms
+
+
+class WorldBlewUp(PipelineError):
+    """World `world` of a batch blew up: the message names its scene file, the frame and the substep."""
+
+    def __init__(self, world: int, message: str):
+        super().__init__(message)
+        self.world = world
 
 
 OpenRun = Callable[[int, tuple[int, int]], SimulationWriter]    # (sequence, (frames, vertices)) -> its writer
@@ -107,7 +116,25 @@ def simulate(level: Level, settings: dict, groups: Sequence[tuple[str, ...]], de
         print(f"{batch.label}: the last chunks' measures and writing after stepping: "
               f"{time.perf_counter() - stepped_done:.1f} s", file=sys.stderr)
     runs = [batch.run(w, positions[:n, w], solve_ms[:n], setup) for w, n in enumerate(batch.n_frames)]
+    if batch.tangled is not None:
+        runs = [dataclasses.replace(run, dropped=batch.tangled(run.positions)) if droppable(path) else run
+                for run, path in zip(runs, batch.scene_paths)]
     return runs, writers
+
+
+def droppable(scene_path: str) -> bool:
+    """Whether a sequence may be dropped rather than stop the run: a motion library's window (one clip among
+    many), not a program or a held-out clip the config names."""
+    return read_library_window(scene_path) is not None
+
+
+def dropped_inputs(group: Sequence[str]) -> str:
+    """Why a sequence's run cannot be made: an input (its scene file, a high-res run's low-res one) that stands
+    for a dropped sequence (pipeline.core.h5.write_dropped), "" if none does."""
+    for path in group:
+        if path.endswith(".h5") and (reason := dropped_reason(path)):
+            return f"{path}: dropped: {reason}"
+    return ""
 
 
 def sequence_groups(level: str, inputs: tuple[str, ...], files: Sequence[str]) -> list[tuple[str, ...]]:
@@ -140,19 +167,45 @@ def main(argv: Sequence[str] | None = None) -> None:
     device = args.device or settings["device"]
     cli.check_device(device, "Warp", wp.get_cuda_device_count)
 
+    stage = f"simulate_{args.level}"
+    # A sequence dropped before (its scene, or its low-res run) gets a dropped run: no work, the reason passed on.
+    # A library window whose world blows up is dropped and the batch stepped again without it.
+    remaining = []
+    for group in groups:
+        reason = dropped_inputs(group[:-1])
+        if reason:
+            write_dropped(group[-1], stage, settings, reason, {SOURCE_MESH: source_mesh_of(group[0]) or ""})
+            print(f"{group[-1]}: dropped: {reason}", file=sys.stderr)
+        else:
+            remaining.append(group)
+    runs = []
+
     @functools.cache
     def source_mesh() -> str:       # asked for once the adapter has checked the scene files
         return mesh_fingerprint(*read_rest_mesh(groups[0][0]))
 
-    with contextlib.ExitStack() as outputs:
-        def open_run(w: int, frames_vertices: tuple[int, int]) -> SimulationWriter:
-            return outputs.enter_context(simulation_writer(groups[w][-1], args.level, settings, frames_vertices,
-                                                           device, source_mesh()))
+    while remaining and not runs:
+        try:
+            with contextlib.ExitStack() as outputs:
+                def open_run(w: int, frames_vertices: tuple[int, int]) -> SimulationWriter:
+                    return outputs.enter_context(simulation_writer(remaining[w][-1], args.level, settings,
+                                                                   frames_vertices, device, source_mesh()))
 
-        runs, writers = simulate(level, settings, groups, device, args.quiet, args.threads, open_run)
-        start = time.perf_counter()
-        for writer, run in zip(writers, runs):
-            writer.finish(run)
+                runs, writers = simulate(level, settings, remaining, device, args.quiet, args.threads, open_run)
+                start = time.perf_counter()
+                for writer, run in zip(writers, runs):
+                    writer.finish(run)
+        except WorldBlewUp as err:
+            group = remaining.pop(err.world)
+            if not droppable(group[0]):
+                raise
+            write_dropped(group[-1], stage, settings, str(err), {SOURCE_MESH: source_mesh()})
+            print(f"{group[-1]}: dropped: {err}; the others are stepped again", file=sys.stderr)
+    if not runs:
+        return
+    for group, run in zip(remaining, runs):
+        if run.dropped:
+            print(f"{group[-1]}: dropped: {run.dropped}", file=sys.stderr)
     if not args.quiet:    # where the stage's time went (issue 12: its wall against its stepping)
         ms = runs[0].solve_ms
         print(f"simulate {args.level}: setup {runs[0].setup_seconds:.1f} s, first frame (compiling, capture) "

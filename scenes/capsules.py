@@ -111,3 +111,18 @@ def self_collision_pairs(skel: Skeleton, margin: float = 0.02) -> np.ndarray:
     pairs = np.stack([i, j], axis=1)
     gap = capsule_pair_clearance(skel, rest_transforms(skel), pairs)
     return pairs[gap > margin * skel.height / 1.7]
+
+
+def limbs_through_each_other(skel: Skeleton, transforms: tuple[np.ndarray, np.ndarray], pairs: np.ndarray,
+                             depth: float = 1.0) -> tuple[float, int, tuple[str, str]] | None:
+    """Where two capsules of part pairs (K, 2) pass through each other over frames of part transforms ((F, P, 4),
+    (F, P, 3)): interpenetrate deeper than `depth` times the thinner one's mean radius (one limb's axis inside the
+    other). The worst such (overlap in m, frame, the parts' names), or None. Touching, and sinking in a little as
+    soft limbs do, is not passing through."""
+    gap = capsule_pair_clearance(skel, transforms, pairs)
+    radius = (skel.radius_a + skel.radius_b) / 2
+    through = -gap / np.minimum(radius[pairs[:, 0]], radius[pairs[:, 1]])
+    frame, k = np.unravel_index(int(np.argmax(through)), through.shape)
+    if through[frame, k] <= depth:
+        return None
+    return -float(gap[frame, k]), int(frame), (skel.names[pairs[k, 0]], skel.names[pairs[k, 1]])

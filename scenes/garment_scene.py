@@ -1,6 +1,7 @@
 """The garment scene: a garment on the procedural mannequin, its attachment vertices (waist band, shoulders)
 pinned to the body part they follow. Every sequence wears the same garment; a training sequence plays a seeded
-motion program over the training clips, a held-out sequence its one test clip (scenes.sequences)."""
+motion program over the training clips, a held-out sequence its one test clip, a motion library's window its
+window the paper's way (scenes.sequences, scenes.library, scenes.motion.play_window)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,14 +11,15 @@ import numpy as np
 from geometry.rigid import apply_rigid
 from geometry.rotations import quat_to_matrix
 from scenes.bvh import read_bvh
-from scenes.capsules import capsule_velocities, capsules_world
+from scenes.capsules import capsule_velocities, capsules_world, limbs_through_each_other, self_collision_pairs
 from scenes.garments import make_garment
 from scenes.kinematics import rest_transforms
-from scenes.motion import Motion, body_state, play_clips, pose_vectors
+from scenes.library import LibraryWindow, UnusableWindow, find_window
+from scenes.motion import BodyState, ClipSequence, Motion, body_state, play_clips, play_window, pose_vectors
 from scenes.program import plan_program, play_program
 from scenes.scene import Mannequin, Pins, PosedCapsules, Scene, SceneRest
 from scenes.retarget import retarget
-from scenes.sequences import TRAIN, parse_sequence_name, sequence_clips
+from scenes.sequences import TRAIN, is_window_name, parse_sequence_name, sequence_clips, window_key
 from scenes.skeleton import TORSO, Skeleton, default_skeleton
 from scenes.skinning import rest_to_posed, skinning_weights
 
@@ -41,8 +43,21 @@ def garment_rest(settings: dict) -> SceneRest:
 
 def garment_scene(settings: dict, rest: SceneRest, sequence: str) -> Scene:
     """Sequence `sequence` of the garment scene; ValueError for settings it cannot build (too few frames for the
-    clips, a BVH file that is missing or cannot be mapped)."""
+    clips, a BVH file that is missing or cannot be mapped), UnusableWindow for a library window that cannot be
+    played (its sequence is dropped, not the run)."""
     drive, skel, fps = settings["drivers"]["mannequin"], rest.skeleton, 1.0 / settings["solver"]["dt"]
+    if is_window_name(sequence):
+        window = find_window(drive["library"], window_key(sequence))
+        played = play_window(load_window(window, skel, fps), drive["settle_frames"], drive["blend_frames"],
+                             drive["library"]["hold_frames"], skel)
+        state = body_state(skel, played.motion)
+        through = limbs_through_each_other(skel, state.transforms, worn_pairs(rest))
+        if through is not None:
+            overlap, frame, parts = through
+            raise UnusableWindow(f"{window.clip.path}: seconds {window.start:g}-{window.end:g} drive "
+                                 f"{' and '.join(parts)} through each other ({overlap * 100:.1f} cm deep, frame "
+                                 f"{frame}): the garment would be caught between them")
+        return _posed(settings, rest, sequence, played, (), window.describe(), state)
     role, index = parse_sequence_name(sequence)
     clips = [load_clip(entry, skel, fps) for entry in sequence_clips(settings, sequence)]
     timing = settings["frames"], drive["settle_frames"], drive["blend_frames"]
@@ -54,8 +69,28 @@ def garment_scene(settings: dict, rest: SceneRest, sequence: str) -> Scene:
         program = ()
         n_frames = drive["settle_frames"] + clips[0].n_frames if isinstance(clips[0], Motion) else settings["frames"]
         played = play_clips(clips, n_frames, *timing[1:], drive["seed"], fps=fps, skel=skel)
+    return _posed(settings, rest, sequence, played, program, None, body_state(skel, played.motion))
+
+
+# A part is worn under the garment where some vertex's skinning weight on it reaches this.
+WORN_WEIGHT = 0.05
+
+
+def worn_pairs(rest: SceneRest) -> np.ndarray:
+    """Part pairs (K, 2) that must not pass through each other under this garment: apart at rest
+    (scenes.capsules.self_collision_pairs) and both worn under it, where cloth caught between them would tangle
+    (for pants the thighs, not an arm and the chest)."""
+    worn = np.unique(rest.skinning_influences[rest.skinning_weights >= WORN_WEIGHT])
+    pairs = self_collision_pairs(rest.skeleton)
+    return pairs[np.isin(pairs, worn).all(axis=1)]
+
+
+def _posed(settings: dict, rest: SceneRest, sequence: str, played: ClipSequence, program: tuple,
+           library_window: dict | None, state: BodyState) -> Scene:
+    """The sequence of a garment scene whose mannequin plays `played` (the parts' world `state`): its body,
+    capsules, pins and poses."""
+    skel = rest.skeleton
     n_frames = played.motion.n_frames
-    state = body_state(skel, played.motion)
     a, b, radius_a, radius_b = capsules_world(skel, state.transforms)
     velocity_a, velocity_b = capsule_velocities(skel, state.transforms, state.velocities)
     # An attachment vertex is rigidly bound to one part: it moves with that part's rest-to-posed transform.
@@ -73,7 +108,20 @@ def garment_scene(settings: dict, rest: SceneRest, sequence: str) -> Scene:
         pose=pose_vectors(skel, played.motion), torso_transforms=torso_transforms)
     return Scene(rest=rest, sequence=sequence, dt=settings["solver"]["dt"],
                  pins=Pins(ids=rest.pin_ids, part=rest.pin_part, transforms=transforms, targets=targets),
-                 mannequin=mannequin)
+                 mannequin=mannequin, library_window=library_window)
+
+
+def load_window(window: LibraryWindow, skel: Skeleton, fps: float) -> Motion:
+    """A library window retargeted onto the mannequin at `fps` (its clip at its true frame rate, from its first
+    frame of motion); UnusableWindow, naming the file, where it cannot be."""
+    clip = window.clip
+    if clip.problem:
+        raise UnusableWindow(clip.problem)
+    try:
+        source = read_bvh(clip.path, frame_time=clip.frame_time)
+        return retarget(source, skel, fps, window.start, window.end)
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise UnusableWindow(err if str(err).startswith(clip.path) else f"{clip.path}: {err}") from None
 
 
 def load_clip(entry: str | dict, skel: Skeleton, fps: float) -> str | Motion:

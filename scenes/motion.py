@@ -553,6 +553,45 @@ def play_clips(clips: list[str | Motion], n_frames: int, settle_frames: int, ble
     return ClipSequence(motion, np.concatenate(clip), ("settle", *names))
 
 
+def play_window(clip: Motion, settle_frames: int, blend_frames: int, hold_frames: int,
+                skel: Skeleton | None = None) -> ClipSequence:
+    """One motion-capture window the paper's way: `settle_frames` at rest, the rest pose blended over
+    `blend_frames` into the clip's first pose, held there `hold_frames` (the cloth settles on the posed body),
+    then the clip as it is, at full amplitude from its first frame (a raw Motion at its fps,
+    scenes.retarget.retarget). The blend moves joint angles and the root by a quintic smoothstep, so it starts and
+    ends at rest; where the blended pose would put a foot through the floor the root is lifted (ground_lift). The
+    frames before the clip are the sequence's lead-in, clip index 0 ("settle"), as a program's settle period is."""
+    skel = skel or default_skeleton()
+    fps = clip.fps
+    if blend_frames < 1 or settle_frames < 0 or hold_frames < 0 or clip.n_frames < 2:
+        raise ValueError(f"a window needs blend_frames >= 1, settle_frames and hold_frames >= 0 and a clip of 2 "
+                         f"frames or more; got {blend_frames}, {settle_frames}, {hold_frames}, {clip.n_frames}")
+    rest_root = skel.joint_offsets[0]
+    w, dw, _ = fade_in(np.arange(blend_frames) / fps, (blend_frames - 1) / fps if blend_frames > 1 else 1 / fps)
+    first_angles, first_root = clip.joint_angles[0], clip.root_position[0] - rest_root
+    angles = w[:, None, None] * first_angles
+    rates = dw[:, None, None] * first_angles
+    root = rest_root + w[:, None] * first_root
+    root_velocity = dw[:, None] * first_root
+    # The clip's first pose has its lift already: the blend's own lift fades out as the blend ends (and is 0 at
+    # rest), lift (1 - w), whose rate is lift_rate (1 - w) - lift dw.
+    lift, lift_rate = ground_lift(skel, root, root_velocity, angles, rates, fps)
+    root[:, 1] += lift * (1.0 - w)
+    root_velocity[:, 1] += lift_rate * (1.0 - w) - lift * dw
+    still = lambda n, value: np.broadcast_to(value, (n, *value.shape)).copy()     # noqa: E731
+    segments = [
+        (still(settle_frames, rest_root), np.zeros((settle_frames, 3)),
+         np.zeros((settle_frames, *first_angles.shape)), np.zeros((settle_frames, *first_angles.shape))),
+        (root, root_velocity, angles, rates),
+        (still(hold_frames, clip.root_position[0]), np.zeros((hold_frames, 3)), still(hold_frames, first_angles),
+         np.zeros((hold_frames, *first_angles.shape))),
+        (clip.root_position, clip.root_velocity, clip.joint_angles, clip.joint_angle_rates)]
+    lead_in = settle_frames + blend_frames + hold_frames
+    motion = Motion(clip.kind, float(fps), clip.seed, lead_in, int(blend_frames),
+                    *(np.concatenate([segment[k] for segment in segments]) for k in range(4)))
+    return ClipSequence(motion, np.repeat([0, 1], [lead_in, clip.n_frames]).astype(np.int64), ("settle", clip.kind))
+
+
 def _fade(root: np.ndarray, root_velocity: np.ndarray, angles: np.ndarray, rates: np.ndarray, w: np.ndarray,
           dw: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A clip (root relative to the rest root) faded toward rest by weight w (F,) with time derivative dw: angles

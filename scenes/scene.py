@@ -83,6 +83,8 @@ class Scene:
     pins: Pins
     rod: RodDriver | None = None          # grid scenes
     mannequin: Mannequin | None = None    # garment scenes
+    library_window: dict | None = None    # a motion library's window: file, subject, category, description,
+                                          # start and end (seconds of its motion), frame_time (scenes.library)
 
     @property
     def n_frames(self) -> int:

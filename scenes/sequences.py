@@ -10,29 +10,60 @@ sequences leaves the others as they were.
 
 A clip entry of the settings is a procedural kind (scenes.motion.MOTION_KINDS) or a mapping
 {bvh: PATH, start: SECONDS, end: SECONDS} (start and end optional; PATH relative to the working directory), a
-window of a motion-capture file retargeted onto the mannequin (scenes.garment_scene.load_clip). This module reads
-settings only (the workflow and pipeline.core.config use it), so it imports nothing heavy.
+window of a motion-capture file retargeted onto the mannequin (scenes.garment_scene.load_clip).
+
+A garment scene with a motion library (`drivers.mannequin.library`) also has one sequence per window of each of
+its files (scenes.library), after the programs: train_<file>_w<k> for a training subject, held_out_<file>_w<k>
+for a held-out one (`library_windows.held_out_subjects`), each named after its file so that adding files leaves
+the others' sequences as they were. This module reads settings (and a library's file headers); the workflow and
+pipeline.core.config use it, so it imports nothing heavy.
 """
 from __future__ import annotations
 
 import os
 import re
 
+from scenes.library import WINDOW_NAME, LibraryWindow, find_window, library_clips, subject_id, windows
+
 TRAIN, HELD_OUT = "train", "held_out"
-# A sequence's name: its role and its index among that role's (no braces: Snakemake reads them as wildcards).
-NAME_PATTERN = r"(?:train|held_out)_[0-9][0-9][0-9]+"
+# A sequence's name: its role, then its index among that role's programs or held-out clips, or a library window's
+# file and index (no braces: Snakemake reads them as wildcards).
+INDEXED_NAME = r"(?:train|held_out)_[0-9][0-9][0-9]+"
+NAME_PATTERN = rf"(?:train|held_out)_(?:[0-9][0-9][0-9]+|{WINDOW_NAME})"
 
 
 def sequence_name(role: str, index: int) -> str:
     return f"{role}_{index:03d}"
 
 
-def parse_sequence_name(name: str) -> tuple[str, int]:
-    """(role, index) of a sequence name such as 'train_003'."""
+def window_sequence_name(role: str, window: LibraryWindow) -> str:
+    return f"{role}_{window.key}"
+
+
+def sequence_role(name: str) -> str:
+    """train or held_out: the role a sequence name starts with."""
     if not re.fullmatch(NAME_PATTERN, name):
+        raise ValueError(f"'{name}' is not a sequence name (train_000, ..., held_out_000, ..., or a library "
+                         f"window's such as train_001-01-01_w00)")
+    return HELD_OUT if name.startswith(HELD_OUT) else TRAIN
+
+
+def is_window_name(name: str) -> bool:
+    """Whether sequence `name` is a library window's."""
+    return not re.fullmatch(INDEXED_NAME, name) and re.fullmatch(NAME_PATTERN, name) is not None
+
+
+def parse_sequence_name(name: str) -> tuple[str, int]:
+    """(role, index) of a program's or held-out clip's sequence name such as 'train_003'."""
+    if not re.fullmatch(INDEXED_NAME, name):
         raise ValueError(f"'{name}' is not a sequence name (train_000, train_001, ..., held_out_000, ...)")
     role, index = name.rsplit("_", 1)
     return role, int(index)
+
+
+def window_key(name: str) -> str:
+    """A library window sequence's name less its role: what scenes.library.find_window looks up."""
+    return name.removeprefix(f"{sequence_role(name)}_")
 
 
 def clip_key(entry: str | dict) -> str:
@@ -55,10 +86,37 @@ def training_clips(settings: dict) -> list:
     return [entry for entry in settings["drivers"]["mannequin"]["clips"] if clip_key(entry) not in held]
 
 
+def library_of(settings: dict) -> dict | None:
+    """The scene's motion library settings (`drivers.mannequin.library`), or None."""
+    if settings["mesh"]["generator"] != "garment":
+        return None
+    return settings["drivers"]["mannequin"].get("library")
+
+
+def library_windows(settings: dict) -> dict[str, list[LibraryWindow]]:
+    """The windows of the scene's motion library by role, in file order (none without a library); settings as
+    resolved, with `library_windows`. A subject of `held_out_subjects` is held out when `dataset.split` is
+    held_out (pipeline.core.config refuses it otherwise)."""
+    library = library_of(settings)
+    found = {TRAIN: [], HELD_OUT: []}
+    if library is None:
+        return found
+    selection = settings["library_windows"]
+    held = {subject_id(s) for s in selection["held_out_subjects"]}
+    for clip in library_clips(library, selection):
+        found[HELD_OUT if clip.subject in held else TRAIN] += windows(clip, library["window"])
+    return found
+
+
 def sequence_names(settings: dict) -> list[str]:
-    """Every sequence of a scene, training ones first; `settings` as resolved, with the `sequences` count."""
+    """Every sequence of a scene, training ones first (the programs, then the library's windows), then the
+    held-out ones (the test clips, then the held-out subjects' windows); `settings` as resolved, with the
+    `sequences` count and `library_windows`."""
+    by_role = library_windows(settings)
     return ([sequence_name(TRAIN, i) for i in range(settings["sequences"])]
-            + [sequence_name(HELD_OUT, i) for i in range(len(held_out_clips(settings)))])
+            + [window_sequence_name(TRAIN, w) for w in by_role[TRAIN]]
+            + [sequence_name(HELD_OUT, i) for i in range(len(held_out_clips(settings)))]
+            + [window_sequence_name(HELD_OUT, w) for w in by_role[HELD_OUT]])
 
 
 def sequence_shards(settings: dict) -> list[list[str]]:
@@ -69,13 +127,14 @@ def sequence_shards(settings: dict) -> list[list[str]]:
     names = sequence_names(settings)
     shards = []
     for role in (TRAIN, HELD_OUT):
-        of_role = [name for name in names if parse_sequence_name(name)[0] == role]
+        of_role = [name for name in names if sequence_role(name) == role]
         shards += [of_role[i:i + size] for i in range(0, len(of_role), size)]
     return shards
 
 
 def sequence_clips(settings: dict, name: str) -> list:
-    """The clip entries sequence `name` plays (a training sequence: the pool its program draws from)."""
+    """The clip entries sequence `name` plays (a training program: the pool it draws from), for a program or a
+    held-out clip's sequence (a library window's: scenes.library.find_window)."""
     role, index = parse_sequence_name(name)
     if role == TRAIN:
         return training_clips(settings)
@@ -89,4 +148,6 @@ def sequence_bvh_files(settings: dict, name: str) -> list[str]:
     """The motion-capture files sequence `name` reads (none for a grid scene)."""
     if settings["mesh"]["generator"] != "garment":
         return []
+    if is_window_name(name):
+        return [find_window(library_of(settings), window_key(name)).clip.path]
     return [entry["bvh"] for entry in sequence_clips(settings, name) if isinstance(entry, dict)]

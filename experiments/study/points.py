@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from scenes.sequences import HELD_OUT, TRAIN, parse_sequence_name, sequence_name
+from scenes.sequences import HELD_OUT, TRAIN, sequence_name, sequence_role
 
 Settings = dict[str, Any]
 
@@ -15,7 +15,7 @@ Settings = dict[str, Any]
 def study_sequences(sequences: list[str], count: int) -> list[str]:
     """The first `count` training sequences (the scene's, and more made the same way where `count` exceeds its
     `sequences`) and every held-out one of the scene's `sequences`."""
-    held_out = [name for name in sequences if parse_sequence_name(name)[0] == HELD_OUT]
+    held_out = [name for name in sequences if sequence_role(name) == HELD_OUT]
     return [sequence_name(TRAIN, i) for i in range(count)] + held_out
 
 

@@ -33,6 +33,10 @@ PCA_MEAN, PCA_COMPONENTS, PCA_SINGULAR_VALUES = "pca/mean", "pca/components", "p
 FACES, REST_VERTICES, LOW_POSITIONS, LOW_FACES = "faces", "rest_vertices", "low/positions", "low/faces"
 SEQUENCE, SEQUENCE_FRAME = "sequence", "sequence_frame"
 SEQUENCE_NAMES, SEQUENCE_ROLES, SEQUENCE_CLIPS = "sequences/names", "sequences/role", "sequences/clips"
+# A motion library's windows, per sequence ("" where it plays none): scenes.library.LibraryWindow.describe.
+WINDOW_FIELDS = {"file": "sequences/library_file", "subject": "sequences/subject", "category": "sequences/category"}
+SEQUENCE_SPAN = "sequences/library_span"
+DROPPED_NAMES, DROPPED_REASONS = "dropped/names", "dropped/reasons"
 SPLIT, SPLIT_TRAIN, SPLIT_TEST, SPLIT_HELD_OUT = "split", "split/train", "split/test", "split/held_out"
 # What the cloth of each frame moves in, in the dataset's reference frame: the inputs of body- and
 # gravity-relative network features (model.features).
@@ -96,6 +100,8 @@ class DatasetLayout:
     test_fraction: float
     frame_time: float            # seconds between consecutive frames of a sequence
     task: TaskLayout | None = None   # a decoder task; None: the upsampling
+    windows: tuple[dict | None, ...] = ()    # per sequence, the motion library window it plays (None: none)
+    dropped: tuple[tuple[str, str], ...] = ()   # (name, reason) of each sequence dropped on the way
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,6 +115,11 @@ class SequenceFrames:
     mannequin: MannequinFrames | None   # garment scenes (pipeline.artifacts.scene.read_mannequin_frames)
     capsules: tuple[np.ndarray, np.ndarray] | None   # garment scenes: end points a, b (n, P, 3) in the reference frame
     predictor: np.ndarray | None = None   # (n, V_high, 3) a decoder task's predictor; None: the inputs are it
+
+
+def _utf8(texts: list[str]) -> np.ndarray:
+    """Strings as a fixed-length bytes dataset holds them (UTF-8: a library's paths need not be ASCII)."""
+    return np.array([text.encode() for text in texts], dtype="S")
 
 
 def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: DatasetLayout,
@@ -159,6 +170,17 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
         for name, values in ((SEQUENCE_NAMES, layout.names), (SEQUENCE_ROLES, layout.roles),
                              (SEQUENCE_CLIPS, layout.clips)):
             f.create_dataset(name, data=np.array(values, dtype="S"))
+        if any(layout.windows):
+            for key, name in WINDOW_FIELDS.items():
+                f.create_dataset(name, data=_utf8([(w or {}).get(key, "") for w in layout.windows]))
+            spans = [[(w or {}).get("start", -1.0), (w or {}).get("end", -1.0)] for w in layout.windows]
+            f.create_dataset(SEQUENCE_SPAN, data=np.array(spans, dtype=np.float64))
+            f[SEQUENCE_SPAN].attrs["meaning"] = ("per sequence, the seconds [start, end) of its library file's motion "
+                                                 "that it plays (-1: not a library window)")
+        if layout.dropped:
+            f.create_dataset(DROPPED_NAMES, data=_utf8([n for n, _ in layout.dropped]))
+            f.create_dataset(DROPPED_REASONS, data=_utf8([r for _, r in layout.dropped]))
+            f[DROPPED_NAMES].attrs["meaning"] = "sequences dropped on the way and left out, with the reason of each"
         split = layout.split
         for name, ids in ((SPLIT_TRAIN, split.train), (SPLIT_TEST, split.test), (SPLIT_HELD_OUT, split.held_out)):
             f.create_dataset(name, data=np.asarray(ids, dtype=np.int64))

@@ -8,6 +8,7 @@ The dataset paths are named here and nowhere else; the readers hand the later st
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from typing import Any, Mapping
 
@@ -15,11 +16,12 @@ import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
+from pipeline.core.h5 import (SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices,
+                              write_dropped)
 from scenes.motion import BodyState
 from scenes.program import ProgramClip
 from scenes.scene import Mannequin, Pins, Scene, SceneRest
-from scenes.sequences import HELD_OUT, TRAIN, parse_sequence_name
+from scenes.sequences import HELD_OUT, TRAIN, sequence_role
 from scenes.skeleton import TORSO, Skeleton
 
 STAGE = "scene"
@@ -27,6 +29,7 @@ STAGE = "scene"
 REST_VERTICES, REST_FACES = "rest/vertices", "rest/faces"
 PIN_IDS, PIN_TARGETS, PIN_PART, PIN_TRANSFORMS = "pins/ids", "pins/targets", "pins/part", "pins/transforms"
 ROD = "driver"
+LIBRARY_WINDOW = "library_window"      # root attr: a motion library window's file, subject, category, ... (JSON)
 ROD_ROTATION, ROD_TRANSLATION, ROD_PIVOT = "driver/rotation", "driver/translation", "driver/pivot"
 # The mannequin: skeleton, state and motion arrays are stored under the names of the fields they hold.
 BODY = "body"
@@ -70,7 +73,33 @@ def write_scene(path: str | os.PathLike, scene: Scene, settings: Mapping[str, An
                {**_rest_attrs(scene.rest), **_sequence_attrs(scene)})
         f.attrs.update(scene=scene.rest.name, generator=scene.rest.generator, **_source_mesh(scene.rest),
                        sequence=scene.sequence,
-                       role=parse_sequence_name(scene.sequence)[0], frames=scene.n_frames, dt=scene.dt)
+                       role=sequence_role(scene.sequence), frames=scene.n_frames, dt=scene.dt)
+        if scene.library_window is not None:
+            f.attrs[LIBRARY_WINDOW] = json.dumps(scene.library_window, sort_keys=True)
+
+
+def write_dropped_scene(path: str | os.PathLike, rest: SceneRest, sequence: str, reason: str,
+                        library_window: dict | None, settings: Mapping[str, Any]) -> None:
+    """The scene file of a sequence that cannot be made (a library window whose clip cannot be played): what
+    identifies it, and why (pipeline.core.h5.write_dropped); the simulate and dataset stages pass it over."""
+    write_dropped(path, STAGE, settings, reason, {
+        "scene": rest.name, "generator": rest.generator, **_source_mesh(rest), "sequence": sequence,
+        "role": sequence_role(sequence),
+        **({LIBRARY_WINDOW: json.dumps(library_window, sort_keys=True)} if library_window else {})})
+
+
+def read_library_window(path: str | os.PathLike) -> dict | None:
+    """The library window a sequence's scene file plays (scenes.library.LibraryWindow.describe), or None."""
+    with open_artifact(path) as f:
+        value = f.attrs.get(LIBRARY_WINDOW)
+    try:
+        window = None if value is None else json.loads(value)
+    except (TypeError, ValueError):
+        raise PipelineError(f"{path}: attr '{LIBRARY_WINDOW}' is not JSON") from None
+    if window is not None and not (isinstance(window, dict) and all(isinstance(window.get(k), str) for k in
+                                                                     ("file", "subject", "category"))):
+        raise PipelineError(f"{path}: attr '{LIBRARY_WINDOW}' lacks its file, subject and category")
+    return window
 
 
 def _source_mesh(rest: SceneRest) -> dict[str, str]:

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, config_of, open_artifact, read, read_indices
+from pipeline.core.h5 import DROPPED, SOURCE_MESH, atomic_h5, config_of, open_artifact, read, read_indices
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +45,8 @@ class SimulationRun:
     solve_ms: np.ndarray           # (F,) wall time of each frame's solve (frame 0: 0)
     n_constraints: int             # the solver's constraint count (the cloth's distance constraints)
     measures: tuple[RunMeasure, ...] = ()         # the solver kind's per-frame measures of this run
+    dropped: str = ""                             # why the run is unusable though complete (a tangled cloth):
+                                                  # kept for inspection, passed over by the dataset stage
     batch_worlds: int = 1                         # sequences stepped together (solve_ms is the whole batch's)
     setup_seconds: float = 0.0                    # the batch's work before its first step (reading, targets,
                                                   # the solver's construction)
@@ -89,6 +91,8 @@ class SimulationWriter:
             f.create_dataset(measure.name, data=measure.values.astype(np.float64))
             f[measure.name].attrs["meaning"] = measure.meaning
             f.attrs.update(measure.attrs)
+        if run.dropped:
+            f.attrs[DROPPED] = run.dropped
         self.finished = True
 
 

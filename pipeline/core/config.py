@@ -26,7 +26,7 @@ import yaml
 from model.feature_spec import FeatureSpec
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import FLOAT32_MAX, atomic_write
-from scenes.sequences import clip_key, held_out_clips, training_clips
+from scenes.sequences import clip_key, held_out_clips, library_of, training_clips
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "config.schema.yaml"
 
@@ -210,12 +210,19 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
                  f"{merged['operators']['conv']}")
     if not garment and settings["sequences"] != 1:
         fail(f"sequences {settings['sequences']}: a grid scene has one sequence (its rod's motion)")
+    library = library_of(settings)
+    if garment and settings["sequences"] == 0 and library is None:
+        fail("sequences 0: a garment scene without a motion library (drivers.mannequin.library) needs training "
+             "sequences")
+    held_subjects = settings["library_windows"]["held_out_subjects"]
+    if held_subjects and (library is None or settings["dataset"]["split"] != "held_out"):
+        fail("library_windows.held_out_subjects needs drivers.mannequin.library and dataset.split 'held_out'")
     if settings["dataset"]["split"] == "held_out":
         if not garment:
             fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment')")
-        if not held_out_clips(settings):
-            fail("dataset.split 'held_out' needs drivers.mannequin.test_clips")
-        if not training_clips(settings):
+        if not held_out_clips(settings) and not held_subjects:
+            fail("dataset.split 'held_out' needs drivers.mannequin.test_clips or library_windows.held_out_subjects")
+        if settings["sequences"] and not training_clips(settings):
             fail(f"drivers.mannequin.clips {_names(settings['drivers']['mannequin']['clips'])} are all held out "
                  f"(test_clips): training sequences need at least one other")
     if garment:
@@ -250,7 +257,7 @@ def _names(entries: list) -> str:
 # Read by the workflow only, never by a stage: kept out of settings.json, so that changing them reruns no stage
 # of the scene (more sequences add jobs; the study's grid adds study jobs; an application's settings go into its
 # own settings.json, `application_settings`).
-WORKFLOW_ONLY = ("sequences", "shard", "study", "applications", "tradeoff")
+WORKFLOW_ONLY = ("sequences", "library_windows", "shard", "study", "applications", "tradeoff")
 
 
 def shared_settings(settings: dict) -> dict:

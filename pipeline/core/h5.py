@@ -240,6 +240,26 @@ def source_mesh_of(path: str | os.PathLike) -> str | None:
     return None if value is None else str(value)
 
 
+DROPPED = "dropped"     # root attr of an artifact that stands for a sequence dropped on the way, with the reason
+
+
+def write_dropped(path: str | os.PathLike, stage: str, config: Mapping[str, Any] | None, reason: str,
+                  attrs: Mapping[str, Any]) -> None:
+    """The artifact of a sequence that a stage dropped (a library window whose clip cannot be played, a run that
+    tangled): no datasets, its `dropped` reason and `attrs` (which sequence, its source mesh), so that the rule's
+    output exists, the stages after it pass the sequence over and say why, and the run goes on."""
+    with atomic_h5(path, stage, config) as f:
+        f.attrs.update(attrs)
+        f.attrs[DROPPED] = reason
+
+
+def dropped_reason(path: str | os.PathLike) -> str | None:
+    """Why the sequence of the artifact at `path` was dropped (write_dropped), or None for an ordinary artifact."""
+    with open_artifact(path) as f:
+        value = f.attrs.get(DROPPED)
+    return None if value is None else str(value)
+
+
 def write_csr(group: h5py.Group, name: str, matrix: sp.spmatrix) -> None:
     """Store a sparse matrix as CSR datasets `name/data`, `name/indices`, `name/indptr`, `name/shape`."""
     csr = sp.csr_matrix(matrix)

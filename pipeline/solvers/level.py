@@ -30,6 +30,9 @@ class PreparedBatch:
     measure: Callable[[int, int, int, np.ndarray], None] | None = None
     # (w, first, end, positions (F, B, V, 3)): work on frames first..end-1 of world w as soon as they are stepped,
     # on the stage's threads while the device steps on (what `run` then records besides the positions)
+    tangled: Callable[[np.ndarray], str] | None = None
+    # a world's positions (F, V, 3) -> why its run is unusable though it finished (a cloth caught and stretched
+    # between limbs), "" if it is not: the stage drops such a run of a motion library's window
 
 
 # (settings, each sequence's input files, device, quiet, threads) -> the batch ready to step

@@ -20,6 +20,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from geometry.mesh import unique_edges
 from geometry.rigid import apply_rigid
 from pipeline.artifacts.scene import SceneDrive, read_rest_mesh, read_scene_drive
 from pipeline.artifacts.simulation import SimulationRun, harmonic_residual, read_trajectory
@@ -114,6 +115,30 @@ def read_batch(scene_paths: Sequence[str], body_collision: bool) -> ClothBatch:
     return ClothBatch(list(scene_paths), drives, mesh)
 
 
+# A tangled run: a cloth caught between limbs is pulled far beyond its rest lengths over a part of its surface. On
+# the CPU-profile pants (4 programs and a walk, low and high resolution, 2026-11-26) at most 0.9 % of the edges
+# (one hard program's high-res run) were ever stretched beyond 1.5x; a run with five times that share is dropped.
+TANGLE_STRETCH = 1.5
+TANGLE_EDGE_SHARE = 0.05
+
+
+def tangle_check(rest: np.ndarray, faces: np.ndarray):
+    """Why a run of the mesh tangled (positions (F, V, 3) -> a reason, "" if it did not): in some frame more than
+    TANGLE_EDGE_SHARE of its edges are longer than TANGLE_STRETCH times their rest length."""
+    edges = unique_edges(faces)
+    rest_length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+
+    def tangled(positions: np.ndarray) -> str:
+        stretch = np.linalg.norm(positions[:, edges[:, 0]] - positions[:, edges[:, 1]], axis=2) / rest_length
+        share = (stretch > TANGLE_STRETCH).mean(axis=1)
+        frame = int(np.argmax(share))
+        if share[frame] <= TANGLE_EDGE_SHARE:
+            return ""
+        return (f"tangled: at frame {frame} {share[frame]:.0%} of the edges are stretched beyond "
+                f"{TANGLE_STRETCH:g}x their rest length (at most {TANGLE_EDGE_SHARE:.0%} allowed)")
+    return tangled
+
+
 def frame_work(solver: ClothSolver) -> str:
     """What one frame of one world costs, for the log (the schema bounds substeps and iterations)."""
     s = solver.model.settings
@@ -140,7 +165,8 @@ def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, 
         return SimulationRun(positions, faces, rest, pin_ids, solve_ms, solver.n_constraints,
                              batch_worlds=solver.worlds, setup_seconds=setup_seconds)
 
-    return PreparedBatch("low-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run)
+    return PreparedBatch("low-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run,
+                         tangled=tangle_check(rest, faces))
 
 
 def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
@@ -223,7 +249,8 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
                              (harmonic_residual(residual, basis.shape[1]),), batch_worlds=solver.worlds,
                              setup_seconds=setup_seconds)
 
-    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure)
+    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure,
+                         tangle_check(rest, faces))
 
 
 LEVELS = {
