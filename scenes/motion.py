@@ -573,11 +573,12 @@ def play_window(clip: Motion, settle_frames: int, blend_frames: int, hold_frames
     rates = dw[:, None, None] * first_angles
     root = rest_root + w[:, None] * first_root
     root_velocity = dw[:, None] * first_root
-    # The clip's first pose has its lift already: the blend's own lift fades out as the blend ends (and is 0 at
-    # rest), lift (1 - w), whose rate is lift_rate (1 - w) - lift dw.
+    # Rest and the clip's first pose have their height already: the lift less its values at the blend's two ends,
+    # taken in by w (a smoothed lift is not exactly 0 there), so that the blend starts and ends exactly where the
+    # rest and the clip are.
     lift, lift_rate = ground_lift(skel, root, root_velocity, angles, rates, fps)
-    root[:, 1] += lift * (1.0 - w)
-    root_velocity[:, 1] += lift_rate * (1.0 - w) - lift * dw
+    root[:, 1] += lift - (1.0 - w) * lift[0] - w * lift[-1]
+    root_velocity[:, 1] += lift_rate + dw * (lift[0] - lift[-1])
     still = lambda n, value: np.broadcast_to(value, (n, *value.shape)).copy()     # noqa: E731
     segments = [
         (still(settle_frames, rest_root), np.zeros((settle_frames, 3)),

@@ -115,9 +115,12 @@ def read_batch(scene_paths: Sequence[str], body_collision: bool) -> ClothBatch:
     return ClothBatch(list(scene_paths), drives, mesh)
 
 
-# A tangled run: a cloth caught between limbs is pulled far beyond its rest lengths over a part of its surface. On
-# the CPU-profile pants (4 programs and a walk, low and high resolution, 2026-11-26) at most 0.9 % of the edges
-# (one hard program's high-res run) were ever stretched beyond 1.5x; a run with five times that share is dropped.
+# A tangled run: a cloth caught between limbs is pulled far beyond its rest lengths over a part of its surface. It
+# is judged on the low-res run, which the high-res one follows (a tangled low-res run drops both): the high-res
+# run's stretch also measures its solver budget (the test suite's tiny pants, 2 x 10 iterations, reach 6.5 % for
+# a few frames in good runs). Low-res runs of the CPU-profile pants (4 programs and a walk) and of the tiny pants
+# (three real clips) stretched at most 0.8 and 0.9 % of their edges beyond 1.5x in any frame (2026-11-26); a run
+# with five times that share is dropped.
 TANGLE_STRETCH = 1.5
 TANGLE_EDGE_SHARE = 0.05
 
@@ -249,8 +252,7 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
                              (harmonic_residual(residual, basis.shape[1]),), batch_worlds=solver.worlds,
                              setup_seconds=setup_seconds)
 
-    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure,
-                         tangle_check(rest, faces))
+    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure)
 
 
 LEVELS = {
