@@ -51,7 +51,11 @@ def run_frames(batch: PreparedBatch, first_frame: np.ndarray, quiet: bool,
     solver, label = batch.solver, batch.label
     n_frames, worlds = max(batch.n_frames), solver.worlds
     if not quiet:
-        print(f"{label}: {worlds} sequence(s) x {n_frames - 1} frames x {batch.work}", file=sys.stderr)
+        # What the batch costs, said before it is stepped (a library's windows are many gigabytes at high res).
+        frame_bytes = first_frame[0].size * np.dtype(np.float32).itemsize
+        print(f"{label}: {worlds} sequence(s) x {n_frames - 1} frames x {batch.work}; {frame_bytes / 1e6:.3g} MB "
+              f"a frame a sequence, {frame_bytes * sum(batch.n_frames) / 1e9:.3g} GB of positions in all, held in "
+              f"memory while stepping", file=sys.stderr)
     positions = np.empty((n_frames, *first_frame.shape), dtype=np.float32)
     positions[0] = first_frame
     solve_ms = np.zeros(n_frames)
