@@ -68,42 +68,45 @@ def test_every_file_is_planned_from_its_header_with_the_manifests_subject_catego
     assert library_clips(library(folder, fps_column=None))[2].frame_time == pytest.approx(1 / 120)
 
 
-def test_windows_cut_whole_windows_from_the_motion_and_one_from_a_shorter_clip(folder):
+def test_windows_cut_the_whole_motion_into_the_fewest_equal_windows(folder):
     clips = library_clips(library(folder))
-    assert [(w.start, w.end) for w in windows(clips[0], 8.0)] == [(0.0, 8.0), (8.0, 16.0)]    # 4 s left out
+    spans = [(w.start, w.end) for w in windows(clips[0], 8.0)]          # 20 s: three of 6.67 s, nothing left out
+    assert spans == [pytest.approx((0.0, 20 / 3)), pytest.approx((20 / 3, 40 / 3)), pytest.approx((40 / 3, 20.0))]
     assert [(w.start, w.end) for w in windows(clips[0], 5.0)] == [(0, 5), (5, 10), (10, 15), (15, 20)]
     short = windows(clips[1], 8.0)
     assert len(short) == 1 and short[0].end == pytest.approx(3.0)
-    assert [w.key for w in windows(clips[0], 8.0)] == ["001-01-01_w00", "001-01-01_w01"]
+    assert [w.key for w in windows(clips[0], 8.0)] == ["001-01-01_w00", "001-01-01_w01", "001-01-01_w02"]
     assert windows(clips[3], 8.0)[0].end == 0.0           # unreadable: one empty window, dropped downstream
 
 
 def test_sequences_follow_the_programs_and_hold_whole_subjects_out(folder):
     names = sequence_names(garment_settings(folder, held=["016"]))
-    assert names == ["train_000", "train_001", "train_001-01-01_w00", "train_001-01-01_w01", "train_001-01-02_w00",
-                     "held_out_016-16-01_w00", "held_out_016-16-01_w01", "held_out_016-16-02_w00"]
-    assert [sequence_role(n) for n in names] == [TRAIN] * 5 + [HELD_OUT] * 3
-    assert [is_window_name(n) for n in names] == [False, False] + [True] * 6
+    assert names == ["train_000", "train_001", "train_001-01-01_w00", "train_001-01-01_w01", "train_001-01-01_w02",
+                     "train_001-01-02_w00", "held_out_016-16-01_w00", "held_out_016-16-01_w01",
+                     "held_out_016-16-01_w02", "held_out_016-16-02_w00"]
+    assert [sequence_role(n) for n in names] == [TRAIN] * 6 + [HELD_OUT] * 4
+    assert [is_window_name(n) for n in names] == [False, False] + [True] * 8
     assert window_key(names[-1]) == "016-16-02_w00"
     # Training and held-out sequences shard apart, in order.
-    assert sequence_shards(garment_settings(folder, held=["16"])) == [names[:2], names[2:4], names[4:5], names[5:7],
-                                                                      names[7:]]
+    assert sequence_shards(garment_settings(folder, held=["16"])) == [names[:2], names[2:4], names[4:6], names[6:8],
+                                                                      names[8:]]
     # Selection: globs and the first max_clips files; without a held-out subject everything trains.
     assert sequence_names(garment_settings(folder, include=["016/*"], exclude=["*.gz"])) == [
-        "train_000", "train_001", "train_016-16-01_w00", "train_016-16-01_w01"]
-    assert len(sequence_names(garment_settings(folder, max_clips=1))) == 2 + 2
+        "train_000", "train_001", "train_016-16-01_w00", "train_016-16-01_w01", "train_016-16-01_w02"]
+    assert len(sequence_names(garment_settings(folder, max_clips=1))) == 2 + 3
 
 
 def test_a_window_is_found_again_by_its_name_and_names_its_file(folder):
     settings = garment_settings(folder)
     window = find_window(library(folder), "001-01-01_w01")
-    assert (window.clip.file, window.start, window.end) == ("001/01_01.bvh.gz", 8.0, 16.0)
+    assert (window.clip.file, window.start, window.end) == ("001/01_01.bvh.gz", pytest.approx(20 / 3),
+                                                            pytest.approx(40 / 3))
     assert window.describe() == {"file": "001/01_01.bvh.gz", "subject": "1", "category": "walk",
-                                 "description": "walk around", "start": 8.0, "end": 16.0,
-                                 "frame_time": pytest.approx(1 / 120)}
+                                 "description": "walk around", "start": pytest.approx(20 / 3),
+                                 "end": pytest.approx(40 / 3), "frame_time": pytest.approx(1 / 120)}
     assert sequence_bvh_files(settings, "train_001-01-01_w01") == [str(folder / "001/01_01.bvh.gz")]
-    with pytest.raises(ValueError, match="has 2 window"):
-        find_window(library(folder), "001-01-01_w02")
+    with pytest.raises(ValueError, match="has 3 window"):
+        find_window(library(folder), "001-01-01_w03")
     with pytest.raises(ValueError, match="no BVH file whose name gives 'nobody'"):
         find_window(library(folder), "nobody_w00")
 
