@@ -3,6 +3,7 @@ seeded train/test split of the training sequences and the held-out sequences as 
 
     python -m pipeline.dataset SUBDIV.h5 OUT.h5 SEQUENCE [SEQUENCE ...] [--settings SETTINGS.json]
                                [--frame world|torso] [--test-fraction 0.1] [--seed 0]
+                               [--test-split random|windows] [--test-window 2] [--guard 1]
                                [--task upsampling|pose|pca] [--components K] [--quiet]
 
 A SEQUENCE is a folder holding one sequence's sim_low.h5 and sim_high.h5 and, where there is one, its scene.h5
@@ -16,14 +17,19 @@ The task (default `upsampling`) says what the input and the predictor are; the t
 x_high - predictor, all in the reference frame (`world`, or `torso` using each scene.h5's `torso_transforms`).
 upsampling: input and predictor are the Loop-subdivided low-res positions S x_low (every row of S sums to one, so
 S commutes with the rigid change of frame); pose: the mannequin's 208 pose scalars over linear blend skinning;
-pca: K (--components) PCA coefficients of the high-res run over its PCA reconstruction. The test frames are a seeded random share of the
-training sequences' frames; every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split
-that measures generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
+pca: K (--components) PCA coefficients of the high-res run over its PCA reconstruction.
+
+The test frames are a seeded share of the training sequences' frames: random frames (`--test-split random`, the
+paper's way; most then have a trained neighbour a frame away, so the test measures interpolation), or
+(`windows`) contiguous blocks of up to --test-window seconds, and the frames within --guard seconds of a test
+frame, in its sequence's run or in its library file's motion, are in no split: no frame trained on lies near a
+tested one. Every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split that measures
+generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
 state, capsules, pose, torso transforms) under scene.h5's names, and every frame the direction of gravity (and the
 body's capsules) in the reference frame, under `context/`: what the network's body- and gravity-relative inputs
 are made from. docs/artifacts.md lists every dataset.
-With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.test_fraction` and `dataset.seed` are
-the defaults of --frame, --test-fraction and --seed.
+With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.test_fraction`, `dataset.seed`,
+`dataset.test_split`, `dataset.test_window` and `dataset.guard` are the defaults of the flags of those names.
 """
 from __future__ import annotations
 
@@ -36,7 +42,8 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from geometry.rigid import apply_rigid_inverse
-from pipeline.artifacts.dataset import DatasetLayout, SequenceFrames, Split, write_dataset
+from pipeline.artifacts.dataset import (RANDOM, WINDOWS, DatasetLayout, SequenceFrames, Split, SplitRule,
+                                        write_dataset)
 from pipeline.artifacts.scene import (CAPSULE_A, CAPSULE_B, read_library_window, read_mannequin_frames, read_sequence,
                                       read_torso_transforms)
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
@@ -63,19 +70,107 @@ class SequenceSource:
     clips: tuple[str, ...]     # the clips it plays, in order (none without a mannequin)
     scene: Path | None         # its scene.h5, if it has one
     window: dict | None = None     # the motion library window it plays (scene.h5 attr library_window), if any
+    settle: int = 0                # frames before its first clip (the settle period; a library window's hold too)
 
     @property
     def kept(self) -> int:
         return self.n_frames - self.first
 
 
-def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded random split: sorted train and test frame ids, at least one frame in each."""
+def count_test_frames(n_frames: int, test_fraction: float) -> int:
+    """How many of `n_frames` training frames are test: the share rounded, at least one, and one short of all."""
     if n_frames < 2:
         raise PipelineError(f"a train/test split needs at least 2 frames of training sequences, got {n_frames}")
-    n_test = min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
+    return min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
+
+
+def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded random split: sorted train and test frame ids, at least one frame in each."""
+    n_test = count_test_frames(n_frames, test_fraction)
     order = np.random.default_rng(seed).permutation(n_frames)
     return np.sort(order[n_test:]), np.sort(order[:n_test])
+
+
+# A clock of the frames: per frame a key (frames of one key share a timeline; -1: on no timeline of this clock)
+# and the frame's time on it, in frames.
+Clock = tuple[np.ndarray, np.ndarray]
+
+
+def block_frames(window: float, frame_time: float) -> int:
+    """Frames of a test block of `window` seconds (at least one)."""
+    return max(1, int(round(window / frame_time)))
+
+
+def guard_frames(guard: float, frame_time: float) -> int:
+    """The most frames two frames may lie apart and still be within `guard` seconds of each other."""
+    return int(np.floor(guard / frame_time + 1e-9))
+
+
+def split_windows(sequence: np.ndarray, clocks: Sequence[Clock], test_fraction: float, block: int, guard: int,
+                  seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seeded test blocks of consecutive frames: count_test_frames(...) test frames in as few blocks of at most `block`
+    frames as hold them, of lengths differing by one frame at most, each at a seeded offset inside a seeded choice
+    of the `block`-frame slots that each sequence (a run of equal `sequence` ids) is cut into from its first
+    frame, so blocks never overlap nor cross sequences. A frame within `guard` frames of a test frame on any of
+    the `clocks` is guard (in no split), the others train. Returns the sorted positions of the train, test and
+    guard frames."""
+    n_test = count_test_frames(len(sequence), test_fraction)
+    firsts = np.flatnonzero(np.r_[True, sequence[1:] != sequence[:-1]])
+    ends = np.r_[firsts[1:], len(sequence)]
+    slots = np.concatenate([np.arange(a, b - block + 1, block) for a, b in zip(firsts, ends)])
+    n_blocks = -(-n_test // block)
+    if len(slots) < n_blocks:
+        raise PipelineError(f"test split 'windows': {n_test} test frames need {n_blocks} block(s) of up to {block} "
+                            f"frames, but the training sequences hold {len(slots)} whole block(s): lower "
+                            f"dataset.test_window (--test-window) or dataset.test_fraction")
+    lengths = n_test // n_blocks + (np.arange(n_blocks) < n_test % n_blocks)
+    rng = np.random.default_rng(seed)
+    starts = slots[rng.choice(len(slots), n_blocks, replace=False)] + rng.integers(0, block - lengths + 1)
+    is_test = np.zeros(len(sequence), bool)
+    for start, length in zip(starts, lengths):
+        is_test[start:start + length] = True
+    is_guard = np.logical_or.reduce([near_test(key, time, is_test, guard) for key, time in clocks]) & ~is_test
+    train = np.flatnonzero(~is_test & ~is_guard)
+    if not len(train):
+        raise PipelineError("test split 'windows': every training frame is test or within dataset.guard (--guard) "
+                            "of one: lower the guard, dataset.test_fraction or dataset.test_window")
+    return train, np.flatnonzero(is_test), np.flatnonzero(is_guard)
+
+
+def near_test(key: np.ndarray, time: np.ndarray, is_test: np.ndarray, reach: int) -> np.ndarray:
+    """Whether each frame lies at most `reach` from a test frame of its key on a clock (key -1: from none)."""
+    near = np.zeros(len(key), bool)
+    for timeline in np.unique(key[is_test & (key >= 0)]):
+        mine = np.flatnonzero(key == timeline)
+        tests = np.sort(time[mine][is_test[mine]])
+        at = np.searchsorted(tests, time[mine])
+        gap = np.minimum(np.abs(time[mine] - tests[np.maximum(at - 1, 0)]),
+                         np.abs(tests[np.minimum(at, len(tests) - 1)] - time[mine]))
+        near[mine] = gap <= reach
+    return near
+
+
+def frame_clocks(sources: list[SequenceSource], frame_time: float) -> list[Clock]:
+    """The clocks of the sequences' kept frames: each sequence's run (its frame index), and each library file's
+    motion, on which a window's frames lie at its start plus the frames since its clip began (the blend into its
+    first pose and the hold count as its start). Windows of one take share a clock: a test block at the end of one
+    window makes the start of the next, the same motion a frame later, guard."""
+    run = (np.concatenate([np.full(s.kept, k) for k, s in enumerate(sources)]),
+           np.concatenate([np.arange(s.first, s.n_frames) for s in sources]))
+    files: dict[str, int] = {}
+    keys, times = [], []
+    for source in sources:
+        frames = np.arange(source.first, source.n_frames)
+        if source.window is None:
+            keys.append(np.full(source.kept, -1))
+            times.append(np.zeros(source.kept, np.int64))
+            continue
+        start = source.window.get("start")
+        if not isinstance(start, (int, float)) or not np.isfinite(start) or start < 0:
+            raise PipelineError(f"{source.scene}: attr 'library_window' has no start (seconds >= 0)")
+        keys.append(np.full(source.kept, files.setdefault(source.window["file"], len(files))))
+        times.append(int(round(start / frame_time)) + np.maximum(frames - source.settle, 0))
+    return [run, (np.concatenate(keys), np.concatenate(times))]
 
 
 def find_sequences(folders: Sequence[str]) -> tuple[list[SequenceSource], list[tuple[str, str]]]:
@@ -100,7 +195,7 @@ def find_sequences(folders: Sequence[str]) -> tuple[list[SequenceSource], list[t
         keep_settle = info.role == TRAIN and not settle_kept
         settle_kept = settle_kept or keep_settle
         sources.append(SequenceSource(folder, info.name, info.role, n_frames, 0 if keep_settle else info.settle_frames,
-                                      info.clip_names[1:], scene, read_library_window(scene)))
+                                      info.clip_names[1:], scene, read_library_window(scene), info.settle_frames))
     names = [s.name for s in sources]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -124,22 +219,30 @@ def shared_physics(sources: list[SequenceSource]) -> RunPhysics:
 
 
 def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-                   test_fraction: float, seed: int, frame_time: float,
-                   dropped: Sequence[tuple[str, str]] = ()) -> DatasetLayout:
-    """Where every frame comes from, and the split: of the training sequences' frames a seeded random share is
-    test, the rest train; every frame of the held-out sequences is held out."""
+                   test_fraction: float, seed: int, frame_time: float, dropped: Sequence[tuple[str, str]] = (),
+                   test_split: SplitRule = SplitRule()) -> DatasetLayout:
+    """Where every frame comes from, and the split: of the training sequences' frames a seeded share is test
+    (random frames, or contiguous blocks with their guard frames in no split: `test_split`), the rest train;
+    every frame of the held-out sequences is held out."""
     sequence = np.concatenate([np.full(s.kept, k) for k, s in enumerate(sources)])
     sequence_frame = np.concatenate([np.arange(s.first, s.n_frames) for s in sources])
     held = np.isin(sequence, [k for k, s in enumerate(sources) if s.role == HELD_OUT])
     seen = np.flatnonzero(~held)
-    train, test = split_frames(len(seen), test_fraction, seed)
+    guard = np.zeros(0, np.int64)
+    if test_split.kind == WINDOWS:
+        clocks = [(key[seen], time[seen]) for key, time in frame_clocks(sources, frame_time)]
+        train, test, guard = split_windows(sequence[seen], clocks, test_fraction,
+                                           block_frames(test_split.window, frame_time),
+                                           guard_frames(test_split.guard, frame_time), seed)
+    else:
+        train, test = split_frames(len(seen), test_fraction, seed)
     held_clips = tuple(dict.fromkeys(c for s in sources if s.role == HELD_OUT for c in s.clips))
     return DatasetLayout(
         faces=subdivision.faces, rest_vertices=subdivision.vertices, low_faces=low_faces,
         n_low_vertices=subdivision.S.shape[1], sequence=sequence, sequence_frame=sequence_frame,
         names=tuple(s.name for s in sources), roles=tuple(s.role for s in sources),
         clips=tuple(",".join(s.clips) for s in sources),
-        split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips),
+        split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips, seen[guard], test_split),
         frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time,
         windows=tuple(s.window for s in sources), dropped=tuple(dropped))
 
@@ -197,7 +300,23 @@ def _all_frames(runs: Iterator[SequenceRun], make_frames: FrameMaker) -> Iterato
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
     dataset = settings["dataset"]
-    return {"frame": dataset["frame"], "test_fraction": dataset["test_fraction"], "seed": dataset["seed"]}
+    return {"frame": dataset["frame"], "test_fraction": dataset["test_fraction"], "seed": dataset["seed"],
+            "test_split": dataset["test_split"], "test_window": dataset["test_window"], "guard": dataset["guard"]}
+
+
+def windows_notes(layout: DatasetLayout, sources: list[SequenceSource]) -> list[str]:
+    """What a reader of a windows split should know: the training sequences too short to hold a test block
+    (never tested), those left with no frame to train on, and how many frames the guard takes."""
+    rule, split = layout.split.test_split, layout.split
+    block = block_frames(rule.window, layout.frame_time)
+    notes = [f"sequence {s.name} keeps {s.kept} frames, fewer than a test block of {block} (test window "
+             f"{rule.window:g} s): it is never tested" for s in sources if s.role == TRAIN and s.kept < block]
+    trained = np.bincount(layout.sequence[split.train], minlength=len(sources))
+    notes += [f"sequence {s.name}: all {s.kept} of its frames are test or guard (within {rule.guard:g} s of a "
+              f"test frame): none is trained on" for k, s in enumerate(sources) if s.role == TRAIN and not trained[k]]
+    notes.append(f"test split 'windows': {len(split.test)} test frames in blocks of up to {block} frames; "
+                 f"{len(split.guard)} guard frames (within {rule.guard:g} s of a test frame) in neither train nor test")
+    return notes
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -210,6 +329,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--test-fraction", type=float, default=0.1,
                         help="share of the training sequences' frames held out as test (paper: 0.1)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the train/test split")
+    parser.add_argument("--test-split", choices=[RANDOM, WINDOWS], default=RANDOM,
+                        help="test frames drawn at random (the paper's), or as contiguous blocks (windows) with no "
+                             "frame trained on within --guard seconds of one")
+    parser.add_argument("--test-window", type=float, default=2.0,
+                        help="windows: seconds of a test block (the test share in as few blocks as hold it)")
+    parser.add_argument("--guard", type=float, default=1.0,
+                        help="windows: seconds around each test frame in which no frame is trained on")
     parser.add_argument("--task", choices=list(TASKS), default="upsampling",
                         help="the learning problem: its input and predictor (pipeline/tasks)")
     parser.add_argument("--components", type=int, help="PCA components (task pca)")
@@ -217,6 +343,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = cli.parse_with_settings(parser, argv, flags_from_settings, unread=LEARNING_ONLY)
     if not 0 < args.test_fraction < 1:
         raise PipelineError(f"--test-fraction must lie in (0, 1), got {args.test_fraction}")
+    if not (np.isfinite(args.test_window) and np.isfinite(args.guard) and args.test_window > 0 and args.guard >= 0):
+        raise PipelineError(f"--test-window must be > 0 and --guard >= 0 seconds, got {args.test_window} and "
+                            f"{args.guard}")
     if (args.components is not None) != (args.task == "pca") or (args.components is not None and args.components < 1):
         raise PipelineError("--components K >= 1 goes with --task pca, and only with it")
     task = task_of(args.task, "--task")
@@ -229,24 +358,30 @@ def main(argv: Sequence[str] | None = None) -> None:
             check_same_mesh(args.subdiv, source.folder / run)
     low_faces = read_run_outline(sources[0].folder / SIM_LOW)[1]
     physics = shared_physics(sources)
+    rule = SplitRule(WINDOWS, args.test_window, args.guard) if args.test_split == WINDOWS else SplitRule()
     layout = dataset_layout(sources, subdivision, low_faces, args.frame, args.test_fraction, args.seed,
-                            physics.dt, dropped)
+                            physics.dt, dropped, rule)
+    if rule.kind == WINDOWS:
+        for note in windows_notes(layout, sources):
+            print(f"dataset: {note}", file=sys.stderr)
     def runs() -> Iterator[SequenceRun]:
         return _all_runs(sources, subdivision, low_faces, args.frame, physics)
 
     task_layout, make_frames = task.prepare(DatasetRequest(layout, subdivision, runs, sources[0].scene,
                                                            args.components))
     layout = dataclasses.replace(layout, task=task_layout)
-    # The upsampling records what it always did; another task adds its name and settings.
+    # The upsampling's random split records what it always did; a windows split adds its settings, another task
+    # its name and settings.
     names = ("subdiv", "sequences", "frame", "test_fraction", "seed")
+    names += ("test_split", "test_window", "guard") if rule.kind == WINDOWS else ()
     config = {name: getattr(args, name) for name in names + (() if task_layout is None else ("task", "components"))}
     write_dataset(args.out, config, layout, _all_frames(runs(), make_frames), source_mesh_of(args.subdiv))
     if not args.quiet:
         split = layout.split
+        guard = f", {len(split.guard)} guard" if rule.kind == WINDOWS else ""
         print(f"dataset ({args.task}): {len(layout.sequence)} frames of {len(sources)} sequence(s) "
-              f"({len(split.train)} train, "
-              f"{len(split.test)} test, {len(split.held_out)} held out) of {len(layout.rest_vertices)} vertices, "
-              f"{args.frame} frame -> {args.out}")
+              f"({len(split.train)} train, {len(split.test)} test, {len(split.held_out)} held out{guard}) of "
+              f"{len(layout.rest_vertices)} vertices, {args.frame} frame -> {args.out}")
 
 
 if __name__ == "__main__":

@@ -38,12 +38,30 @@ WINDOW_FIELDS = {"file": "sequences/library_file", "subject": "sequences/subject
 SEQUENCE_SPAN = "sequences/library_span"
 DROPPED_NAMES, DROPPED_REASONS = "dropped/names", "dropped/reasons"
 SPLIT, SPLIT_TRAIN, SPLIT_TEST, SPLIT_HELD_OUT = "split", "split/train", "split/test", "split/held_out"
+SPLIT_GUARD = "split/guard"     # test split `windows`: the frames too near a test frame to train on
+TEST_SPLIT, TEST_WINDOW, GUARD = "test_split", "test_window", "guard"    # root attrs: how the test frames were drawn
+RANDOM, WINDOWS = "random", "windows"        # the test splits (settings `dataset.test_split`)
 # What the cloth of each frame moves in, in the dataset's reference frame: the inputs of body- and
 # gravity-relative network features (model.features).
 CONTEXT_GRAVITY, CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B = "context/gravity", "context/capsule_a", "context/capsule_b"
 SPLIT_MEANING = ("train: frames trained on; test: a seeded random share of the training sequences' frames; "
                  "held_out: every frame of the held-out sequences (unseen motion, the clips named in attr "
                  "held_out_clips; may be empty)")
+WINDOWS_SPLIT_MEANING = ("train: frames trained on; test: seeded contiguous blocks of the training sequences' "
+                         "frames (root attrs test_window, guard); guard: the training sequences' frames within "
+                         "`guard` seconds of a test frame, in their run or in their library file's motion, in no "
+                         "split; held_out: every frame of the held-out sequences (unseen motion, the clips named in "
+                         "attr held_out_clips; may be empty)")
+
+
+@dataclasses.dataclass(frozen=True)
+class SplitRule:
+    """How the test frames were drawn from the training sequences: `random` frames (the paper's way), or
+    `windows`: contiguous blocks of at most `window` seconds, no frame trained on within `guard` seconds of one."""
+
+    kind: str = RANDOM
+    window: float = 0.0          # windows: seconds of the longest block
+    guard: float = 0.0           # windows: seconds
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +72,8 @@ class Split:
     test: np.ndarray
     held_out: np.ndarray         # every frame of the held-out sequences (may be empty)
     held_out_clips: tuple[str, ...]
+    guard: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))   # windows: in no split
+    test_split: SplitRule = SplitRule()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,10 +201,7 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             f.create_dataset(DROPPED_NAMES, data=_utf8([n for n, _ in layout.dropped]))
             f.create_dataset(DROPPED_REASONS, data=_utf8([r for _, r in layout.dropped]))
             f[DROPPED_NAMES].attrs["meaning"] = "sequences dropped on the way and left out, with the reason of each"
-        split = layout.split
-        for name, ids in ((SPLIT_TRAIN, split.train), (SPLIT_TEST, split.test), (SPLIT_HELD_OUT, split.held_out)):
-            f.create_dataset(name, data=np.asarray(ids, dtype=np.int64))
-        f[SPLIT].attrs.update(meaning=SPLIT_MEANING, held_out_clips=",".join(split.held_out_clips))
+        _write_split(f, layout.split)
         f.attrs.update(problem="cloth upsampling (paper Table 2)" if task is None else task.problem,
                        frame=layout.frame, n_frames=n_frames,
                        n_vertices=n_vertices, n_sequences=len(layout.names), split_seed=layout.seed,
@@ -201,6 +218,21 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             _write_task(f, task)
         f[SEQUENCE].attrs["meaning"] = ("index into sequences/names of each frame's sequence; frame f - 1 is the "
                                         "frame before f in time when both have the same sequence id")
+
+
+def _write_split(f, split: Split) -> None:
+    """The split's frame ids and how its test frames were drawn (a windows split adds its guard frames)."""
+    named = [(SPLIT_TRAIN, split.train), (SPLIT_TEST, split.test), (SPLIT_HELD_OUT, split.held_out)]
+    windows = split.test_split.kind == WINDOWS
+    if windows:
+        named.append((SPLIT_GUARD, split.guard))
+    for name, ids in named:
+        f.create_dataset(name, data=np.asarray(ids, dtype=np.int64))
+    f[SPLIT].attrs.update(meaning=WINDOWS_SPLIT_MEANING if windows else SPLIT_MEANING,
+                          held_out_clips=",".join(split.held_out_clips))
+    f.attrs[TEST_SPLIT] = split.test_split.kind
+    if windows:
+        f.attrs.update({TEST_WINDOW: split.test_split.window, GUARD: split.test_split.guard})
 
 
 def _write_task(f, task: TaskLayout) -> None:
@@ -265,6 +297,9 @@ class LearningData:
     task: str = UPSAMPLING     # which learning problem (pipeline/tasks)
     predictor: np.ndarray | None = None   # (F, V, 3); None given: the inputs (the upsampling's S x_low)
     pca: PcaBasis | None = None   # the PCA task's basis
+    # test split `windows`: the frames within the guard of a test frame, in no split (empty otherwise)
+    guard: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    test_split: SplitRule = SplitRule()
 
     def __post_init__(self):
         if self.predictor is None:
@@ -300,6 +335,9 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
         faces = read_indices(f, FACES, targets.shape[1], shape=(None, 3))
         train, test = (read_indices(f, name, n_frames, shape=(None,)) for name in (SPLIT_TRAIN, SPLIT_TEST))
         held_out = read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))
+        test_split = _read_test_split(f)
+        guard = (read_indices(f, SPLIT_GUARD, n_frames, shape=(None,)) if test_split.kind == WINDOWS
+                 else np.zeros(0, np.int64))
         # A dataset without sequence ids (made by hand) is one sequence.
         sequence = (read_indices(f, SEQUENCE, len(f[SEQUENCE_NAMES]), shape=(n_frames,)) if SEQUENCE in f
                     else np.zeros(n_frames, np.int64))
@@ -314,10 +352,10 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
         previous = previous_frames(sequence)
     except ValueError as err:
         raise PipelineError(f"{path}: '{SEQUENCE}': {err}") from None
-    every = np.concatenate([train, test, held_out])
+    every = np.concatenate([train, test, held_out, guard])
     if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every):
-        raise PipelineError(f"{path}: '{SPLIT_TRAIN}', '{SPLIT_TEST}' (and '{SPLIT_HELD_OUT}') must be disjoint "
-                            f"frame ids, train and test non-empty")
+        raise PipelineError(f"{path}: '{SPLIT_TRAIN}', '{SPLIT_TEST}' (and '{SPLIT_HELD_OUT}', '{SPLIT_GUARD}') "
+                            f"must be disjoint frame ids, train and test non-empty")
     digest = hashlib.sha256(inputs.tobytes())
     digest.update(targets.tobytes())
     digest.update(train.tobytes())
@@ -327,7 +365,25 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
         digest.update(task.encode())
         digest.update(predictor.tobytes())
     return LearningData(inputs, targets, faces, rest_vertices, train, test, digest.hexdigest(), held_out, sequence,
-                        previous, context, frame, held_out_clips, task, predictor, pca)
+                        previous, context, frame, held_out_clips, task, predictor, pca, guard, test_split)
+
+
+def _read_test_split(f) -> SplitRule:
+    """How the test frames were drawn (a file without attr `test_split`, made before it, drew them at random)."""
+    kind = str(f.attrs.get(TEST_SPLIT, RANDOM))
+    if kind == RANDOM:
+        return SplitRule()
+    if kind != WINDOWS:
+        raise PipelineError(f"{f.filename}: attr '{TEST_SPLIT}' is '{kind}', not '{RANDOM}' or '{WINDOWS}'")
+    try:
+        window, guard = float(f.attrs[TEST_WINDOW]), float(f.attrs[GUARD])
+    except (KeyError, TypeError, ValueError):
+        raise PipelineError(f"{f.filename}: a '{WINDOWS}' test split needs attrs '{TEST_WINDOW}' and '{GUARD}' "
+                            f"(seconds)") from None
+    if not (np.isfinite(window) and np.isfinite(guard) and window > 0 and guard >= 0):
+        raise PipelineError(f"{f.filename}: attrs '{TEST_WINDOW}' {window} and '{GUARD}' {guard} must be finite "
+                            f"seconds, the window > 0 and the guard >= 0")
+    return SplitRule(WINDOWS, window, guard)
 
 
 def _read_pca(f, n_components: int, n_vertices: int) -> PcaBasis:
@@ -399,3 +455,49 @@ def read_frame_origins(path: str | os.PathLike) -> FrameOrigins:
     if not len(splits["test"]):
         raise PipelineError(f"{path}: '{SPLIT_TEST}' is empty")
     return FrameOrigins(names, sequence, sequence_frame, {k: v for k, v in splits.items() if len(v)}, torso)
+
+
+@dataclasses.dataclass(frozen=True)
+class LibraryWindows:
+    """The motion-library window each sequence of a dataset plays, in dataset order ("" and span (-1, -1) for a
+    sequence that plays none: a motion program, a held-out clip of the settings)."""
+    file: tuple[str, ...]        # the window's file, relative to the library folder
+    subject: tuple[str, ...]     # who performs it
+    category: tuple[str, ...]    # the manifest's category ("" without one)
+    span: np.ndarray             # (S, 2) the seconds [start, end) of the file's motion it plays
+
+
+def read_library_windows(path: str | os.PathLike) -> LibraryWindows | None:
+    """What each sequence plays of a motion library, or None for a dataset without library windows."""
+    with open_artifact(path) as f:
+        if WINDOW_FIELDS["file"] not in f:
+            return None
+        n_sequences = len(_texts(f, SEQUENCE_NAMES, None))
+        fields = {key: _texts(f, name, n_sequences) for key, name in WINDOW_FIELDS.items()}
+        span = read(f, SEQUENCE_SPAN, np.float64)
+    if span.shape != (n_sequences, 2):
+        raise PipelineError(f"{path}: '{SEQUENCE_SPAN}' {span.shape} must be ({n_sequences}, 2)")
+    return LibraryWindows(**fields, span=span)
+
+
+def read_dropped(path: str | os.PathLike) -> tuple[tuple[str, str], ...]:
+    """(name, reason) of each sequence dropped on the way to the dataset (none: an empty tuple)."""
+    with open_artifact(path) as f:
+        if DROPPED_NAMES not in f:
+            return ()
+        names = _texts(f, DROPPED_NAMES, None)
+        reasons = _texts(f, DROPPED_REASONS, len(names))
+    return tuple(zip(names, reasons))
+
+
+def _texts(f, name: str, count: int | None) -> tuple[str, ...]:
+    """A 1-D dataset of UTF-8 texts (`count` of them, if given), one error naming it otherwise."""
+    dataset = f.get(name)
+    if not isinstance(dataset, h5py.Dataset) or dataset.dtype.kind != "S" or dataset.ndim != 1 \
+            or (count is not None and len(dataset) != count):
+        raise PipelineError(f"{f.filename}: '{name}' must be a list of texts"
+                            + ("" if count is None else f", one per entry of the other lists ({count})"))
+    try:
+        return tuple(text.decode() for text in dataset[()])
+    except UnicodeDecodeError:
+        raise PipelineError(f"{f.filename}: '{name}' holds text that is not UTF-8") from None
