@@ -16,7 +16,9 @@ frames, low-res input | ground truth | network output | error, in real time (MP4
 Every still and video frame goes through one camera, fitted to the garment of all frames shown, and one error
 colour scale. With --scene (a scene.h5, or dataset.h5, which carries each frame's mannequin) the body is drawn.
 The export folder (default `export/`) holds the predicted sequence as OBJ files and a GLB scene comparing input,
-truth and prediction. report.md links all of it; --html writes one self-contained page that embeds it.
+truth and prediction. A dataset of motion-library windows adds the held-out and test errors per category of the
+library's manifest and per subject, and a dataset that lists sequences dropped on the way adds them with their
+reasons. report.md links all of it; --html writes one self-contained page that embeds it.
 A failed run leaves nothing behind: folders are filled under temporary names beside their final ones and renamed
 at the end, every file is written atomically. docs/artifacts.md lists what is written. With --settings (a
 scene's resolved settings.json), `evaluation.*` and `device` are the defaults of the flags of the same names.
@@ -42,8 +44,9 @@ from model.features import FrameStore
 from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
 from model.training_step import LR_SCHEDULES
-from pipeline.artifacts.dataset import LearningData, load_dataset
-from pipeline.artifacts.evaluation import Evaluation, write_evaluation
+from pipeline.artifacts.dataset import (WINDOWS, LearningData, LibraryWindows, load_dataset, read_dropped,
+                                        read_library_windows)
+from pipeline.artifacts.evaluation import GROUPINGS, TERMS, WHO, Evaluation, GroupErrors, write_evaluation
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
@@ -66,6 +69,9 @@ from viz.render import png_bytes, value_colors
 PAPER_UNIT = 1e-3          # Table 3: "error should be multiplied by 10^-3"
 VIDEO_PANEL_HEIGHT = 3.6   # inches at 100 dpi; stills are 4.5 and supersampled, video frames are not (speed)
 SPLIT_NAMES = {"train": "train", "test": "test", "held_out": "held-out"}
+# The group of the frames of sequences that play no motion-library window (motion programs, the settings' test
+# clips), and of windows whose manifest gives no category, in the errors by motion kind.
+NO_WINDOW, NO_CATEGORY = "(no library window)", "(no category)"
 
 
 def infer_all(model, mesh, store: FrameStore, batch_size: int = 8) -> torch.Tensor:
@@ -79,6 +85,40 @@ def per_frame_errors(displacement_error: np.ndarray) -> dict[str, np.ndarray]:
     """L1 and L2 of each frame from (F, V, 3) position errors."""
     return {"l1": np.abs(displacement_error).mean(axis=(1, 2)),
             "l2": np.sqrt(np.square(displacement_error).sum(axis=2).mean(axis=1))}
+
+
+def errors_by_kind(per_frame: dict[str, dict[str, np.ndarray]], sequence: np.ndarray, windows: LibraryWindows,
+                   splits: dict[str, np.ndarray]) -> dict[str, GroupErrors]:
+    """The errors of each split of `splits` over the frames of each manifest category and of each subject, from
+    the per-frame errors (who -> l1/l2 -> (F,)) and each frame's sequence: a group's L1 is the mean of its frames'
+    (every frame has the same vertices), its L2 the root of the mean of their squares, as a split's are."""
+    labels_of = {"category": [(c or NO_CATEGORY) if f else NO_WINDOW for f, c in zip(windows.file, windows.category)],
+                 "subject": [s if f else NO_WINDOW for f, s in zip(windows.file, windows.subject)]}
+    by_kind = {}
+    for grouping in GROUPINGS:
+        per_sequence = labels_of[grouping]
+        labels = sorted(set(per_sequence), key=_group_order)
+        group = np.array([labels.index(label) for label in per_sequence], dtype=np.int64)[sequence]
+        frames, errors = {}, {}
+        for split, ids in splits.items():
+            frames[split] = np.bincount(group[ids], minlength=len(labels))
+            errors[split] = {who: {"l1": _group_mean(group[ids], per_frame[who]["l1"][ids], frames[split]),
+                                   "l2": np.sqrt(_group_mean(group[ids], per_frame[who]["l2"][ids] ** 2,
+                                                             frames[split]))} for who in WHO}
+        by_kind[grouping] = GroupErrors(tuple(labels), frames, errors)
+    return by_kind
+
+
+def _group_mean(group: np.ndarray, values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The mean of `values` per group (`group` of each value; `counts` values in each): NaN for an empty group."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.bincount(group, values, len(counts)) / counts
+
+
+def _group_order(label: str) -> tuple:
+    """Groups in order: by number where a label is one (subjects 2, 10, 16), else by name; the frames of no
+    library window last."""
+    return (label == NO_WINDOW, not label.isdigit(), int(label) if label.isdigit() else 0, label)
 
 
 def stretch_around_test_frames(data: LearningData, count: int) -> np.ndarray:
@@ -170,11 +210,12 @@ def video_clips(data: LearningData, count: int) -> list[tuple[str, np.ndarray, f
                       f"{len(data.held_out)} frames, evenly spaced, in real time ({fps:.3g} frames/s)."))
     stretch = stretch_around_test_frames(data, count)
     if len(stretch):
-        n_test = np.isin(stretch, data.test).sum()
+        n_test, n_guard = np.isin(stretch, data.test).sum(), np.isin(stretch, data.guard).sum()
+        guard = f" and {n_guard} guard frames (in no split)" if n_guard else ""
         clips.append(("test", stretch, rate,
-                      f"Frames {stretch[0]}-{stretch[-1]} of a training sequence, {n_test} of them test frames "
-                      f"(the others trained on; each frame's title says which), at the scene's {rate:.3g} "
-                      f"frames/s."))
+                      f"Frames {stretch[0]}-{stretch[-1]} of a training sequence, {n_test} of them test "
+                      f"frames{guard} (the others trained on; each frame's title says which), at the scene's "
+                      f"{rate:.3g} frames/s."))
     return clips
 
 
@@ -249,6 +290,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     truth = data.predictor + data.targets
     predicted = data.predictor + displacement
     per_frame = {"network": per_frame_errors(displacement - data.targets), "predictor": per_frame_errors(-data.targets)}
+    windows = read_library_windows(args.dataset)
+    by_kind = {} if windows is None else errors_by_kind(
+        per_frame, data.sequence, windows, {name: ids for name, ids in data.splits().items() if name != "train"})
     # With an unseen motion, half the stills show it.
     n_held = args.render_frames // 2 if len(data.held_out) else 0
     stills = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
@@ -265,8 +309,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                            bodies.get(int(frame)))
 
     def frame_title(frame: int) -> str:
-        split = next(name for name, ids in data.splits().items() if frame in ids)
-        return f"{SPLIT_NAMES[split]} frame {frame}"
+        split = next((SPLIT_NAMES[name] for name, ids in data.splits().items() if frame in ids), "guard")
+        return f"{split} frame {frame}"
 
     with staged_folders(folders) as staged:
         pictures = []
@@ -296,13 +340,15 @@ def main(argv: Sequence[str] | None = None) -> None:
                 ("the speed-accuracy trade (target results/<scene>/tradeoff/)", args.tradeoff_report),
                 ("the generalisation study (target results/<scene>/study/)", args.study_report)) if path]
         sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
-                                    pictures, plots, videos, files, task)
+                                    pictures, plots, videos, files, task,
+                                    _motion_kind_sections(by_kind, read_dropped(args.dataset), task))
         title = f"Evaluation of {args.model}"
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
         config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
         write_evaluation(args.eval, config, Evaluation(errors, per_frame, None if args.no_predictions else predicted,
-                                                       times, timed, where, WARMUP_RUNS, state["parameter_count"]))
+                                                       times, timed, where, WARMUP_RUNS, state["parameter_count"],
+                                                       by_kind))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:
@@ -388,10 +434,58 @@ def _training_option_rows(training: dict) -> list[list[str]]:
     return rows
 
 
+def _test_note(data: LearningData) -> str:
+    """How the test frames were drawn, in words."""
+    rule = data.test_split
+    if rule.kind != WINDOWS:
+        return ("Test: a random share of the frames of the trained sequences (the paper's split: most test frames "
+                "have a trained neighbour a frame away).")
+    return (f"Test: contiguous blocks of up to {rule.window:g} s of the trained sequences, no frame trained on "
+            f"within {rule.guard:g} s of a test frame (in its run or in its library file's motion): the "
+            f"{len(data.guard)} frames that near one (guard frames) are in no split.")
+
+
+def _motion_kind_sections(by_kind: dict[str, GroupErrors], dropped: tuple[tuple[str, str], ...],
+                          task: Task) -> list[Section]:
+    """The errors per motion category and per subject (a dataset of library windows), and the sequences dropped
+    on the way to the dataset with their reasons (if any)."""
+    sections = []
+    if by_kind:
+        pieces: list = [Paragraphs(
+            f"Errors (x 1e-3 scene units) of the network and of {task.predictor_label} alone (the predictor) over "
+            f"the frames of each category of the library's manifest and of each subject, per split; gain = "
+            f"predictor / network. `{NO_WINDOW}`: frames of sequences that play no library window (motion "
+            f"programs, the settings' test clips).")]
+        for grouping, groups in by_kind.items():
+            header = [grouping, "split", "frames", "network L1", "predictor L1", "L1 gain", "network L2",
+                      "predictor L2", "L2 gain"]
+            splits = sorted(groups.frames, key=lambda name: name != "held_out")    # held out first: what it is for
+            rows = [_group_row(groups, split, k) for split in splits for k in np.flatnonzero(groups.frames[split])]
+            pieces.append(Table(header, rows))
+        sections.append(Section("Errors by motion kind", pieces))
+    if dropped:
+        sections.append(Section("Dropped sequences", [
+            Paragraphs(f"{len(dropped)} sequence(s) left out on the way to the dataset (a library window that "
+                       f"could not be played, a run that blew up or tangled), each with its reason:"),
+            Table(["sequence", "reason"], [[name, " ".join(reason.split())] for name, reason in dropped])]))
+    return sections
+
+
+def _group_row(groups: GroupErrors, split: str, k: int) -> list:
+    """A row of a table by motion kind: group k's frames in `split`, and per term the network's and predictor's
+    errors (x 1e-3) and the gain."""
+    cells = [groups.labels[k], SPLIT_NAMES[split], int(groups.frames[split][k])]
+    for term in TERMS:
+        network, predictor = (groups.errors[split][who][term][k] / PAPER_UNIT for who in WHO)
+        cells += [f"{network:.3f}", f"{predictor:.3f}", f"{predictor / max(network, 1e-30):.2f}x"]
+    return cells
+
+
 def _report_sections(args, state, data: LearningData, errors, times, device: str, n_low: int,
                      train_log: TrainLog | None, pictures: list[Path], plots: dict[str, Path],
-                     videos: list[tuple[Path, str]], files: list[tuple[str, str]], task: Task) -> list[Section]:
-    """The report's contents, as pieces both report.md and report.html show."""
+                     videos: list[tuple[Path, str]], files: list[tuple[str, str]], task: Task,
+                     by_kind: list[Section]) -> list[Section]:
+    """The report's contents, as pieces both report.md and report.html show; `by_kind` follows the errors."""
     spec, training = state["spec"], state["training"]
     scaled = lambda who, split, term: errors[who][split][term] / PAPER_UNIT  # noqa: E731
     splits = list(data.splits())
@@ -403,8 +497,8 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     rows.append(["gain (predictor / network)", *[f"{g:.2f}x" for g in gains], ""])
     rows += task.extra_error_rows(errors, splits)
     held_note = ("Held-out: every frame of the motion clip(s) `{}`, never seen in training (the generalisation "
-                 "test); test: a random share of the frames of the trained motions.\n\n".format(data.held_out_clips)
-                 if "held_out" in splits else "") + task.error_note(data)
+                 "test). ".format(data.held_out_clips) if "held_out" in splits else "") + _test_note(data) \
+        + "\n\n" + task.error_note(data)
     loss = training["loss_weights"]
     training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
                      ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
@@ -414,8 +508,10 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     if train_log is not None:
         training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
                           ["last epoch's test loss", float(train_log.test_total[-1])]]
+    guard = f", {len(data.guard)} guard (in no split)" if len(data.guard) else ""
     input_rows = [["dataset", args.dataset],
-                  ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())],
+                  ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())
+                   + guard],
                   *task.input_rows(data, state, n_low)]
     error_pieces = [Table(header, rows), Paragraphs(
         held_note + "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
@@ -434,6 +530,7 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
             f"{spec['conv']}, {spec['pool']} pooling, width "
             f"{spec['width']:g}: **{state['parameter_count']:,} learnable parameters**.")]),
         Section("Errors (x 1e-3 scene units, as paper Table 3)", error_pieces),
+        *by_kind,
     ]
     if videos:
         sections.append(Section("Videos", [Paragraphs(

@@ -1,5 +1,6 @@
 """eval.h5, written by the `evaluate` stage: errors of the network and of its predictor alone, per-frame errors,
-predicted positions and inference times (docs/artifacts.md, section "eval.h5")."""
+predicted positions, inference times and, for a dataset of motion-library windows, the errors per motion category
+and per subject (docs/artifacts.md, section "eval.h5")."""
 from __future__ import annotations
 
 import dataclasses
@@ -12,6 +13,20 @@ from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import atomic_h5, config_of, open_artifact, read
 
 STAGE = "evaluate"
+BY_KIND = "by_kind"      # errors per motion category and per subject of a dataset with motion-library windows
+GROUPINGS = ("category", "subject")
+WHO, TERMS = ("network", "predictor"), ("l1", "l2")
+
+
+@dataclasses.dataclass(frozen=True)
+class GroupErrors:
+    """The errors of the network and of its predictor alone over the frames of each group of one grouping (the
+    library's motion categories, or its subjects), per split."""
+
+    labels: tuple[str, ...]                              # (G,) the groups
+    frames: dict[str, np.ndarray]                        # split -> (G,) int64 each group's frames in it
+    errors: dict[str, dict[str, dict[str, np.ndarray]]]  # split -> network/predictor -> l1/l2 -> (G,) float64,
+                                                         # NaN for a group without frames in the split
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,6 +42,8 @@ class Evaluation:
     device: str                                      # where it ran, in words (e.g. "cpu, 2 threads")
     warmup_runs: int                                 # untimed runs before the timed ones
     parameter_count: int
+    by_kind: dict[str, GroupErrors] = dataclasses.field(default_factory=dict)   # grouping -> errors; empty: a
+                                                                                # dataset without library windows
 
 
 def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
@@ -51,6 +68,53 @@ def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluat
         f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
                        warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
                        timing="input features and network, batch of one frame")
+        for grouping, groups in evaluation.by_kind.items():
+            _write_groups(f, f"{BY_KIND}/{grouping}", groups)
+        if evaluation.by_kind:
+            f[BY_KIND].attrs["meaning"] = ("per grouping (the library's manifest categories, its subjects): the "
+                                           "groups' labels and, per split, each group's frames and the L1 and L2 "
+                                           "of the network and of the predictor alone over them (scene units; NaN: "
+                                           "no frame); gain = predictor / network")
+
+
+def _write_groups(f, where: str, groups: GroupErrors) -> None:
+    f.create_dataset(f"{where}/labels", data=np.array([label.encode() for label in groups.labels], dtype="S"))
+    for split, frames in groups.frames.items():
+        f.create_dataset(f"{where}/{split}/frames", data=np.asarray(frames, dtype=np.int64))
+        for who in WHO:
+            for term in TERMS:
+                f.create_dataset(f"{where}/{split}/{who}_{term}",
+                                 data=np.asarray(groups.errors[split][who][term], dtype=np.float64))
+
+
+def read_errors_by_kind(path: str | os.PathLike) -> dict[str, GroupErrors]:
+    """The errors per motion category and per subject an evaluation wrote (empty: it wrote none, its dataset had
+    no library windows): grouping -> GroupErrors."""
+    with open_artifact(path) as f:
+        if BY_KIND not in f:
+            return {}
+        try:
+            return {grouping: _read_groups(f, f"{BY_KIND}/{grouping}") for grouping in GROUPINGS}
+        except (KeyError, TypeError, ValueError, AttributeError, UnicodeDecodeError):
+            raise PipelineError(f"{path}: '{BY_KIND}' must hold, per grouping {', '.join(GROUPINGS)}, texts "
+                                f"'labels' and per split 'frames' and the network's and predictor's l1 and l2, "
+                                f"one per label") from None
+
+
+def _read_groups(f, where: str) -> GroupErrors:
+    labels = tuple(label.decode() for label in f[f"{where}/labels"][()])
+    splits = [name for name in f[where] if name != "labels"]
+    frames = {split: np.asarray(f[f"{where}/{split}/frames"][()], dtype=np.int64) for split in splits}
+    errors = {split: {who: {term: np.asarray(f[f"{where}/{split}/{who}_{term}"][()], dtype=np.float64)
+                            for term in TERMS} for who in WHO} for split in splits}
+    for split, by_who in errors.items():
+        counted = frames[split] > 0
+        values = [a for by_term in by_who.values() for a in by_term.values()]
+        if frames[split].shape != (len(labels),) or np.any(frames[split] < 0) \
+                or any(a.shape != (len(labels),) or not np.all(np.isfinite(a[counted]) & (a[counted] >= 0))
+                       for a in values):
+            raise ValueError(where)
+    return GroupErrors(labels, frames, errors)
 
 
 def read_errors(path: str | os.PathLike) -> dict[str, dict[str, dict[str, float]]]:

@@ -231,3 +231,17 @@ def test_a_guard_overlapping_a_split_is_refused_on_reading(library, tmp_path):
         f["split/guard"] = np.r_[guard, f["split/train"][0]]
     with pytest.raises(PipelineError, match="must be disjoint frame ids"):
         load_dataset(out)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda f: f.attrs.__setitem__("test_split", "blocks"), "attr 'test_split' is 'blocks', not 'random' or"),
+    (lambda f: f.attrs.__delitem__("guard"), "a 'windows' test split needs attrs 'test_window' and 'guard'"),
+    (lambda f: f.attrs.__setitem__("test_window", np.inf), "must be finite seconds"),
+    (lambda f: f.__delitem__("split/guard"), "missing dataset 'split/guard'"),
+])
+def test_a_damaged_record_of_the_split_is_one_error(library, tmp_path, damage, message):
+    out = windows_dataset(library, tmp_path / "windows.h5", 2)
+    with h5py.File(out, "r+") as f:
+        damage(f)
+    with pytest.raises(PipelineError, match=message):
+        load_dataset(out)
