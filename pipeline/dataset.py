@@ -21,10 +21,10 @@ pca: K (--components) PCA coefficients of the high-res run over its PCA reconstr
 
 The test frames are a seeded share of the training sequences' frames: random frames (`--test-split random`, the
 paper's way; most then have a trained neighbour a frame away, so the test measures interpolation), or
-(`windows`) contiguous blocks of up to --test-window seconds, and the frames within --guard seconds of a test
-frame, in its sequence's run or in its library file's motion, are in no split: no frame trained on lies near a
-tested one. Every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split that measures
-generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
+(`windows`) contiguous blocks of up to --test-window seconds (split_windows), and the frames within --guard
+seconds of a test frame, in its sequence's run or in its library file's motion, are in no split: no frame trained
+on lies near a tested one. Every frame of a held-out sequence (scene.h5 attr `role`) is held out, a third split
+that measures generalisation to an unseen motion. Garment scenes also get each frame's mannequin (skeleton, body
 state, capsules, pose, torso transforms) under scene.h5's names, and every frame the direction of gravity (and the
 body's capsules) in the reference frame, under `context/`: what the network's body- and gravity-relative inputs
 are made from. docs/artifacts.md lists every dataset.
@@ -102,39 +102,53 @@ def block_frames(window: float, frame_time: float) -> int:
 
 
 def guard_frames(guard: float, frame_time: float) -> int:
-    """The most frames two frames may lie apart and still be within `guard` seconds of each other."""
-    return int(np.floor(guard / frame_time + 1e-9))
+    """The most frames two frames may lie apart and still be within `guard` seconds of each other; a guard a
+    whole number of frames long to a millionth of a frame is taken as that many (a stored time step such as
+    0.0166666667 s would otherwise make 1 s 59 frames, and frames 1.000000002 s apart count as farther)."""
+    return int(np.floor(guard / frame_time + 1e-6))
 
 
 def split_windows(sequence: np.ndarray, clocks: Sequence[Clock], test_fraction: float, block: int, guard: int,
                   seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Seeded test blocks of consecutive frames: count_test_frames(...) test frames in as few blocks of at most `block`
-    frames as hold them, of lengths differing by one frame at most, each at a seeded offset inside a seeded choice
-    of the `block`-frame slots that each sequence (a run of equal `sequence` ids) is cut into from its first
-    frame, so blocks never overlap nor cross sequences. A frame within `guard` frames of a test frame on any of
-    the `clocks` is guard (in no split), the others train. Returns the sorted positions of the train, test and
-    guard frames."""
+    """Seeded test blocks of consecutive frames: each sequence (a run of equal `sequence` ids) is cut into slots
+    (block_slots); slots drawn in a seeded order are test, whole, until they hold count_test_frames(...) frames,
+    the last one drawn only in part (a seeded stretch of it). So blocks never cross sequences and a sequence
+    shorter than `block` frames (a library window shorter than the test window) is tested whole. A frame within
+    `guard` frames of a test frame on any of the `clocks` is guard (in no split), the others train. Returns the
+    sorted positions of the train, test and guard frames."""
     n_test = count_test_frames(len(sequence), test_fraction)
-    firsts = np.flatnonzero(np.r_[True, sequence[1:] != sequence[:-1]])
-    ends = np.r_[firsts[1:], len(sequence)]
-    slots = np.concatenate([np.arange(a, b - block + 1, block) for a, b in zip(firsts, ends)])
-    n_blocks = -(-n_test // block)
-    if len(slots) < n_blocks:
-        raise PipelineError(f"test split 'windows': {n_test} test frames need {n_blocks} block(s) of up to {block} "
-                            f"frames, but the training sequences hold {len(slots)} whole block(s): lower "
-                            f"dataset.test_window (--test-window) or dataset.test_fraction")
-    lengths = n_test // n_blocks + (np.arange(n_blocks) < n_test % n_blocks)
+    starts, lengths = block_slots(sequence, block)
     rng = np.random.default_rng(seed)
-    starts = slots[rng.choice(len(slots), n_blocks, replace=False)] + rng.integers(0, block - lengths + 1)
+    drawn = rng.permutation(len(starts))
+    held = np.cumsum(lengths[drawn])
+    drawn = drawn[:int(np.searchsorted(held, n_test)) + 1]       # the fewest that hold n_test frames
+    taken = lengths[drawn].copy()
+    taken[-1] -= int(taken.sum()) - n_test
+    offsets = np.zeros(len(drawn), np.int64)
+    offsets[-1] = rng.integers(0, lengths[drawn[-1]] - taken[-1] + 1)
     is_test = np.zeros(len(sequence), bool)
-    for start, length in zip(starts, lengths):
-        is_test[start:start + length] = True
+    for start, count in zip(starts[drawn] + offsets, taken):
+        is_test[start:start + count] = True
     is_guard = np.logical_or.reduce([near_test(key, time, is_test, guard) for key, time in clocks]) & ~is_test
     train = np.flatnonzero(~is_test & ~is_guard)
     if not len(train):
         raise PipelineError("test split 'windows': every training frame is test or within dataset.guard (--guard) "
-                            "of one: lower the guard, dataset.test_fraction or dataset.test_window")
+                            "of one: lower the guard or dataset.test_fraction")
     return train, np.flatnonzero(is_test), np.flatnonzero(is_guard)
+
+
+def block_slots(sequence: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first positions and lengths of the slots a windows split draws its test blocks from: each sequence (a
+    run of equal `sequence` ids) cut into the fewest slots of at most `block` frames, of lengths differing by one
+    frame at most (the longer first)."""
+    firsts = np.flatnonzero(np.r_[True, sequence[1:] != sequence[:-1]])
+    starts, lengths = [], []
+    for first, end in zip(firsts, np.r_[firsts[1:], len(sequence)]):
+        count = -(-(end - first) // block)
+        sizes = (end - first) // count + (np.arange(count) < (end - first) % count)
+        starts.append(first + np.r_[0, np.cumsum(sizes)[:-1]])
+        lengths.append(sizes)
+    return np.concatenate(starts), np.concatenate(lengths)
 
 
 def near_test(key: np.ndarray, time: np.ndarray, is_test: np.ndarray, reach: int) -> np.ndarray:
@@ -305,16 +319,16 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
 
 
 def windows_notes(layout: DatasetLayout, sources: list[SequenceSource]) -> list[str]:
-    """What a reader of a windows split should know: the training sequences too short to hold a test block
-    (never tested), those left with no frame to train on, and how many frames the guard takes."""
+    """What a reader of a windows split should know: the training sequences left with no frame to train on, and
+    how many frames the test and the guard take."""
     rule, split = layout.split.test_split, layout.split
-    block = block_frames(rule.window, layout.frame_time)
-    notes = [f"sequence {s.name} keeps {s.kept} frames, fewer than a test block of {block} (test window "
-             f"{rule.window:g} s): it is never tested" for s in sources if s.role == TRAIN and s.kept < block]
     trained = np.bincount(layout.sequence[split.train], minlength=len(sources))
-    notes += [f"sequence {s.name}: all {s.kept} of its frames are test or guard (within {rule.guard:g} s of a "
-              f"test frame): none is trained on" for k, s in enumerate(sources) if s.role == TRAIN and not trained[k]]
-    notes.append(f"test split 'windows': {len(split.test)} test frames in blocks of up to {block} frames; "
+    notes = [f"sequence {s.name}: all {s.kept} of its frames are test or guard (within {rule.guard:g} s of a test "
+             f"frame): none is trained on" for k, s in enumerate(sources) if s.role == TRAIN and not trained[k]]
+    test = split.test
+    blocks = 1 + np.sum((np.diff(test) != 1) | (np.diff(layout.sequence[test]) != 0))
+    notes.append(f"test split 'windows': {len(split.test)} test frames in {blocks} stretch(es) of consecutive frames "
+                 f"(blocks of up to {block_frames(rule.window, layout.frame_time)} frames, {rule.window:g} s); "
                  f"{len(split.guard)} guard frames (within {rule.guard:g} s of a test frame) in neither train nor test")
     return notes
 
@@ -333,7 +347,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="test frames drawn at random (the paper's), or as contiguous blocks (windows) with no "
                              "frame trained on within --guard seconds of one")
     parser.add_argument("--test-window", type=float, default=2.0,
-                        help="windows: seconds of a test block (the test share in as few blocks as hold it)")
+                        help="windows: the longest test block, in seconds (a shorter sequence is tested whole)")
     parser.add_argument("--guard", type=float, default=1.0,
                         help="windows: seconds around each test frame in which no frame is trained on")
     parser.add_argument("--task", choices=list(TASKS), default="upsampling",

@@ -1,7 +1,7 @@
 """The dataset's test split of contiguous windows (issue 35: an honest test, no trained frame near a tested one)
 beside the random one: the blocks, the guard by frame time and by a library file's motion (checked against
-references computed here from what dataset.h5 records), the share, the seed, the notes and errors of sequences too
-short for it, what the file records; and the random split as it always was."""
+references computed here from what dataset.h5 records), the share, the seed, sequences shorter than a block,
+the notes and errors, what the file records; and the random split as it always was."""
 from __future__ import annotations
 
 import h5py
@@ -13,7 +13,7 @@ from pipeline import dataset
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import config_of
-from pipeline.dataset import near_test, split_windows
+from pipeline.dataset import guard_frames, near_test, split_windows
 from stage_inputs import stage
 
 FRAMES = 40                 # per sequence: 4 s at the sheet's 0.1 s per frame
@@ -58,14 +58,20 @@ def test_no_train_frame_lies_within_the_guard_of_a_test_frame_on_any_clock(seed)
     assert np.array_equal(np.sort(np.concatenate([train, test, guard])), np.arange(len(sequence)))
 
 
+def slots_of(sequence: np.ndarray, block: int) -> list[np.ndarray]:
+    """Each sequence's frames cut into the fewest slots of at most `block` frames, the longer first."""
+    return [part for k in np.unique(sequence) for ids in [np.flatnonzero(sequence == k)]
+            for part in np.array_split(ids, -(-len(ids) // block))]
+
+
 @pytest.mark.parametrize("seed", range(6))
-def test_test_frames_come_in_contiguous_blocks_within_one_sequence_and_make_the_share(seed):
+def test_test_frames_are_whole_slots_but_one_contiguous_part_and_make_the_share(seed):
     sequence, clocks = synthetic(seed)
     _, test, _ = split_windows(sequence, clocks, 0.15, 10, 4, seed)
     assert len(test) == round(0.15 * len(sequence))
-    # as few blocks of up to 10 frames as hold them, none across sequences (two may touch: one run)
-    assert len(runs_of(test, sequence)) <= -(-len(test) // 10)
-    assert len(runs_of(test, np.zeros_like(sequence))) == len(runs_of(test, sequence))
+    tested = [np.isin(slot, test) for slot in slots_of(sequence, 10)]
+    partly = [t for t in tested if 0 < t.sum() < len(t)]
+    assert len(partly) <= 1 and all(len(runs_of(np.flatnonzero(t), np.zeros(len(t), int))) == 1 for t in partly)
 
 
 def test_the_split_is_seeded():
@@ -77,13 +83,14 @@ def test_the_split_is_seeded():
 
 
 def test_a_block_at_the_end_of_a_window_guards_the_start_of_the_next_window_of_its_take():
-    # window 0 is one block long and all test; window 1 follows it in the take's motion, window 2 is another take
+    # window 1 follows window 0 in its take's motion, window 2 is another take; a seed that tests window 0 whole
     sequence = np.repeat([0, 1, 2], [10, 9, 9])
     run_time = np.concatenate([np.arange(10), np.arange(9), np.arange(9)])
     take = np.repeat([0, 0, 1], [10, 9, 9])
     motion = np.concatenate([np.arange(10), 10 + np.arange(9), np.arange(9)])
-    train, test, guard = split_windows(sequence, [(sequence, run_time), (take, motion)], 10 / 28, 10, 4, 0)
-    np.testing.assert_array_equal(test, np.arange(10))
+    splits = (split_windows(sequence, [(sequence, run_time), (take, motion)], 10 / 28, 10, 4, seed)
+              for seed in range(50))
+    train, test, guard = next(split for split in splits if np.array_equal(split[1], np.arange(10)))
     np.testing.assert_array_equal(guard, np.arange(10, 14))          # motion frames 10-13: within 4 of frame 9
     np.testing.assert_array_equal(train, np.arange(14, 28))
 
@@ -95,12 +102,11 @@ def test_near_test_measures_on_each_timeline_alone():
     np.testing.assert_array_equal(near_test(keys, times, is_test, 4), [False, True, True, False, False, False])
 
 
-def test_sequences_too_short_for_the_blocks_are_one_error_naming_the_settings():
-    sequence = np.repeat([0, 1], [9, 9])
-    clocks = [(sequence, np.r_[np.arange(9), np.arange(9)])]
-    with pytest.raises(PipelineError, match=r"2 test frames need 1 block\(s\) of up to 10 frames, but the training "
-                                            r"sequences hold 0 whole block\(s\): lower dataset.test_window"):
-        split_windows(sequence, clocks, 0.1, 10, 4, 0)
+def test_sequences_shorter_than_a_block_are_slots_of_their_own_and_a_guard_over_all_is_one_error():
+    sequence = np.repeat([0, 1, 2], [4, 9, 3])
+    clocks = [(sequence, np.r_[np.arange(4), np.arange(9), np.arange(3)])]
+    tests = [split_windows(sequence, clocks, 0.25, 10, 0, seed)[1] for seed in range(8)]
+    assert any(np.array_equal(test, np.arange(4)) for test in tests)       # the first sequence tested whole
     with pytest.raises(PipelineError, match="every training frame is test or within dataset.guard"):
         split_windows(np.zeros(12, np.int64), [(np.zeros(12, np.int64), np.arange(12))], 0.1, 10, 12, 0)
 
@@ -110,7 +116,7 @@ def test_sequences_too_short_for_the_blocks_are_one_error_naming_the_settings():
 @pytest.fixture(scope="module")
 def library(tmp_path_factory):
     """A motion program, two windows of one take end to end (train), a window of another subject's take (train),
-    a window too short for a block, and a held-out subject's window."""
+    a window shorter than a block, and a held-out subject's window."""
     root = tmp_path_factory.mktemp("library")
     seconds = FRAMES * FRAME_TIME
     folders = [
@@ -173,15 +179,13 @@ def test_a_test_block_guards_the_frames_of_the_neighbouring_window_of_its_take(l
     assert set(guarded_alone) & {1, 2}
 
 
-def test_the_dataset_records_its_split_and_says_which_sequences_are_too_short(library, tmp_path, capsys):
+def test_the_dataset_records_its_split_and_says_what_it_took(library, tmp_path, capsys):
     out = windows_dataset(library, tmp_path / "windows.h5", 0)
     notes = capsys.readouterr().err
-    assert "sequence train_002-02_w00 keeps 5 frames, fewer than a test block of 8 (test window 0.8 s): it is " \
-           "never tested" in notes
     data = load_dataset(out)
     assert (data.test_split.kind, data.test_split.window, data.test_split.guard) == ("windows", WINDOW, GUARD)
-    assert f"{len(data.guard)} guard frames" in notes and len(data.guard) > 0
-    assert not np.isin(data.sequence[data.test], [4]).any()
+    assert f"test split 'windows': {len(data.test)} test frames in " in notes
+    assert f"(blocks of up to 8 frames, 0.8 s); {len(data.guard)} guard frames" in notes and len(data.guard) > 0
     with h5py.File(out) as f:
         assert f.attrs["test_split"] == "windows" and f.attrs["test_window"] == WINDOW and f.attrs["guard"] == GUARD
         np.testing.assert_array_equal(f["split/guard"][()], data.guard)
@@ -210,12 +214,23 @@ def test_the_random_split_draws_the_frames_it_always_drew(library, tmp_path):
         assert set(config_of(f)) == {"subdiv", "sequences", "frame", "test_fraction", "seed"}
 
 
-def test_a_test_window_longer_than_every_sequence_is_one_error(library, tmp_path, capsys):
+def test_a_test_window_longer_than_every_sequence_tests_whole_sequences(library, tmp_path, capsys):
+    root, folders = library
+    make(root, folders, tmp_path / "whole.h5", "--test-split", "windows", "--test-window", 10, "--guard", 0,
+         "--test-fraction", 0.3, "--seed", 2)
+    data = load_dataset(tmp_path / "whole.h5")
+    tested = np.unique(data.sequence[data.test])
+    whole = [k for k in tested if np.isin(np.flatnonzero(data.sequence == k), data.test).all()]
+    assert len(whole) >= len(tested) - 1 and len(data.guard) == 0
+    notes = capsys.readouterr().err                # a sequence tested whole is said to train nothing
+    assert all(f"sequence {folders[k].name}: all " in notes for k in range(5) if k not in data.sequence[data.train])
+
+
+def test_bad_window_or_guard_settings_are_one_error(library, tmp_path, capsys):
     root, folders = library
     with pytest.raises(SystemExit):
-        make(root, folders, tmp_path / "d.h5", "--test-split", "windows", "--test-window", 10)
-    assert "whole block(s): lower dataset.test_window (--test-window) or dataset.test_fraction" in \
-           capsys.readouterr().err
+        make(root, folders[:1], tmp_path / "d.h5", "--test-split", "windows", "--guard", 100)
+    assert "every training frame is test or within dataset.guard (--guard)" in capsys.readouterr().err
     for flags, message in ((("--test-window", 0), "--test-window must be > 0"), (("--guard", -1), "--guard >= 0")):
         with pytest.raises(SystemExit):
             make(root, folders, tmp_path / "d.h5", "--test-split", "windows", *flags)
@@ -245,3 +260,8 @@ def test_a_damaged_record_of_the_split_is_one_error(library, tmp_path, damage, m
         damage(f)
     with pytest.raises(PipelineError, match=message):
         load_dataset(out)
+
+
+def test_a_guard_of_whole_frames_counts_them_all_whatever_the_stored_time_step():
+    assert guard_frames(1.0, 0.0166666667) == guard_frames(1.0, 1 / 60) == 60     # the runs' dt, as stored
+    assert guard_frames(0.3, 0.1) == 3 and guard_frames(0.35, 0.1) == 3 and guard_frames(0.0, 0.1) == 0
