@@ -1,9 +1,7 @@
 """BVH import: every rotation order, End Sites, position channels, forward kinematics, unit detection, one-line
 errors that name the line, gzip-compressed files, a frame-time override, the header alone, and the shared CMU clips
 (skipped where ../shared/mocap is absent)."""
-import csv
 import gzip
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,8 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from bvh_files import Joint, bvh_text, write_bvh
 from scenes.bvh import UNITS, BvhHeader, parse_bvh, read_bvh, read_bvh_header, world_transforms
+from shared_mocap import MOCAP, manifest
 
-MOCAP = Path(__file__).resolve().parents[3] / "shared" / "mocap"
 CMU_WALK = MOCAP / "cmu_131_01_walk.bvh"
 
 
@@ -211,17 +209,9 @@ def test_header_errors_name_the_file_and_line(tmp_path, old, new, message):
     assert str(error.value) == f"{path}{message}"
 
 
-def shared_manifest(folder: str) -> list[dict]:
-    manifest = MOCAP / folder / "MANIFEST.tsv"
-    if not manifest.exists():
-        pytest.skip(f"shared mocap library not found at {manifest.parent}")
-    with manifest.open(newline="") as file:
-        return list(csv.DictReader(file, delimiter="\t"))
-
-
 @pytest.mark.parametrize("folder", ["cmu", "cmu_rigs"])
 def test_shared_library_headers_match_their_manifest(folder):
-    rows = shared_manifest(folder)
+    rows = manifest(folder)
     assert len(rows) == {"cmu": 167, "cmu_rigs": 4}[folder]
     for row in rows:
         header = read_bvh_header(MOCAP / folder / row["file"])
@@ -231,7 +221,7 @@ def test_shared_library_headers_match_their_manifest(folder):
 
 
 def test_shared_clip_at_its_true_frame_rate():
-    rows = {row["clip"]: row for row in shared_manifest("cmu")}
+    rows = {row["clip"]: row for row in manifest("cmu")}
     salsa = rows["60_10"]      # every header says 120 fps; CMU captured the salsa trials at 60
     assert salsa["cmu_capture_fps"] == "60"
     clip = read_bvh(MOCAP / "cmu" / salsa["file"], frame_time=1 / 60)
