@@ -140,8 +140,8 @@ def _train(argv: Sequence[str]) -> None:
                              deterministic=bool(training["deterministic"]), tf32=bool(training["tf32"]),
                              cuda_graph=bool(training["cuda_graph"]))
     datasets = {g.name: load_dataset(g.dataset) for g in garments}
-    # The garments share `network.*` (shared_settings), so their inputs are the same; each is checked on its data.
-    features = [_garment_features(g, datasets[g.name], shared["network"]) for g in garments][0]
+    # The garments share `network.*` (shared_settings), so their inputs are one spec, checked on each garment's data.
+    features, *_ = [_garment_features(g, datasets[g.name], shared["network"]) for g in garments]
     spec, net = _network(shared["network"], features, garments[0].settings)
     meshes = {g.name: _garment_mesh(g, datasets[g.name], spec, net) for g in garments}
     parts = [Garment(g.name, frames_of(datasets[g.name], device), meshes[g.name].to(device),
