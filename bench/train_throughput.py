@@ -14,7 +14,8 @@ Torch is set up as the training stage sets it up (deterministic, seeded). Median
 steps after `--warmup` (synchronised on CUDA; a graph mode captures during its warm-up), as samples/s; the ratio
 column is against the eager mode of the same variant and batch size in the same run, with the first `--arithmetic`
 listed (pipeline.core.torch_setup.set_arithmetic: the training's `deterministic` and `tf32` keys; CUDA only). Also
-prints what the dataset occupies on the device (inputs + targets): the whole of it stays there during training.
+prints what the dataset occupies on the device (x_low + targets): the whole of it stays there during training
+(bench/train_stream.py measures a dataset streamed from disk instead).
 """
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ class PrecomputedFeatures:
 
     def batch_loss(self, model, mesh, slots: torch.Tensor, weights: LossWeights):
         real = self.ids[slots]
-        positions = self.frames.store.positions[real]
+        positions = self.frames.store.predictor(real)
         displacement = model.decode(self.inputs[slots], None if self.local is None else self.local[slots], mesh)
         return total_loss(positions + displacement, positions + self.frames.targets[real], self.frames.faces, weights)
 
@@ -105,9 +106,9 @@ def main() -> None:
     device = configure_torch(args.device, 0, args.threads)
     data = load_dataset(args.dataset)
     frames = frames_of(data, device)
-    gib = (frames.store.positions.nbytes + frames.targets.nbytes) / 2 ** 30
+    gib = (frames.store.low.nbytes + frames.targets.nbytes) / 2 ** 30
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
-    print(f"{where}; {len(data.inputs)} frames of {data.inputs.shape[1]} vertices on the device ({gib:.2f} GiB); "
+    print(f"{where}; {len(data.sequence)} frames of {len(data.rest_vertices)} vertices on the device ({gib:.2f} GiB); "
           f"{ARCH} {args.conv} x{args.width:g}; median of {args.steps} steps after {args.warmup}")
     print("| variant | batch | mode | arithmetic | samples/s | ms/step | x eager |\n|---|---|---|---|---|---|---|")
     for batch_size in map(int, args.batch_sizes.split(",")):

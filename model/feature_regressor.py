@@ -36,9 +36,9 @@ def store_statistics(features: InputFeatures, store: FrameStore, ids: torch.Tens
     with torch.no_grad():
         batches = [ids[i:i + batch_size] for i in range(0, len(ids), batch_size)]
         total = sum(features(store.batch(b)).double().sum(dim=(0, 1)) for b in batches)
-        offset = total / (len(ids) * store.positions.shape[1])
+        offset = total / (len(ids) * len(features.rest))
         squares = sum((features(store.batch(b)).double() - offset).square().sum(dim=(0, 1)) for b in batches)
-    per_channel = squares / (len(ids) * store.positions.shape[1])
+    per_channel = squares / (len(ids) * len(features.rest))
     scales, start = [], 0
     for size in features.groups():
         rms = per_channel[start:start + size].mean().sqrt()
@@ -59,11 +59,14 @@ def with_input_noise(z: torch.Tensor, std: float, training: bool) -> torch.Tenso
 def mean_square(targets: torch.Tensor, ids: torch.Tensor, batch_size: int = 256) -> float:
     """Mean of the squared entries of `targets[ids]` (float64 sums), a batch of frames at a time: a copy of every
     training frame's targets (3 GB in float64 for 64 paper-profile sequences) would crowd other trainings out of
-    a shared GPU."""
+    a shared GPU. `targets` is anything that gives the targets of a tensor of frame ids (a streamed dataset's
+    are read from disk: model.streaming.DiskStore)."""
+    total, count = 0.0, 0
     with torch.no_grad():
-        total = sum(float(targets[ids[i:i + batch_size]].double().square().sum())
-                    for i in range(0, len(ids), batch_size))
-    return total / max(1, len(ids) * targets[0].numel()) if len(targets) else 0.0
+        for i in range(0, len(ids), batch_size):
+            batch = targets[ids[i:i + batch_size]]
+            total, count = total + float(batch.double().square().sum()), count + batch.numel()
+    return total / max(1, count)
 
 
 class FeatureRegressor(nn.Module):

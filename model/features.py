@@ -6,7 +6,7 @@ umbrella Laplacian), to time (velocity), to the body (distance and direction to 
 vertex (rest positions), following Zhang & Li 2024 (Neural Garment Dynamic Super-Resolution).
 
 Everything is batched torch: positions (B, V, 3) of the Loop-subdivided coarse mesh S x_low in the dataset's
-frame, capsules (B, P, 3) in that same frame. `InputFeatures` stacks the named features into the network's
+frame (subdivided on the device from the low-res run, `FrameStore`), capsules (B, P, 3) in that same frame. `InputFeatures` stacks the named features into the network's
 (B, V, C) input; `FEATURE_CHANNELS` (model.feature_spec) says how many channels each name gives.
 """
 from __future__ import annotations
@@ -50,13 +50,37 @@ class FrameBatch:
     frame_time: float              # seconds between frames
 
 
+class Subdivider:
+    """S x for batches of frames x (B, V_low, 3) -> (B, V_high, 3), S a sparse matrix given as CSR arrays.
+
+    A padded gather and weighted sum over each row's entries (in the row's stored order) rather than a sparse
+    matmul: it runs the same on the CPU and CUDA, inside a CUDA graph, and each output row's arithmetic does not
+    depend on which other frames share the batch, so a frame's S x is the same bits however it is batched
+    (streamed training equals resident training, model.streaming)."""
+
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, device: torch.device | str = "cpu"):
+        counts = np.diff(indptr)
+        width = max(int(counts.max(initial=0)), 1)
+        columns, weights = np.zeros((len(counts), width), np.int64), np.zeros((len(counts), width), np.float32)
+        slot = np.arange(len(indices)) - np.repeat(indptr[:-1], counts)
+        row = np.repeat(np.arange(len(counts)), counts)
+        columns[row, slot], weights[row, slot] = indices, data     # padding: column 0 with weight 0
+        self.columns = torch.as_tensor(columns, device=device)
+        self.weights = torch.as_tensor(weights, device=device)[None, :, :, None]
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        return (x[:, self.columns] * self.weights).sum(dim=2)
+
+
 @dataclasses.dataclass(frozen=True)
 class FrameStore:
     """Every frame of a dataset, from which batches of `FrameBatch` are gathered without copying each frame's
     history: `previous` (F,) is the id of each frame's previous frame in its sequence, its own id at a sequence's
-    first frame."""
+    first frame. It holds the low-res run x_low and subdivides the frames a batch needs (`subdivide`, S x_low)
+    on its device: S x_low is 15 times x_low's size at the paper's pants and is never stored."""
 
-    positions: torch.Tensor        # (F, V, 3) S x_low
+    low: torch.Tensor              # (F, V_low, 3) x_low
+    subdivide: Subdivider          # S
     previous: torch.Tensor         # (F,) int64
     capsule_a: torch.Tensor        # (F, P, 3)
     capsule_b: torch.Tensor        # (F, P, 3)
@@ -65,11 +89,20 @@ class FrameStore:
     gravity: torch.Tensor          # (F, 3)
     frame_time: float
 
+    def __len__(self) -> int:
+        return len(self.low)
+
     def batch(self, ids: torch.Tensor) -> FrameBatch:
         previous = self.previous[ids]
-        return FrameBatch(self.positions[ids], self.positions[previous], self.positions[self.previous[previous]],
-                           self.capsule_a[ids], self.capsule_b[ids], self.radius_a, self.radius_b,
-                           self.gravity[ids], self.frame_time)
+        # One subdivision of the three rows of each frame (itself, its previous, the one before), in that order.
+        rows = torch.cat([ids, previous, self.previous[previous]])
+        positions, before, before_previous = self.subdivide(self.low[rows]).split(len(ids))
+        return FrameBatch(positions, before, before_previous, self.capsule_a[ids], self.capsule_b[ids],
+                          self.radius_a, self.radius_b, self.gravity[ids], self.frame_time)
+
+    def predictor(self, ids: torch.Tensor) -> torch.Tensor:
+        """S x_low of the frames `ids` (B, V_high, 3): what the network's displacement is added to."""
+        return self.subdivide(self.low[ids])
 
 
 def previous_frames(sequence: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from model.feature_regressor import FeatureRegressor, FeatureSpec, mean_square, 
 from model.losses import LossWeights
 from model.mesh_hierarchy import MeshHierarchy
 from model.networks import EncoderDecoder
-from model.training import Frames
+from model.training import Frames, in_batches
 
 
 class UnknownMeshError(ValueError):
@@ -153,6 +153,9 @@ class MultiMeshFrames:
         """Per garment, the frames of `samples` (a frame repeated in the table appears as often as it does)."""
         rows = self.table[samples]
         return [rows[:, k] for k in range(len(self.garments))]
+
+    def feed(self, ids: torch.Tensor, batch_size: int):
+        return in_batches(ids, batch_size)
 
     def batch_loss(self, model: MultiMeshRegressor, mesh: Mapping[str, MeshHierarchy], ids: torch.Tensor,
                    weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

@@ -35,8 +35,14 @@ class VectorStore:
     positions: torch.Tensor    # (F, V, 3) predictor
     values: torch.Tensor       # (F, N)
 
+    def __len__(self) -> int:
+        return len(self.positions)
+
     def batch(self, ids: torch.Tensor) -> VectorBatch:
         return VectorBatch(self.positions[ids], self.values[ids])
+
+    def predictor(self, ids: torch.Tensor) -> torch.Tensor:
+        return self.positions[ids]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """Training loop (paper section 4: Adam, lr 1e-3, betas 0.9/0.999, eps 1e-8, batch size 3) with per-epoch
 checkpoints that a killed run resumes from, ending where an uninterrupted run with the same seed ends.
 
-Everything random after the network's initialisation is the epoch shuffle, drawn from its own generator whose
-state travels in the checkpoint; with `torch.use_deterministic_algorithms` a resumed run repeats the same
+Everything random after the network's initialisation is the epoch's draw of frames (model.sampler), drawn from
+its own generator whose state travels in the checkpoint with the sampler's; with `torch.use_deterministic_algorithms` a resumed run repeats the same
 arithmetic as an uninterrupted one.
 
 A checkpoint is a dict of tensors and plain Python values only (dicts, lists, str, int, float, bool, None), so
@@ -14,17 +14,20 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Callable, Iterator, Mapping, Protocol
 
 import torch
 
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
+from model.sampler import Sampler, SampleSettings
 from model.training_step import (LOSS_TERMS, BatchLoss, GraphedStep, adam, eager_step, learning_rate,
                                  set_learning_rate)
 
-CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"     # 1 pickled a History object: unreadable with weights_only
+# 1 pickled a History object. One of format 2 written before the sampler existed holds other settings (its
+# identity has no `sampling`), so it is not resumed but started afresh.
+CHECKPOINT_FORMAT = "trimesh-cnn/checkpoint-2"
 TERMS = ("total", *LOSS_TERMS)
 
 
@@ -38,6 +41,7 @@ class TrainSettings:
     cuda_graph: bool = False     # replay each full batch's step as one CUDA graph (model.training_step)
     input_noise: float = 0.0     # std of the noise on the normalised inputs (model.feature_regressor.with_input_noise)
     lr_schedule: str = "constant"   # or "cosine" (model.training_step.learning_rate), over all epochs' steps
+    sampling: SampleSettings = SampleSettings()   # which training frames an epoch visits (model.sampler)
 
 
 @dataclasses.dataclass
@@ -60,14 +64,29 @@ class CheckpointError(ValueError):
     """A checkpoint written for this run (format and identity match) whose contents cannot be restored."""
 
 
+def in_batches(ids: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
+    """`ids` cut into batches of `batch_size` (the last one shorter)."""
+    for start in range(0, len(ids), batch_size):
+        yield ids[start:start + batch_size]
+
+
 @dataclasses.dataclass(frozen=True)
 class Frames:
-    """The learning problem on one device: what the network's inputs are made from (the store's positions are
-    the predictor S x_low), the target displacements, the mesh faces."""
+    """The learning problem on one device: what the network's inputs are made from (the store's predictor is
+    S x_low), the target displacements, the mesh faces. Every frame resident; model.streaming.StreamedFrames
+    reads them from disk a batch at a time."""
 
     store: FrameStore
     targets: torch.Tensor    # (F, V, 3)
     faces: torch.Tensor      # (n_faces, 3) int64
+
+    def feed(self, ids: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
+        """The ids to gather each batch of the frames `ids` by, in order (here: the frames' own ids)."""
+        return in_batches(ids, batch_size)
+
+    def all_frames(self) -> tuple[FrameStore, torch.Tensor]:
+        """A store and targets of every frame, indexable by frame id (for the normalisation's statistics)."""
+        return self.store, self.targets
 
     def batch_loss(self, model, mesh: MeshHierarchy, ids: torch.Tensor,
                    weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -88,14 +107,16 @@ class Problem(BatchLoss, Protocol):
 
     def errors(self, model, mesh, ids: torch.Tensor, batch_size: int, weights: LossWeights) -> dict[str, float]: ...
 
+    def feed(self, ids: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
+        """What the step is given for each batch of the sample ids `ids` (Frames.feed)."""
+
 
 def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, ids: torch.Tensor,
                  batch_size: int, weights: LossWeights) -> dict[str, float]:
     """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
     `predict` maps a batch of frames to predicted displacements. Positions are S x_low + displacement."""
     def batches():
-        for start in range(0, len(ids), batch_size):
-            batch = ids[start:start + batch_size]
+        for batch in frames.feed(ids, batch_size):
             inputs = frames.store.batch(batch)
             yield batch, inputs.positions, predict(inputs)
     with torch.no_grad():
@@ -107,9 +128,8 @@ def displacement_errors(displacement: torch.Tensor, frames: Frames, ids: torch.T
     """`split_errors` of displacements already predicted for every frame (F, V, 3): a network run once over all
     frames scores every split without running again."""
     def batches():
-        for start in range(0, len(ids), batch_size):
-            batch = ids[start:start + batch_size]
-            yield batch, frames.store.positions[batch], displacement[batch]
+        for batch in in_batches(ids, batch_size):
+            yield batch, frames.store.predictor(batch), displacement[batch]
     with torch.no_grad():
         return _errors(batches(), frames, len(ids), weights)
 
@@ -149,24 +169,24 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     if settings.cuda_graph:
         step = GraphedStep(step, settings.batch_size, train_ids.device)
     shuffle = torch.Generator().manual_seed(settings.seed)
+    sampler = Sampler(len(train_ids), settings.sampling)
     identity = {"settings": _settings_key(settings), **(identity or {})}
     history = History()
     if resume_from is not None:
-        history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, on_notice,
+        history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, sampler, on_notice,
                           train_ids.device)
-    steps_per_epoch = -(-len(train_ids) // settings.batch_size)
+    steps_per_epoch = -(-sampler.frames_per_epoch // settings.batch_size)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
-        order = train_ids[torch.randperm(len(train_ids), generator=shuffle).to(train_ids.device)]
+        order = train_ids[sampler.epoch(shuffle).to(train_ids.device)]
         # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait for
         # the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
         totals, weighted = [], []
-        for first in range(0, len(order), settings.batch_size):
-            batch = order[first:first + settings.batch_size]
+        for index, batch in enumerate(frames.feed(order, settings.batch_size)):
             if settings.lr_schedule != "constant":
-                step_index = epoch * steps_per_epoch + first // settings.batch_size
-                set_learning_rate(optimizer, learning_rate(settings.lr_schedule, settings.lr, step_index,
+                set_learning_rate(optimizer, learning_rate(settings.lr_schedule, settings.lr,
+                                                           epoch * steps_per_epoch + index,
                                                            settings.epochs * steps_per_epoch))
             values = step(batch)
             totals.append(values[0])
@@ -183,6 +203,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         if save_checkpoint is not None:
             save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
                              "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
+                             "sampler": sampler.state(),
                              "noise": _noise_state(train_ids.device), "history": dataclasses.asdict(history)})
     model.eval()
     return history
@@ -202,9 +223,10 @@ def _restore_noise_state(state: torch.Tensor, device: torch.device) -> None:
 
 
 def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model: torch.nn.Module,
-            optimizer: torch.optim.Optimizer, shuffle: torch.Generator, on_notice: Callable[[str], None],
-            device: torch.device) -> History:
-    """Restore model, optimiser and shuffle states from a matching checkpoint; a fresh History otherwise."""
+            optimizer: torch.optim.Optimizer, shuffle: torch.Generator, sampler: Sampler,
+            on_notice: Callable[[str], None], device: torch.device) -> History:
+    """Restore model, optimiser, shuffle and sampler states from a matching checkpoint; a fresh History
+    otherwise."""
     if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT
             and state.get("identity") == identity):
         on_notice("checkpoint written for other settings, data or operators: starting afresh")
@@ -217,6 +239,7 @@ def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model:
         model.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         shuffle.set_state(state["shuffle"])
+        sampler.restore(state["sampler"])
         if "noise" in state:       # checkpoints written before input noise existed have none
             _restore_noise_state(state["noise"], device)
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as err:

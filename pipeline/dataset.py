@@ -16,7 +16,8 @@ without scene.h5 is a training sequence named after the folder, all of whose fra
 The task (default `upsampling`) says what the input and the predictor are; the target is always the displacement
 x_high - predictor, all in the reference frame (`world`, or `torso` using each scene.h5's `torso_transforms`).
 upsampling: input and predictor are the Loop-subdivided low-res positions S x_low (every row of S sums to one, so
-S commutes with the rigid change of frame); pose: the mannequin's 208 pose scalars over linear blend skinning;
+S commutes with the rigid change of frame: S (R x + t) = R S x + t), stored as the low-res run in the reference
+frame and S, never multiplied out (pipeline.artifacts.dataset); pose: the mannequin's 208 pose scalars over linear blend skinning;
 pca: K (--components) PCA coefficients of the high-res run over its PCA reconstruction.
 
 The test frames are a seeded share of the training sequences' frames: random frames (`--test-split random`, the
@@ -258,7 +259,7 @@ def dataset_layout(sources: list[SequenceSource], subdivision: Subdivision, low_
         clips=tuple(",".join(s.clips) for s in sources),
         split=Split(seen[train], seen[test], np.flatnonzero(held), held_clips, seen[guard], test_split),
         frame=frame, seed=seed, test_fraction=test_fraction, frame_time=frame_time,
-        windows=tuple(s.window for s in sources), dropped=tuple(dropped))
+        windows=tuple(s.window for s in sources), dropped=tuple(dropped), subdivision=subdivision.S)
 
 
 def read_run(source: SequenceSource, subdivision: Subdivision, low_faces: np.ndarray, frame: str,

@@ -74,9 +74,9 @@ SPLIT_NAMES = {"train": "train", "test": "test", "held_out": "held-out"}
 NO_WINDOW, NO_CATEGORY = "(no library window)", "(no category)"
 
 
-def infer_all(model, mesh, store: FrameStore, batch_size: int = 8) -> torch.Tensor:
-    """Predicted displacements of every frame."""
-    ids = torch.arange(len(store.positions), device=store.positions.device)
+def infer_all(model, mesh, store: FrameStore, device: torch.device, batch_size: int = 8) -> torch.Tensor:
+    """Predicted displacements of every frame (of a store on `device`)."""
+    ids = torch.arange(len(store), device=device)
     with torch.no_grad():
         return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])
 
@@ -125,7 +125,7 @@ def stretch_around_test_frames(data: LearningData, count: int) -> np.ndarray:
     """`count` consecutive frames of one training sequence (all of it if shorter): the window holding the most
     test frames, the earliest of equals. Test frames alone are a random share, rarely consecutive, and motion is
     judged at its real speed. (A sequence's frames have consecutive ids in the dataset.)"""
-    is_test = np.zeros(len(data.inputs))
+    is_test = np.zeros(len(data.sequence))
     is_test[data.test] = 1.0
     best, most = data.test[:0], -1.0
     for sequence in np.unique(data.sequence[data.test]):
@@ -275,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
     frames = task.frames(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
-    predicted_all = infer_all(model, mesh, frames.store)      # the network runs once: every split is scored on it
+    predicted_all = infer_all(model, mesh, frames.store, device)      # the network runs once: every split is scored on it
     splits = {split: torch.as_tensor(ids, device=device) for split, ids in data.splits().items()}
     errors = {"network": {split: displacement_errors(predicted_all, frames, ids, 8, weights)
                           for split, ids in splits.items()},
@@ -298,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     stills = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
     clips = video_clips(data, args.video_frames)
     shown = np.unique(np.concatenate([stills, *(clip_frames for _, clip_frames, _, _ in clips)])).astype(np.int64)
-    bodies = body_meshes(args.scene, shown, data.frame, len(data.inputs))
+    bodies = body_meshes(args.scene, shown, data.frame, len(data.sequence))
     comparison = None if len(shown) == 0 else fit_comparison(
         [low_positions[shown]], [truth[shown]], low_faces, data.faces,
         [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.predictor, predicted)],

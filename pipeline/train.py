@@ -6,7 +6,8 @@
         [--frame-tangent edge|gravity] [--epochs 200]
         [--batch-size 3] [--lr 1e-3] [--loss-l1 1] [--loss-l2 0] [--loss-normal 0] [--device cpu] [--seed 0]
         [--cuda-graph true|false] [--input-noise 0] [--lr-schedule constant|cosine] [--checkpoint PATH]
-        [--threads N] [--quiet]
+        [--sample-share 1] [--sample-block 1] [--sample-buffer 4096] [--device-cache-gb GB]
+        [--train-on train[,held_out]] [--threads N] [--quiet]
 
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
@@ -17,7 +18,15 @@ the pose or PCA task's input vector onto the coarsest level its tokens reach. Th
 (model.features: the paper's absolute positions, or velocity, body, laplacian, gravity... relative to the body and
 the local surface), optionally in each vertex's local frame, and may answer in local frames too. model.pt holds
 the state dict and everything needed to rebuild the network and its inputs and to recognise the operators it was
-trained on (docs/artifacts.md). With --settings (a
+trained on (docs/artifacts.md), and which sequences (library files, subjects) it was trained on.
+
+Each epoch visits --sample-share of the training frames, drawn in blocks of --sample-block consecutive frames
+and shuffled --sample-buffer frames at a time (model.sampler; the defaults: every frame, in one random order).
+The frames stay on the device as long as x_low and the targets fit --device-cache-gb (default: half the device's
+free memory, or on the CPU half the available RAM); a larger dataset is streamed from disk a batch at a time by
+a background thread (model.streaming), with the same arithmetic. --train-on train,held_out trains on the held-out
+frames too: an oracle whose held-out error is what the architecture can reach on that motion, which model.pt and
+the evaluation's report say. With --settings (a
 scene's resolved settings.json), `network.*`, `training.*` (loss weights from `training.loss`) and `device` are
 the defaults of the flags of the same names, --arch included.
 """
@@ -26,17 +35,22 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
+import sys
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
 import torch
 
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
+from model.sampler import Sampler, SampleSettings
 from model.training import CheckpointError, TrainSettings, fit
 from model.training_step import LR_SCHEDULES
-from pipeline.artifacts.dataset import load_dataset
+from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, LearningData, frame_bytes, load_dataset,
+                                        read_frame_origins, read_library_windows)
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.train_log import write_train_log
 from pipeline.core import cli
@@ -56,7 +70,48 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
             "seed": training["seed"], "loss_l1": training["loss"]["l1"], "loss_l2": training["loss"]["l2"],
             "loss_normal": training["loss"]["normal"], "cuda_graph": training["cuda_graph"],
             "input_noise": training["input_noise"], "lr_schedule": training["lr_schedule"],
-            "deterministic": training["deterministic"], "tf32": training["tf32"], "device": settings["device"]}
+            "deterministic": training["deterministic"], "tf32": training["tf32"], "device": settings["device"],
+            "sample_share": training["sample_share"], "sample_block": training["sample_block"],
+            "sample_buffer": training["sample_buffer"], "device_cache_gb": training["device_cache_gb"],
+            "train_on": training["train_on"]}
+
+
+def split_list(text: str) -> list[str]:
+    """--train-on's comma-separated splits, each once, among those a model may be trained on."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names or len(set(names)) != len(names) or not set(names) <= set(SPLIT_NAMES_TRAINED) \
+            or "train" not in names:
+        raise argparse.ArgumentTypeError(f"'{text}': train, optionally with held_out")
+    return names
+
+
+def trained_frames(data: LearningData, train_on: list[str], dataset: str) -> np.ndarray:
+    """The frame ids trained on, in file order: the train split, and the held-out frames if asked for."""
+    if "held_out" in train_on and not len(data.held_out):
+        raise PipelineError(f"--train-on {','.join(train_on)}: {dataset} has no held-out frames")
+    return np.sort(np.concatenate([data.train, data.held_out if "held_out" in train_on else data.held_out[:0]]))
+
+
+def trained_sequences(dataset: str, data: LearningData, ids: np.ndarray) -> dict[str, list[str]]:
+    """The sequences with frames among `ids`: their names and, for a dataset of motion-library windows, each
+    one's library file and subject ("" for a sequence that plays none)."""
+    which = np.unique(data.sequence[ids])
+    names = read_frame_origins(dataset).names
+    recorded = {"names": [names[k] for k in which]}
+    windows = read_library_windows(dataset)
+    if windows is not None:
+        recorded.update(library_files=[windows.file[k] for k in which], subjects=[windows.subject[k] for k in which])
+    return recorded
+
+
+def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -> bool:
+    """Whether the dataset's frames (`n_bytes`) stay on the device: within `budget_gb`, or without one within
+    half of what is free (the device's memory, or on the CPU the available RAM): the rest is the network's."""
+    if budget_gb is None:
+        free = (torch.cuda.mem_get_info(device)[0] if device.type == "cuda"
+                else os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        return n_bytes <= free / 2
+    return n_bytes <= budget_gb * 2 ** 30
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -95,6 +150,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--tf32", type=cli.boolean, default=False, metavar="true|false",
                         help="float32 matrix products on TF32 tensor cores (CUDA only)")
     parser.add_argument("--checkpoint", help="per-epoch checkpoint (default MODEL.pt.ckpt)")
+    parser.add_argument("--sample-share", type=float, default=1.0,
+                        help="share of the training frames each epoch visits (paper: 0.1)")
+    parser.add_argument("--sample-block", type=int, default=1, help="consecutive training frames drawn together")
+    parser.add_argument("--sample-buffer", type=int, default=4096,
+                        help="frames shuffled together after the draw (and read together when streaming)")
+    parser.add_argument("--device-cache-gb", type=float,
+                        help="GiB of frames kept on the device; a larger dataset is streamed from disk (default: "
+                             "half the free memory)")
+    parser.add_argument("--train-on", type=split_list, default=["train"], metavar="train[,held_out]",
+                        help="the splits trained on; train,held_out: the oracle of the held-out motion")
     cli.add_threads(parser)
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
@@ -106,12 +171,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError("loss weights must be finite and >= 0")
     if not 0 <= args.input_noise < math.inf:
         raise PipelineError("--input-noise must be finite and >= 0")
+    try:
+        sampling = SampleSettings(args.sample_share, args.sample_block, args.sample_buffer)
+    except ValueError:
+        raise PipelineError("--sample-share must lie in (0, 1], --sample-block and --sample-buffer be >= 1") from None
+    if args.device_cache_gb is not None and not 0 <= args.device_cache_gb < math.inf:
+        raise PipelineError("--device-cache-gb must be finite and >= 0")
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
     device = configure_torch(args.device, args.seed, args.threads, deterministic=args.deterministic,
                              tf32=args.tf32, cuda_graph=args.cuda_graph)
-    data = load_dataset(args.dataset)
+    task_name, n_bytes = frame_bytes(args.dataset)
+    stream = task_of(task_name, args.dataset).streams and not keep_resident(n_bytes, args.device_cache_gb, device)
+    data = load_dataset(args.dataset, frames=not stream)
     task = task_of(data.task, args.dataset)
     features = {"inputs": args.inputs, "input_frame": args.input_frame, "output_frame": args.output_frame,
                 "frame_tangent": args.frame_tangent}
@@ -120,31 +193,45 @@ def main(argv: Sequence[str] | None = None) -> None:
                        data, args.operators, args.dataset)
     spec, model, mesh = built.spec, built.model, built.mesh
     parameter_count = model.net.parameter_count()
-    frames = task.frames(data, device)
-    train_ids = torch.as_tensor(data.train, device=device)
-    model = model.to(device)
-    model.normalise(frames.store, train_ids, frames.targets)
-    settings = TrainSettings(args.epochs, args.batch_size, args.lr,
-                             LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed, args.cuda_graph,
-                             args.input_noise, args.lr_schedule)
-    resume_from = read_checkpoint(checkpoint)
-    steps_per_epoch = -(-len(data.train) // args.batch_size)
-    start = time.perf_counter()
-    with training_bar("train", args.epochs, steps_per_epoch, args.quiet) as bar:
-        on_batch = batch_reporter(bar, args.epochs, steps_per_epoch)
-        identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(), "spec": dataclasses.asdict(spec),
-                    "features": dataclasses.asdict(model.spec)}
-        try:
-            history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
-                          settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
-                          on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
-        except CheckpointError as err:
-            raise PipelineError(f"{checkpoint}: {err}") from None
-    seconds = time.perf_counter() - start
+    trained = trained_frames(data, args.train_on, args.dataset)
+    reader = FrameReader(args.dataset) if stream else None
+    try:
+        frames = (task.streamed_frames(data, reader, args.batch_size, device, args.sample_buffer) if stream
+                  else task.frames(data, device))
+        if stream and not args.quiet:
+            print(f"train: {n_bytes / 2 ** 30:.2f} GiB of frames streamed from {args.dataset} (more than "
+                  f"--device-cache-gb or half the free memory)", file=sys.stderr)
+        train_ids = torch.as_tensor(trained, device=device)
+        model = model.to(device)
+        store, targets = frames.all_frames()
+        model.normalise(store, train_ids, targets)
+        settings = TrainSettings(args.epochs, args.batch_size, args.lr,
+                                 LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed,
+                                 args.cuda_graph, args.input_noise, args.lr_schedule, sampling)
+        resume_from = read_checkpoint(checkpoint)
+        steps_per_epoch = -(-Sampler(len(trained), sampling).frames_per_epoch // args.batch_size)
+        start = time.perf_counter()
+        with training_bar("train", args.epochs, steps_per_epoch, args.quiet) as bar:
+            on_batch = batch_reporter(bar, args.epochs, steps_per_epoch)
+            identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(),
+                        "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
+                        "train_on": args.train_on}
+            try:
+                history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
+                              settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
+                              on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
+            except CheckpointError as err:
+                raise PipelineError(f"{checkpoint}: {err}") from None
+        seconds = time.perf_counter() - start
+    finally:
+        if reader is not None:
+            reader.close()
     config = {**vars(args), "parameter_count": parameter_count}
     training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
                 "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
-                "input_noise": args.input_noise,
+                "input_noise": args.input_noise, "sampling": dataclasses.asdict(sampling),
+                "streamed": stream, "train_on": args.train_on,
+                "sequences": trained_sequences(args.dataset, data, trained),
                 "device": str(device), "loss_weights": dataclasses.asdict(settings.weights),
                 "final_train_loss": history.train["total"][-1], "final_test_loss": history.test["total"][-1],
                 "dataset": args.dataset, "dataset_fingerprint": data.fingerprint}

@@ -3,30 +3,42 @@ decoder task: pose to cloth, PCA details recovery) over the frames of a scene's 
 frame comes from, the mannequin of each frame (garment scenes), and the train/test/held-out split
 (docs/artifacts.md, section "dataset.h5"); read back by `train` and `evaluate`.
 
-Every task stores per frame its `input`, its `predictor` and the `target` displacement from the predictor. In
-the upsampling the input is the predictor (S x_low, a hard link) and the low-res run is kept for the renders; a
-decoder task's input is one vector per frame, its predictor its own positions. A file without attr `task` is an
-upsampling dataset (as every dataset made before the other tasks).
+Every task stores per frame the `target` displacement from its predictor. The upsampling's input and predictor
+are S x_low, which is not stored: the low-res run `low/positions` and the subdivision matrix S (`subdivision/`)
+are, and S x_low is computed where it is used (model.features.FrameStore; `LearningData.predictor`): 15 times
+smaller at the paper's pants. A decoder task stores its `input` (one vector per frame) and its `predictor`
+positions. A file without attr `task` is an upsampling dataset. Root attr `format` says which layout a file has;
+one of another (an older one, which stored S x_low as `input`) is refused with one error.
 
-The writer takes the sequences one at a time, so the stage holds one sequence in memory, not the whole dataset.
+The per-frame arrays are chunked by a few frames (`chunk_frames`: about a MiB of targets a chunk), so that a run
+of consecutive frames is one contiguous read: training streams datasets larger than memory that way
+(`FrameReader`, model.streaming). The writer takes the sequences one at a time, so the stage holds one sequence
+in memory, not the whole dataset, and digests the frames as they pass (attr `frames_digest`): a dataset's
+fingerprint is known without reading every frame back.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import os
 from typing import Any, Iterable, Mapping
 
 import h5py
 import numpy as np
+import scipy.sparse as sp
 
 from model.features import previous_frames
 from pipeline.artifacts.scene import CAPSULE_RADIUS_A, CAPSULE_RADIUS_B, MannequinFrames, read_torso_transforms
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, open_artifact, read, read_indices
+from pipeline.core.h5 import FLOAT32_MAX, SOURCE_MESH, atomic_h5, open_artifact, read, read_csr, read_indices, write_csr
 
 STAGE = "dataset"
-INPUT, TARGET, PREDICTOR = "input", "target", "predictor"
+FORMAT, DATASET_FORMAT = "format", "trimesh-cnn/dataset-2"     # root attr; 1 (no attr) stored S x_low as `input`
+INPUT, TARGET, PREDICTOR = "input", "target", "predictor"       # a decoder task's; the upsampling's target only
+SUBDIVISION = "subdivision"      # the upsampling's S (V_high, V_low) as CSR arrays: S x_low is the predictor
+FRAMES_DIGEST, CHUNK_FRAMES = "frames_digest", "chunk_frames"   # root attrs
+CHUNK_BYTES = 2 ** 20            # of targets per chunk of frames
 TASK, UPSAMPLING = "task", "upsampling"          # root attr naming the task; absent: the upsampling
 # PCA details recovery: the basis the inputs are coefficients of (pipeline/tasks/pca.py).
 PCA_MEAN, PCA_COMPONENTS, PCA_SINGULAR_VALUES = "pca/mean", "pca/components", "pca/singular_values"
@@ -38,6 +50,7 @@ WINDOW_FIELDS = {"file": "sequences/library_file", "subject": "sequences/subject
 SEQUENCE_SPAN = "sequences/library_span"
 DROPPED_NAMES, DROPPED_REASONS = "dropped/names", "dropped/reasons"
 SPLIT, SPLIT_TRAIN, SPLIT_TEST, SPLIT_HELD_OUT = "split", "split/train", "split/test", "split/held_out"
+SPLIT_NAMES_TRAINED = ("train", "held_out")   # the splits a model may be trained on (train's --train-on)
 SPLIT_GUARD = "split/guard"     # test split `windows`: the frames too near a test frame to train on
 TEST_SPLIT, TEST_WINDOW, GUARD = "test_split", "test_window", "guard"    # root attrs: how the test frames were drawn
 RANDOM, WINDOWS = "random", "windows"        # the test splits (settings `dataset.test_split`)
@@ -122,13 +135,14 @@ class DatasetLayout:
     task: TaskLayout | None = None   # a decoder task; None: the upsampling
     windows: tuple[dict | None, ...] = ()    # per sequence, the motion library window it plays (None: none)
     dropped: tuple[tuple[str, str], ...] = ()   # (name, reason) of each sequence dropped on the way
+    subdivision: sp.csr_matrix | None = None    # the upsampling's S (V_high, V_low)
 
 
 @dataclasses.dataclass(frozen=True)
 class SequenceFrames:
     """One sequence's frames of the dataset, in its reference frame, and its mannequin as scene.h5 stores it."""
 
-    inputs: np.ndarray           # (n, V_high, 3) S x_low (upsampling), or (n, N) a decoder task's input vectors
+    inputs: np.ndarray | None    # (n, N) a decoder task's input vectors; None for the upsampling (S x_low)
     targets: np.ndarray          # (n, V_high, 3) displacements x_high - predictor
     low_positions: np.ndarray | None    # (n, V_low, 3) the upsampling's low-res run; None for a decoder task
     gravity: np.ndarray          # (n, 3) unit direction of gravity in the reference frame
@@ -142,34 +156,46 @@ def _utf8(texts: list[str]) -> np.ndarray:
     return np.array([text.encode() for text in texts], dtype="S")
 
 
+def chunk_frames(n_vertices: int, n_frames: int) -> int:
+    """Frames per chunk of the per-frame arrays: a power of two holding about CHUNK_BYTES of targets."""
+    fits = max(1, CHUNK_BYTES // (n_vertices * 3 * 4))
+    return max(1, min(n_frames, 2 ** int(np.log2(fits))))
+
+
 def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: DatasetLayout,
                   sequences: Iterable[SequenceFrames], source_mesh: str | None) -> None:
     """Write the dataset, filling the frames of `sequences` (in layout order, read one at a time) in turn;
     `source_mesh` is the fingerprint of the low-res rest mesh it derives from (None: unknown, no attr)."""
     n_frames, n_vertices, task = len(layout.sequence), len(layout.rest_vertices), layout.task
+    chunk = chunk_frames(n_vertices, n_frames)
+    digest = hashlib.sha256()
     with atomic_h5(path, STAGE, config) as f:
         if source_mesh is not None:
             f.attrs[SOURCE_MESH] = source_mesh
-        input_shape = (n_vertices, 3) if task is None else (task.input_size,)
-        inputs = f.create_dataset(INPUT, (n_frames, *input_shape), np.float32)
-        targets = f.create_dataset(TARGET, (n_frames, n_vertices, 3), np.float32)
+
+        def per_frame(name: str, shape: tuple[int, ...]) -> h5py.Dataset:
+            return f.create_dataset(name, (n_frames, *shape), np.float32, chunks=(chunk, *shape))
+
+        # The arrays each sequence fills, in the order they are digested.
         if task is None:
-            low = f.create_dataset(LOW_POSITIONS, (n_frames, layout.n_low_vertices, 3), np.float32)
-        gravity = f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
-        if task is None:
-            f[PREDICTOR] = f[INPUT]          # a hard link: Table 2's predictor is the input itself
+            arrays = {"low_positions": per_frame(LOW_POSITIONS, (layout.n_low_vertices, 3))}
+            write_csr(f, SUBDIVISION, layout.subdivision)
+            for name in ("data", "indices", "indptr"):
+                digest.update(f[f"{SUBDIVISION}/{name}"][()].tobytes())
         else:
-            predictor = f.create_dataset(PREDICTOR, (n_frames, n_vertices, 3), np.float32)
+            arrays = {"inputs": per_frame(INPUT, (task.input_size,)),
+                      "predictor": per_frame(PREDICTOR, (n_vertices, 3))}
+        arrays["targets"] = per_frame(TARGET, (n_vertices, 3))
+        gravity = f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
         start = 0
         for part in sequences:
-            rows = slice(start, start + len(part.inputs))
-            if (part.predictor is None) != (task is None) or (part.low_positions is None) != (task is not None):
+            rows = slice(start, start + len(part.targets))
+            if any(getattr(part, name) is None for name in arrays) or (part.inputs is None) != (task is None):
                 raise PipelineError(f"{path}: a sequence's frames do not fit the dataset's task")
-            inputs[rows], targets[rows] = part.inputs, part.targets
-            if task is None:
-                low[rows] = part.low_positions
-            else:
-                predictor[rows] = part.predictor
+            for name, dataset in arrays.items():
+                values = np.ascontiguousarray(getattr(part, name), dtype=np.float32)
+                dataset[rows] = values
+                digest.update(values.tobytes())
             gravity[rows] = part.gravity
             if part.mannequin is not None:
                 _write_mannequin(f, part.mannequin, rows, n_frames)
@@ -181,6 +207,7 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             start = rows.stop
         if start != n_frames:
             raise PipelineError(f"{path}: the sequences gave {start} frames, the layout says {n_frames}")
+        f.attrs.update({FORMAT: DATASET_FORMAT, FRAMES_DIGEST: digest.hexdigest(), CHUNK_FRAMES: chunk})
         f.create_dataset(FACES, data=layout.faces.astype(np.int32))
         f.create_dataset(REST_VERTICES, data=layout.rest_vertices.astype(np.float64))
         if task is None:
@@ -212,7 +239,9 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
                 f[name].attrs["meaning"] = (f"the body capsules' end points per frame (F, P, 3) in the reference "
                                             f"frame; radii in {CAPSULE_RADIUS_A}, {CAPSULE_RADIUS_B}")
         if task is None:
-            f[INPUT].attrs["meaning"] = "Loop-subdivided low-res positions S x_low, per frame (F, V_high, 3)"
+            f[LOW_POSITIONS].attrs["meaning"] = ("the low-res run x_low per frame (F, V_low, 3), in the reference "
+                                                 "frame; the input and predictor are S x_low")
+            f[SUBDIVISION].attrs["meaning"] = "Loop subdivision S (V_high, V_low) as CSR arrays; rows sum to one"
             f[TARGET].attrs["meaning"] = "displacement x_high - S x_low, per frame (F, V_high, 3)"
         else:
             _write_task(f, task)
@@ -281,8 +310,10 @@ class LearningData:
     """The dataset artifact's arrays: inputs, predictor and target displacements, faces, split, and what
     the network's features are made from."""
 
-    inputs: np.ndarray         # (F, V, 3) S x_low (upsampling) or (F, N) a decoder task's input vectors
-    targets: np.ndarray        # (F, V, 3) x_high - predictor
+    # (F, N) a decoder task's input vectors; the upsampling's x_low (F, V_low, 3), of which the network reads
+    # S x_low. None with the targets: left on disk (load_dataset(frames=False), read by a FrameReader).
+    inputs: np.ndarray | None
+    targets: np.ndarray | None   # (F, V, 3) x_high - predictor
     faces: np.ndarray
     rest_vertices: np.ndarray   # (V, 3) the subdivided rest mesh
     train: np.ndarray
@@ -295,15 +326,22 @@ class LearningData:
     frame: str = "world"   # reference frame of the positions
     held_out_clips: str = ""   # comma-separated motion clips of `held_out`
     task: str = UPSAMPLING     # which learning problem (pipeline/tasks)
-    predictor: np.ndarray | None = None   # (F, V, 3); None given: the inputs (the upsampling's S x_low)
+    stored_predictor: np.ndarray | None = None   # (F, V, 3) a decoder task's predictor
     pca: PcaBasis | None = None   # the PCA task's basis
     # test split `windows`: the frames within the guard of a test frame, in no split (empty otherwise)
     guard: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     test_split: SplitRule = SplitRule()
+    subdivision: sp.csr_matrix | None = None     # the upsampling's S (V, V_low)
 
-    def __post_init__(self):
-        if self.predictor is None:
-            object.__setattr__(self, "predictor", self.inputs)
+    @functools.cached_property
+    def predictor(self) -> np.ndarray:
+        """(F, V, 3) float32 what the network's displacement is added to: a decoder task's stored predictor, or
+        the upsampling's S x_low, computed here once (every frame's: for the evaluation's renders and exports)."""
+        if self.stored_predictor is not None:
+            return self.stored_predictor
+        low = self.inputs
+        flat = self.subdivision.astype(np.float32) @ low.transpose(1, 0, 2).reshape(low.shape[1], -1)
+        return np.ascontiguousarray(flat.reshape(len(self.rest_vertices), len(low), 3).transpose(1, 0, 2))
 
     @property
     def has_body(self) -> bool:
@@ -316,23 +354,34 @@ class LearningData:
         return {name: ids for name, ids in named.items() if len(ids)}
 
 
-def load_dataset(path: str | os.PathLike) -> LearningData:
+def load_dataset(path: str | os.PathLike, frames: bool = True) -> LearningData:
+    """dataset.h5's contents; with `frames` False the upsampling's x_low and targets stay on disk (None): a
+    dataset larger than memory, read by a `FrameReader` while training."""
     with open_artifact(path) as f:
-        inputs, targets = read(f, INPUT, np.float32), read(f, TARGET, np.float32)
+        _check_format(f)
         task = str(f.attrs.get(TASK, UPSAMPLING))
+        shapes = {name: _shape(f, name) for name in (LOW_POSITIONS if task == UPSAMPLING else INPUT, TARGET)}
+        low_shape, target_shape = shapes.values()
+        n_frames, n_vertices = target_shape[0], target_shape[1]
+        stored_predictor, subdivision = None, None
         if task == UPSAMPLING:
-            predictor = None
-            if inputs.shape != targets.shape or inputs.ndim != 3 or inputs.shape[2] != 3:
-                raise PipelineError(f"{path}: '{INPUT}' {inputs.shape} and '{TARGET}' {targets.shape} must both "
-                                    f"be (F, V, 3)")
+            subdivision = read_csr(f, SUBDIVISION)
+            if len(low_shape) != 3 or low_shape[0] != n_frames or low_shape[2] != 3 or len(target_shape) != 3 \
+                    or target_shape[2] != 3 or subdivision.shape != (n_vertices, low_shape[1]):
+                raise PipelineError(f"{path}: '{LOW_POSITIONS}' {low_shape}, '{TARGET}' {target_shape} and "
+                                    f"'{SUBDIVISION}' {subdivision.shape} must be (F, V_low, 3), (F, V, 3) and "
+                                    f"(V, V_low)")
         else:
-            predictor = read(f, PREDICTOR, np.float32)
-            if targets.ndim != 3 or targets.shape[2] != 3 or predictor.shape != targets.shape \
-                    or inputs.shape[:1] != targets.shape[:1] or inputs.ndim != 2:
-                raise PipelineError(f"{path}: task '{task}': '{PREDICTOR}' {predictor.shape} and '{TARGET}' "
-                                    f"{targets.shape} must both be (F, V, 3) and '{INPUT}' {inputs.shape} (F, N)")
-        n_frames = len(inputs)
-        faces = read_indices(f, FACES, targets.shape[1], shape=(None, 3))
+            stored_predictor = read(f, PREDICTOR, np.float32)
+            if len(target_shape) != 3 or target_shape[2] != 3 or stored_predictor.shape != target_shape \
+                    or low_shape[:1] != target_shape[:1] or len(low_shape) != 2:
+                raise PipelineError(f"{path}: task '{task}': '{PREDICTOR}' {stored_predictor.shape} and '{TARGET}' "
+                                    f"{target_shape} must both be (F, V, 3) and '{INPUT}' {low_shape} (F, N)")
+        inputs = targets = None
+        if frames or task != UPSAMPLING:
+            inputs = read(f, LOW_POSITIONS if task == UPSAMPLING else INPUT, np.float32)
+            targets = read(f, TARGET, np.float32)
+        faces = read_indices(f, FACES, n_vertices, shape=(None, 3))
         train, test = (read_indices(f, name, n_frames, shape=(None,)) for name in (SPLIT_TRAIN, SPLIT_TEST))
         held_out = read_indices(f, SPLIT_HELD_OUT, n_frames, shape=(None,))
         test_split = _read_test_split(f)
@@ -344,10 +393,11 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
         frame = str(f.attrs.get("frame", "world"))
         held_out_clips = str(f[SPLIT].attrs.get("held_out_clips", ""))
         rest_vertices = read(f, REST_VERTICES, np.float64)
-        if rest_vertices.shape != targets.shape[1:]:
-            raise PipelineError(f"{path}: '{REST_VERTICES}' {rest_vertices.shape} must be {targets.shape[1:]}")
+        if rest_vertices.shape != (n_vertices, 3):
+            raise PipelineError(f"{path}: '{REST_VERTICES}' {rest_vertices.shape} must be {(n_vertices, 3)}")
         context = _read_context(f, n_frames)
-        pca = _read_pca(f, inputs.shape[1], targets.shape[1]) if PCA_MEAN in f else None
+        pca = _read_pca(f, low_shape[1], n_vertices) if PCA_MEAN in f else None
+        frames_digest = str(f.attrs.get(FRAMES_DIGEST, ""))
     try:
         previous = previous_frames(sequence)
     except ValueError as err:
@@ -356,16 +406,64 @@ def load_dataset(path: str | os.PathLike) -> LearningData:
     if len(train) == 0 or len(test) == 0 or len(np.unique(every)) != len(every):
         raise PipelineError(f"{path}: '{SPLIT_TRAIN}', '{SPLIT_TEST}' (and '{SPLIT_HELD_OUT}', '{SPLIT_GUARD}') "
                             f"must be disjoint frame ids, train and test non-empty")
-    digest = hashlib.sha256(inputs.tobytes())
-    digest.update(targets.tobytes())
+    # The frames as the writer digested them (every frame's arrays), and what this reader takes from elsewhere.
+    digest = hashlib.sha256(frames_digest.encode())
+    digest.update(task.encode())
     digest.update(train.tobytes())
     for array in (context.gravity, context.capsule_a, context.capsule_b, context.radius_a, context.radius_b):
         digest.update(array.tobytes())
-    if predictor is not None:      # a decoder task (an upsampling dataset's digest is as it always was)
-        digest.update(task.encode())
-        digest.update(predictor.tobytes())
     return LearningData(inputs, targets, faces, rest_vertices, train, test, digest.hexdigest(), held_out, sequence,
-                        previous, context, frame, held_out_clips, task, predictor, pca, guard, test_split)
+                        previous, context, frame, held_out_clips, task, stored_predictor, pca, guard, test_split,
+                        subdivision)
+
+
+def frame_bytes(path: str | os.PathLike) -> tuple[str, int]:
+    """A dataset's task and the bytes of its per-frame arrays (what training keeps on the device, or streams)."""
+    with open_artifact(path) as f:
+        _check_format(f)
+        task = str(f.attrs.get(TASK, UPSAMPLING))
+        names = (LOW_POSITIONS, TARGET) if task == UPSAMPLING else (INPUT, PREDICTOR, TARGET)
+        return task, sum(int(np.prod(_shape(f, name))) * 4 for name in names)
+
+
+def _check_format(f) -> None:
+    """One error for a dataset.h5 of another layout than this reader's (an older one stored S x_low)."""
+    found = f.attrs.get(FORMAT)
+    if not isinstance(found, str) or found != DATASET_FORMAT:
+        made = "an older pipeline.dataset" if found is None else f"format '{found}'"
+        raise PipelineError(f"{f.filename}: a dataset of {made}, not {DATASET_FORMAT} (it stored S x_low; now "
+                            f"x_low and S are): make it again with pipeline.dataset")
+
+
+def _shape(f, name: str) -> tuple[int, ...]:
+    """The shape of a dataset of real numbers, one error naming it otherwise."""
+    dataset = f.get(name)
+    if not isinstance(dataset, h5py.Dataset) or dataset.dtype.kind not in "biuf":
+        raise PipelineError(f"{f.filename}: missing dataset '{name}' of real numbers")
+    return dataset.shape
+
+
+class FrameReader:
+    """An upsampling dataset's x_low and targets read by runs of frames (model.streaming.FrameSource.read),
+    each read checked as `h5.read` checks a whole dataset. The file stays open until `close`."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = str(path)
+        self._file = h5py.File(path, "r")
+        self._low, self._targets = self._file[LOW_POSITIONS], self._file[TARGET]
+
+    def __call__(self, first: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        try:
+            low, targets = self._low[first:stop], self._targets[first:stop]
+        except Exception as err:      # h5py raises many types for a damaged file (as open_artifact says)
+            raise PipelineError(f"{self.path}: frames {first}-{stop - 1} unreadable ({type(err).__name__})") from None
+        with np.errstate(invalid="ignore"):
+            if not (np.all(np.abs(low) <= FLOAT32_MAX) and np.all(np.abs(targets) <= FLOAT32_MAX)):
+                raise PipelineError(f"{self.path}: frames {first}-{stop - 1} hold NaN or inf")
+        return low.astype(np.float32, copy=False), targets.astype(np.float32, copy=False)
+
+    def close(self) -> None:
+        self._file.close()
 
 
 def _read_test_split(f) -> SplitRule:

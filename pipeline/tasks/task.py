@@ -124,6 +124,7 @@ class Task(abc.ABC):
     input_label = ""          # the first panel of a render: what the network is given, as a mesh
     timing_reference = ""     # the paper's figures to compare the inference time with
     timed = ""                # what the inference time covers
+    streams = False           # whether training may read its frames from disk a batch at a time (streamed_frames)
 
     @abc.abstractmethod
     def prepare(self, request: DatasetRequest) -> tuple[TaskLayout | None, FrameMaker]:

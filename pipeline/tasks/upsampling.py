@@ -1,15 +1,17 @@
 """Cloth upsampling (paper Table 2, row 1): the input is the Loop-subdivided low-res run S x_low, which is also the
-predictor; the encoder-decoder reads per-vertex features of it (model.features)."""
+predictor; the encoder-decoder reads per-vertex features of it (model.features). The dataset holds x_low and S;
+S x_low is computed on the training's device, batch by batch (model.features.FrameStore)."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from model.feature_regressor import FeatureRegressor
-from model.features import FrameStore
+from model.features import FrameStore, Subdivider
+from model.streaming import FrameSource, StreamedFrames
 from model.networks import NetworkSpec
 from model.training import Frames
-from pipeline.artifacts.dataset import LearningData, SequenceFrames, read_low_res
+from pipeline.artifacts.dataset import FrameReader, LearningData, SequenceFrames, read_low_res
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core.config import feature_spec
 from pipeline.tasks.task import (DatasetRequest, NetworkKind, NetworkRequest, SequenceRun, Task, Trainable,
@@ -21,6 +23,7 @@ class UpsamplingTask(Task):
     name = "upsampling"
     network = NetworkKind("encoder-decoder", "D", "D62 D124 D248 D D248 D_3 D248")
     predictor_label = "Loop subdivision"
+    streams = True
     input_label = "low-res input"
     timed = "input features and network, S x_low given"
     timing_reference = ("Paper Table 3 (RTX 2080 Ti, C++/cuBLAS, including GPU Loop subdivision): 2.2-26.6 ms for "
@@ -31,7 +34,7 @@ class UpsamplingTask(Task):
 
         def frames(run: SequenceRun) -> SequenceFrames:
             subdivided = np.stack([S @ x for x in run.low])
-            return SequenceFrames(subdivided.astype(np.float32), (run.high - subdivided).astype(np.float32),
+            return SequenceFrames(None, (run.high - subdivided).astype(np.float32),
                                   run.low.astype(np.float32), run.gravity.astype(np.float32), run.mannequin,
                                   None if run.capsules is None else tuple(e.astype(np.float32) for e in run.capsules))
         return None, frames
@@ -40,7 +43,7 @@ class UpsamplingTask(Task):
         features = state["features"]      # model.feature_regressor.FeatureSpec as saved
         axes = {"local": f"each vertex's local frame (tangent: {features['frame_tangent']})",
                 "dataset": "the dataset's axes"}
-        return [["vertices", f"{low_vertices} low-res -> {data.inputs.shape[1]} high-res"],
+        return [["vertices", f"{low_vertices} low-res -> {len(data.rest_vertices)} high-res"],
                 ["positions in", f"the {data.frame} frame"],
                 ["network inputs (model.features)", ", ".join(features["inputs"])],
                 ["input vectors in", axes[features["input_frame"]]],
@@ -49,24 +52,34 @@ class UpsamplingTask(Task):
     def build(self, request: NetworkRequest, data: LearningData, operators: str, dataset: str) -> Trainable:
         self.check_arch(request.arch)
         features = feature_spec(request.features, data.has_body, f"{dataset}: {request.features_source}")
-        spec = NetworkSpec(request.arch, request.conv, request.pool, request.width, features.channels,
-                           data.targets.shape[2])
+        spec = NetworkSpec(request.arch, request.conv, request.pool, request.width, features.channels, 3)
         net = network_of(spec)
         mesh = load_hierarchy(operators, spec.conv, net.n_levels, data.faces, dataset)
         check_fits(net, mesh, operators)
         return Trainable(spec, FeatureRegressor(net, features, data.faces, data.rest_vertices), mesh)
 
     def frames(self, data: LearningData, device: torch.device | str) -> Frames:
-        """Every frame's S x_low and what the input features are made from (the previous frame, the body's
+        """Every frame's x_low, S and what the input features are made from (the previous frame, the body's
         capsules, gravity), as tensors on `device`."""
         def tensor(array: np.ndarray) -> torch.Tensor:
             return torch.as_tensor(array, device=device)
 
         context = data.context
-        store = FrameStore(tensor(data.inputs), tensor(data.previous), tensor(context.capsule_a),
-                           tensor(context.capsule_b), tensor(context.radius_a), tensor(context.radius_b),
-                           tensor(context.gravity), context.frame_time)
+        store = FrameStore(tensor(data.inputs), subdivider(data, device), tensor(data.previous),
+                           tensor(context.capsule_a), tensor(context.capsule_b), tensor(context.radius_a),
+                           tensor(context.radius_b), tensor(context.gravity), context.frame_time)
         return Frames(store, tensor(data.targets), tensor(data.faces.astype(np.int64)))
+
+    def streamed_frames(self, data: LearningData, reader: FrameReader, capacity: int, device: torch.device,
+                        window: int) -> StreamedFrames:
+        """The frames of `data` (loaded without them) read by `reader` into a staging area of `capacity` frames
+        on `device`, `window` frames of an epoch's order at a time (model.streaming)."""
+        context = data.context
+        source = FrameSource(reader, len(data.sequence), data.previous, context.capsule_a, context.capsule_b,
+                             context.radius_a, context.radius_b, context.gravity, context.frame_time)
+        return StreamedFrames.create(source, subdivider(data, device),
+                                     torch.as_tensor(data.faces.astype(np.int64), device=device),
+                                     len(data.rest_vertices), capacity, device, window)
 
     def trained_on(self, model, mesh, data: LearningData) -> bool:
         return np.array_equal(model.features.faces.cpu().numpy(), data.faces)
@@ -76,3 +89,8 @@ class UpsamplingTask(Task):
 
     def time(self, model, mesh, store, ids: torch.Tensor):
         return time_inference(model, mesh, store, ids)
+
+
+def subdivider(data: LearningData, device: torch.device | str) -> Subdivider:
+    S = data.subdivision
+    return Subdivider(S.indptr, S.indices, S.data, device)

@@ -14,6 +14,7 @@ import yaml
 from workflow_runs import planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, read_tradeoff
+from pipeline.artifacts.dataset import load_dataset
 
 # Tiny pants simulate 2 substeps x 10 iterations, harmonic projection every substep (the defaults' schedule).
 GRID = {"substeps": [1], "widths": [0.125], "epochs": 1, "matched": [1], "high_res_budgets": [[1, 5]],
@@ -125,8 +126,9 @@ def test_the_high_res_rows_score_their_runs_against_the_scenes_high_res_run_on_t
     frame) and the run's own positions turned into that frame with each sequence's scene.h5; the run was made with
     its budget and schedule, held to the scene's low-res run."""
     table = read_tradeoff(tradeoff / "tradeoff" / "tradeoff.h5")
+    data = load_dataset(tradeoff / "dataset.h5")
+    truth = data.predictor.astype(np.float64) + data.targets
     with h5py.File(tradeoff / "dataset.h5") as f:
-        truth = f["input"][()].astype(np.float64) + f["target"][()]
         sequence, frame = f["sequence"][()], f["sequence_frame"][()]
         names = [n.decode() for n in f["sequences/names"][()]]
         splits = {"test": f["split/test"][()], "heldout": f["split/held_out"][()]}

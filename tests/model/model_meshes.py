@@ -7,7 +7,9 @@ order, then 0 padding (a boundary-like slot) when the ring is shorter than L - 1
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
+from model.features import Subdivider
 from model.mesh_hierarchy import MeshHierarchy, mesh_hierarchy
 from geometry.mesh import unique_edges
 
@@ -60,3 +62,9 @@ def build_hierarchy(faces: np.ndarray, n_vertices: int, size: int, n_levels: int
         unpool.append(u)
         conv.append(one_ring_table(n_vertices, edges, size))
     return mesh_hierarchy(conv, pool, unpool)
+
+
+def identity_subdivider(n_vertices: int, device="cpu") -> Subdivider:
+    """S = I: a FrameStore whose S x_low is the positions given (the model tests' frames are on one mesh)."""
+    S = sp.identity(n_vertices, format="csr")
+    return Subdivider(S.indptr, S.indices, S.data, device)

@@ -15,6 +15,7 @@ from model.features import (FEATURE_CHANNELS, FrameBatch, FrameStore, InputFeatu
                             nearest_capsule, previous_frames, principal_stretches, reference_neighbours,
                             umbrella_laplacian, vertex_normals)
 from scenes.capsules import capsule_signed_distance
+from model_meshes import identity_subdivider
 
 F64 = torch.float64
 
@@ -169,7 +170,7 @@ def test_previous_frames_restart_at_each_sequence_and_batches_gather_history():
         previous_frames(np.array([1, 1, 2, 1]))
     positions = torch.arange(6, dtype=F64)[:, None, None].expand(6, 2, 3)          # frame f sits at f
     capsules = torch.zeros(6, 1, 3, dtype=F64)
-    source = FrameStore(positions, torch.as_tensor(previous), capsules, capsules, torch.ones(1), torch.ones(1),
+    source = FrameStore(positions, identity_subdivider(2), torch.as_tensor(previous), capsules, capsules, torch.ones(1), torch.ones(1),
                          torch.zeros(6, 3, dtype=F64), 0.5)
     batch = source.batch(torch.tensor([2, 3, 4]))
     assert batch.positions[:, 0, 0].tolist() == [2, 3, 4]

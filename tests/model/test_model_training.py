@@ -14,6 +14,7 @@ from model.networks import NetworkSpec, build_network
 import model.training
 from model.training import CheckpointError, Frames, TrainSettings, displacement_errors, fit, split_errors
 from model.training_step import learning_rate, set_learning_rate
+from model_meshes import identity_subdivider
 
 
 def _problem(grid):
@@ -23,7 +24,7 @@ def _problem(grid):
     inputs = base + 0.05 * torch.randn(7, *base.shape, generator=generator)
     targets = 0.01 * torch.sin(7 * inputs)
     no_body = torch.zeros(len(inputs), 0, 3)
-    store = FrameStore(inputs, torch.arange(len(inputs)), no_body, no_body, torch.zeros(0), torch.zeros(0),
+    store = FrameStore(inputs, identity_subdivider(inputs.shape[1]), torch.arange(len(inputs)), no_body, no_body, torch.zeros(0), torch.zeros(0),
                        torch.tensor([[0.0, -1.0, 0.0]]).expand(len(inputs), 3), 0.1)
     return mesh, Frames(store, targets, torch.as_tensor(faces))
 
@@ -118,7 +119,7 @@ def test_split_errors_match_numpy(grid):
     ids = torch.tensor([0, 2, 3, 5, 6])
     errors = split_errors(lambda inputs: 0.5 * torch.sin(7 * inputs.positions) * 0.01, frames, ids, batch_size=2,
                           weights=LossWeights(1.0, 2.0, 0.0))
-    difference = (0.5 * 0.01 * np.sin(7 * frames.store.positions.numpy()) - frames.targets.numpy())[ids.numpy()]
+    difference = (0.5 * 0.01 * np.sin(7 * frames.store.low.numpy()) - frames.targets.numpy())[ids.numpy()]
     assert np.isclose(errors["l1"], np.abs(difference).mean(), rtol=1e-5)
     # L2 over the whole split, not a mean of per-batch L2s
     assert np.isclose(errors["l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-5)
@@ -130,9 +131,9 @@ def test_errors_of_displacements_predicted_once_equal_split_errors(grid):
     the same figures as predicting batch by batch, whatever the batch sizes."""
     _, frames = _problem(grid)
     predict = lambda inputs: 0.01 * torch.sin(7 * inputs.positions) + 0.002 * inputs.positions ** 2   # noqa: E731
-    everything = predict(frames.store.batch(torch.arange(len(frames.store.positions))))
+    everything = predict(frames.store.batch(torch.arange(len(frames.store))))
     weights = LossWeights(1.0, 2.0, 0.3)
-    for ids in (torch.tensor([0, 2, 3, 5, 6]), torch.tensor([4]), torch.arange(len(frames.store.positions))):
+    for ids in (torch.tensor([0, 2, 3, 5, 6]), torch.tensor([4]), torch.arange(len(frames.store))):
         expected = split_errors(predict, frames, ids, batch_size=2, weights=weights)
         got = displacement_errors(everything, frames, ids, batch_size=3, weights=weights)
         assert got.keys() == expected.keys()
@@ -147,8 +148,8 @@ def test_no_op_of_a_training_step_reads_uninitialised_memory(grid):
     vertices, faces, mesh = grid
     _, frames = _problem(grid)
     store = frames.store
-    capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(len(store.positions), 2, 3)
-    store = FrameStore(store.positions, torch.clamp(torch.arange(len(store.positions)) - 1, min=0), capsule_a,
+    capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(len(store), 2, 3)
+    store = FrameStore(store.low, store.subdivide, torch.clamp(torch.arange(len(store)) - 1, min=0), capsule_a,
                        capsule_a + 0.3, torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]), store.gravity, 0.1)
     frames = Frames(store, frames.targets, frames.faces)
     spec = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")

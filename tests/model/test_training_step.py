@@ -16,6 +16,7 @@ from model.training_step import (COSINE_FLOOR, WARMUP_STEPS, GraphedStep, adam, 
                                  set_learning_rate)
 from pipeline.core.errors import PipelineError
 from pipeline.train import main as train_main
+from model_meshes import identity_subdivider
 
 SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
 
@@ -26,7 +27,7 @@ def _problem(grid, device):
     base = torch.as_tensor(vertices, dtype=torch.float32)
     positions = base + 0.05 * torch.randn(8, *base.shape, generator=generator)
     capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(8, 2, 3)
-    store = FrameStore(positions, torch.tensor([0, 0, 1, 2, 4, 4, 5, 6]), capsule_a, capsule_a + 0.3,
+    store = FrameStore(positions, identity_subdivider(positions.shape[1], device), torch.tensor([0, 0, 1, 2, 4, 4, 5, 6]), capsule_a, capsule_a + 0.3,
                        torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]),
                        torch.tensor([[0.0, -1.0, 0.0]]).expand(8, 3), 0.1)
     on = {f.name: getattr(store, f.name) for f in dataclasses.fields(store)}

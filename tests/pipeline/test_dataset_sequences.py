@@ -64,7 +64,7 @@ def test_inputs_are_each_sequences_runs_in_its_torso_frame(scene):
         rows = np.flatnonzero(data.sequence == k)
         torso = read_torso_transforms(root / name / "scene.h5", FRAMES)[frames[rows]]
         local = apply_rigid_inverse(torso[:, None], low[name][frames[rows]].astype(np.float32).astype(np.float64))
-        np.testing.assert_allclose(data.inputs[rows], np.stack([S @ x for x in local]), atol=1e-5)
+        np.testing.assert_allclose(data.predictor[rows], np.stack([S @ x for x in local]), atol=1e-5)
 
 
 def test_each_frame_carries_its_mannequin_under_the_scene_names(scene):

@@ -61,7 +61,7 @@ def trained(work) -> Path:
     return work
 
 
-def test_dataset_is_subdivided_input_and_displacement_target(work):
+def test_dataset_is_the_low_res_run_s_and_the_displacement_from_s_x_low(work):
     with h5py.File(work / "subdiv.h5") as f:
         subdivision = read_csr(f, "S")
     with h5py.File(work / "sim_low.h5") as f:
@@ -69,13 +69,17 @@ def test_dataset_is_subdivided_input_and_displacement_target(work):
     with h5py.File(work / "sim_high.h5") as f:
         high = f["positions"][()].astype(np.float64)
     with h5py.File(work / "dataset.h5") as f:
-        inputs, target = f["input"][()], f["target"][()]
+        stored_low, target = f["low/positions"][()], f["target"][()]
+        stored_S = read_csr(f, "subdivision")
         train_ids, test_ids = f["split/train"][()], f["split/test"][()]
-        assert f["predictor"].id == f["input"].id           # the predictor is the input itself
-        assert f.attrs["frame"] == "world"
+        assert "input" not in f and "predictor" not in f          # S x_low is computed where it is used
+        assert f.attrs["frame"] == "world" and f.attrs["format"] == "trimesh-cnn/dataset-2"
+    assert (stored_S != subdivision).nnz == 0
+    np.testing.assert_allclose(stored_low, low, atol=1e-6)
     expected = np.einsum("hl,flc->fhc", subdivision.toarray(), low)
-    np.testing.assert_allclose(inputs, expected, atol=1e-6)
-    np.testing.assert_allclose(inputs + target, high, atol=1e-6)
+    predictor = load_dataset(work / "dataset.h5").predictor
+    np.testing.assert_allclose(predictor, expected, atol=1e-6)
+    np.testing.assert_allclose(predictor + target, high, atol=1e-6)
     assert len(test_ids) == 1 and len(train_ids) == N_FRAMES - 1      # round(10 % of 12)
     assert np.array_equal(np.sort(np.concatenate([train_ids, test_ids])), np.arange(N_FRAMES))
 
@@ -90,7 +94,7 @@ def test_torso_frame_removes_a_rigid_motion(work, tmp_path):
     write_sequence_scene(tmp_path, torso_transforms=transforms)
     stage(dataset.main, tmp_path / "subdiv.h5", tmp_path / "dataset.h5", tmp_path, "--frame", "torso", "--quiet")
     with h5py.File(tmp_path / "dataset.h5") as moved, h5py.File(work / "dataset.h5") as still:
-        np.testing.assert_allclose(moved["input"][()], still["input"][()], atol=1e-5)
+        np.testing.assert_allclose(moved["low/positions"][()], still["low/positions"][()], atol=1e-5)
         np.testing.assert_allclose(moved["target"][()], still["target"][()], atol=1e-5)
 
 
@@ -117,9 +121,8 @@ def test_evaluation_errors_renders_and_exports(trained):
     out = trained / "eval"
     stage(evaluate.main, trained / "dataset.h5", trained / "operators.h5", trained / "model.pt", out / "eval.h5",
           out / "report.md", "--render-frames", "1", "--timing-frames", "3", "--video-frames", "0", "--quiet")
-    with h5py.File(trained / "dataset.h5") as f:
-        inputs, target = f["input"][()], f["target"][()]
-        test_ids, faces = f["split/test"][()], f["faces"][()]
+    data = load_dataset(trained / "dataset.h5")
+    inputs, target, test_ids, faces = data.predictor, data.targets, data.test, data.faces
     with h5py.File(out / "eval.h5") as f:
         predicted = f["predicted"][()]
         errors = {k: f[f"errors/{k}"][()] for k in ("network/test/l1", "network/test/l2", "predictor/test/l1",
