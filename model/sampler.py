@@ -4,7 +4,8 @@
 The paper samples 10 % of its 486,720 frames per epoch. A dataset of that size lives on disk (model.streaming),
 where consecutive frames are one read and scattered ones one read each; so frames are drawn in blocks of
 `block` consecutive positions of the training list. Blocks are drawn without replacement across epochs (a cycle:
-every block once before any twice), so every frame is visited within ceil(1 / share) epochs. The drawn frames are
+every block once before any twice), so every frame is visited within ceil(1 / share) epochs, and none twice in an
+epoch. The drawn frames are
 then shuffled within each stretch of `buffer` frames of the draw (what a streaming loader holds at once), so a
 batch mixes frames of several blocks.
 
@@ -61,11 +62,14 @@ class Sampler:
                           for part in frames.split(buffer)])
 
     def _draw(self, generator: torch.Generator) -> torch.Tensor:
-        """`blocks_per_epoch` blocks: the rest of the current cycle, then a new cycle's first ones."""
+        """`blocks_per_epoch` blocks: the rest of the current cycle, then a new cycle's first ones (a block this
+        epoch already drew goes to the end of the new cycle, so no epoch visits a frame twice)."""
         drawn, wanted = [], self.blocks_per_epoch
         while wanted:
             if not len(self._pending):
-                self._pending = torch.randperm(self.n_blocks, generator=generator)
+                fresh = torch.randperm(self.n_blocks, generator=generator)
+                again = torch.isin(fresh, torch.cat(drawn)) if drawn else torch.zeros(len(fresh), dtype=torch.bool)
+                self._pending = torch.cat([fresh[~again], fresh[again]])
             drawn.append(self._pending[:wanted])
             self._pending = self._pending[wanted:]
             wanted -= len(drawn[-1])

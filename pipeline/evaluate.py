@@ -431,7 +431,23 @@ def _training_option_rows(training: dict) -> list[list[str]]:
             "one CUDA graph" if graph else "eager",
             "deterministic" if deterministic else "atomic adds (not bit-reproducible)",
             "TF32 products" if tf32 else "float32 products"])])
+    sampling = training.get("sampling")
+    if isinstance(sampling, dict) and isinstance(sampling.get("share"), (int, float)):
+        rows.append(["frames per epoch", "every training frame" if sampling["share"] >= 1 else
+                     f"a share of {sampling['share']:g}, in blocks of {sampling.get('block')} frames"])
+    if trained_on_held_out(training):
+        rows.append(["splits trained on", "train and held-out: an oracle (see the errors)"])
+    sequences = training.get("sequences")
+    if isinstance(sequences, dict) and isinstance(sequences.get("names"), list):
+        subjects = sorted({str(s) for s in sequences.get("subjects", []) if s}, key=lambda s: (len(s), s))
+        rows.append(["sequences trained on", f"{len(sequences['names'])}" + (
+            f" ({len(subjects)} subject(s): {', '.join(subjects)})" if subjects else "")])
     return rows
+
+
+def trained_on_held_out(training: dict) -> bool:
+    """Whether the model.pt's training says it trained on the held-out frames (train's --train-on)."""
+    return isinstance(training.get("train_on"), list) and "held_out" in training["train_on"]
 
 
 def _test_note(data: LearningData) -> str:
@@ -496,23 +512,15 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     gains = [scaled("predictor", s, t) / max(scaled("network", s, t), 1e-30) for s in splits for t in ("l1", "l2")]
     rows.append(["gain (predictor / network)", *[f"{g:.2f}x" for g in gains], ""])
     rows += task.extra_error_rows(errors, splits)
-    held_note = ("Held-out: every frame of the motion clip(s) `{}`, never seen in training (the generalisation "
-                 "test). ".format(data.held_out_clips) if "held_out" in splits else "") + _test_note(data) \
-        + "\n\n" + task.error_note(data)
-    loss = training["loss_weights"]
-    training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
-                     ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
-                     ["seed", training["seed"]],
-                     ["loss weights L1 / L2 / Ln", f"{loss['l1']:g} / {loss['l2']:g} / {loss['normal']:g}"],
-                     *_training_option_rows(training)]
-    if train_log is not None:
-        training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
-                          ["last epoch's test loss", float(train_log.test_total[-1])]]
-    guard = f", {len(data.guard)} guard (in no split)" if len(data.guard) else ""
-    input_rows = [["dataset", args.dataset],
-                  ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())
-                   + guard],
-                  *task.input_rows(data, state, n_low)]
+    held_note = ""
+    if trained_on_held_out(training):
+        held_note = ("**The held-out frames were trained on** (training.train_on: train, held_out): this network is "
+                     "the oracle, and its held-out error is the architecture's ceiling on the motion clip(s) "
+                     f"`{data.held_out_clips}`, not a measure of generalisation. ")
+    elif "held_out" in splits:
+        held_note = (f"Held-out: every frame of the motion clip(s) `{data.held_out_clips}`, never seen in training "
+                     "(the generalisation test). ")
+    held_note += _test_note(data) + "\n\n" + task.error_note(data)
     error_pieces = [Table(header, rows), Paragraphs(
         held_note + "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
         "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).")]
