@@ -521,6 +521,20 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
         held_note = (f"Held-out: every frame of the motion clip(s) `{data.held_out_clips}`, never seen in training "
                      "(the generalisation test). ")
     held_note += _test_note(data) + "\n\n" + task.error_note(data)
+    loss = training["loss_weights"]
+    training_rows = [["epochs", training["epochs"]], ["device", training["device"]],
+                     ["batch size", training["batch_size"]], ["Adam learning rate", f"{training['lr']:g}"],
+                     ["seed", training["seed"]],
+                     ["loss weights L1 / L2 / Ln", f"{loss['l1']:g} / {loss['l2']:g} / {loss['normal']:g}"],
+                     *_training_option_rows(training)]
+    if train_log is not None:
+        training_rows += [["last epoch's train loss", float(train_log.train_total[-1])],
+                          ["last epoch's test loss", float(train_log.test_total[-1])]]
+    guard = f", {len(data.guard)} guard (in no split)" if len(data.guard) else ""
+    input_rows = [["dataset", args.dataset],
+                  ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())
+                   + guard],
+                  *task.input_rows(data, state, n_low)]
     error_pieces = [Table(header, rows), Paragraphs(
         held_note + "L1 = mean over vertices of |x_truth - x|_1 / 3 (eq. 4); L2 = sqrt(mean over vertices of "
         "|x_truth - x|^2) (eq. 5), both over all frames of a split; Ln = face-normal L1 (eq. 6, dimensionless).")]

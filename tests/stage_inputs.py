@@ -57,6 +57,18 @@ def write_waving_sheet(folder: Path, n: int = 5, *, levels: int = 2, n_frames: i
         out["faces"] = high_faces.astype(np.int32)
 
 
+def write_sequence_scene(folder: Path, name: str = "train_000", role: str = "train", n_frames: int = N_FRAMES,
+                         **datasets) -> None:
+    """A sequence's scene.h5 as the dataset stage reads it: which sequence and its role (attrs) and its frame
+    count (pin targets of no pins), plus `datasets`."""
+    with atomic_h5(folder / "scene.h5", "scene") as f:
+        f.attrs.update(sequence=name, role=role)
+        f["rest/vertices"] = np.zeros((3, 3))
+        f["pins/targets"] = np.zeros((n_frames, 0, 3))
+        for dataset, data in datasets.items():
+            f[dataset] = data
+
+
 def stage(main: Callable, *args) -> None:
     """A stage's main the way its command line runs it (pipeline.core.cli.run), its arguments as strings."""
     cli.run(main, [str(a) for a in args])

@@ -28,21 +28,10 @@ from pipeline.core.errors import PipelineError
 from experiments.tradeoff.stage import Network
 from pipeline.core.h5 import atomic_h5, config_of, read_csr
 from pipeline.core.config import load_config, resolve_scene, write_settings
-from stage_inputs import N_FRAMES, stage, write_waving_sheet
+from stage_inputs import N_FRAMES, stage, write_sequence_scene, write_waving_sheet
 
 REPO = Path(__file__).resolve().parents[2]
 ARCH = ["--arch", "D8 D16 D D16", "--conv", "RC7"]
-
-
-def write_sequence_scene(folder: Path, **datasets) -> None:
-    """A sequence's scene.h5 as the dataset stage reads it: which sequence (attrs) and its frame count (pin
-    targets of no pins), plus `datasets`."""
-    with atomic_h5(folder / "scene.h5", "scene") as f:
-        f.attrs.update(sequence="train_000", role="train")
-        f["rest/vertices"] = np.zeros((3, 3))
-        f["pins/targets"] = np.zeros((N_FRAMES, 0, 3))
-        for name, data in datasets.items():
-            f[name] = data
 
 
 @pytest.fixture(scope="module")
