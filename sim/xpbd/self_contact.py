@@ -212,13 +212,14 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
     on the wrong side of the plane is pushed back rather than through. Each list is sorted by triangle, so the
     lists are deterministic and independent of the tree. A full list drops the rest and raises the world's
-    flags[w, overflow_flag] (the solver then grows the lists and steps the frame again). Pinned vertices list
-    nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
+    flags[w, overflow_flag] to the room the fullest list needed (the solver then grows the lists to that at once
+    and steps the frame again). Pinned vertices list nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
     predictions, x_prev the substep's start positions."""
     i = wp.tid()
     x = sub.x
     x_prev = sub.x_prev
     count = int(0)
+    wanted = int(0)     # candidates found, listed or not
     sc.corner_count[i] = 0  # sort_face_lists counts the lists of i's triangles (a later launch)
     if sub.inv_mass[i] > 0.0:
         n_old = sc.vertex_count[i]
@@ -263,15 +264,18 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
                     for a in range(n_old):
                         if wp.abs(sc.previous[i, a]) == t + 1:
                             side = wp.sign(sc.previous[i, a])
+                    wanted += 1
                     slot = sc.face_contacts.shape[1]
+                    need = wanted       # the vertex's list full: the room it would have needed
                     if count < sc.vertex_contacts.shape[1]:
                         slot = wp.atomic_add(sc.face_count, t, 1)
+                        need = slot + 1
                     if slot < sc.face_contacts.shape[1]:
                         sc.vertex_contacts[i, count] = side * (t + 1)
                         sc.face_contacts[t, slot] = side * (i + 1)
                         count += 1
                     else:
-                        sub.flags[world, overflow_flag] = 1
+                        wp.atomic_max(sub.flags, world, overflow_flag, need)
     # Triangles in id order rather than the tree's: the sums of the iterations then do not depend on the BVH, so a
     # world stepped in a batch (one tree over all worlds) moves exactly as when stepped alone.
     sort_list(sc.vertex_contacts, i, count)

@@ -72,8 +72,11 @@ class FrameInputs:
 WORLD_SPACING = 8.0
 
 # Self-contact lists start with room for this many entries per vertex and per triangle; a frame that fills one is
-# stepped again from its start with twice the room, up to MAX_CONTACT_CAPACITY (then contacts are dropped, with a
-# warning).
+# stepped again from its start with room for twice what the fullest list needed (a power of two), up to
+# MAX_CONTACT_CAPACITY (then contacts are dropped, with a warning). A solver keeps the room it grew. Contacts pile up
+# over frames as a cloth drapes or folds, and each growth costs a frame stepped again and, on CUDA, the graph
+# captured again: doubling on every overflow (as before) grew the test sheets' lists 2 -> 16 in 3 growths, growing
+# to twice the need in 2.
 CONTACT_CAPACITY = 32
 MAX_CONTACT_CAPACITY = 512
 
@@ -150,7 +153,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                                 worlds=worlds)
         x_prev = arr(x0, wp.vec3)
         x_work = arr(x0, wp.vec3)
-        # Per world one flag per substep (blow-up) and a last one for overflowing self-contact lists.
+        # Per world one flag per substep (blow-up) and a last one for overflowing self-contact lists (the room the
+        # fullest list needed).
         self.flags = self._zeros((worlds, s.substeps + 1), int)
         self._substeps = self._substep_structs(h, x_prev, arr(np.tile(inv_mass, worlds), float))
         self.pins = self._pin_drive(pinned, x0, n)
@@ -168,6 +172,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
+        self.frames_stepped_again = 0      # frames whose self-contact lists overflowed (the log says how many)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
             arr(x0, wp.vec3), self._zeros(worlds * n, wp.vec3), worlds)
@@ -375,13 +380,15 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         sc.face_contacts = self._zeros((sc.faces.shape[0], capacity), int)
         self._saved_count = self._zeros(len(vertex_lists), int)
 
-    def _grow_contact_lists(self) -> bool:
-        """After a frame that overflowed: double the lists' capacity and put the state back at the frame's start,
-        so the frame can be stepped again; False at MAX_CONTACT_CAPACITY."""
+    def _grow_contact_lists(self, needed: int) -> bool:
+        """After a frame that overflowed: grow the lists' capacity to twice the `needed` entries (a power of two,
+        at most MAX_CONTACT_CAPACITY) and put the state back at the frame's start, so the frame can be stepped
+        again; False if they are at MAX_CONTACT_CAPACITY already."""
         sc = self.contacts
-        capacity = 2 * sc.vertex_contacts.shape[1]
-        if capacity > MAX_CONTACT_CAPACITY:
+        if sc.vertex_contacts.shape[1] >= MAX_CONTACT_CAPACITY:
             return False
+        capacity = min(1 << (2 * needed - 1).bit_length(), MAX_CONTACT_CAPACITY)
+        self.frames_stepped_again += 1
         saved_count = self._saved_count.numpy()
         self._size_contact_lists(sc, capacity, self._saved_lists.numpy())
         sc.vertex_count.assign(saved_count)
@@ -416,7 +423,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             hp.target_start.assign(hp.target_end)
             hp.target_end.assign(targets.reshape(self.worlds, n_modes, 3).astype(np.float32))
         flags = self._run_frame()
-        while flags[:, -1].any() and self._grow_contact_lists():
+        while flags[:, -1].any() and self._grow_contact_lists(int(flags[:, -1].max())):
             flags = self._run_frame()
         if flags[:, -1].any():
             warnings.warn(f"self-contact lists overflowed at their largest capacity ({MAX_CONTACT_CAPACITY}) in "

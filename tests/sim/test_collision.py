@@ -339,8 +339,9 @@ def test_collision_inputs_are_checked():
 @pytest.mark.parametrize("worlds", [1, 2])
 def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
     """Issue 12 item 4: no contact is dropped. Lists with room for 2 entries overflow on the draped sheets; the
-    solver doubles them and steps the frame again from its start, so the run ends exactly where one with room to
-    spare does, without a warning."""
+    solver grows them to twice what the fullest list needed and steps the frame again from its start, so the run
+    ends exactly where one with room to spare does, without a warning, having stepped fewer frames again than
+    doubling on each overflow would (issue 35)."""
     vertices, faces, _, _, _ = stacked_sheets()
     radii = np.array([[0.08, 0.06]])
 
@@ -349,7 +350,7 @@ def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
         return np.broadcast_to(one, (worlds, 1, 2, 3))
 
     settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
-    runs = {}
+    runs, stepped_again = {}, {}
     for capacity in (2, 64):
         solver = ClothSolver(ClothModel(vertices, faces, settings, np.zeros(0, int), capsule_radii=radii), "cpu",
                              worlds=worlds, initial_inputs=FrameInputs(capsules=capsules(0)), contact_capacity=capacity)
@@ -359,8 +360,11 @@ def test_full_contact_lists_grow_and_the_frame_is_stepped_again(worlds):
                 solver.step(solver.state, FrameInputs(capsules=capsules(frame)))
         runs[capacity] = solver.state.read_positions(), solver.contacts.vertex_contacts.shape[1]
         assert solver.contacts.vertex_count.numpy().max() <= runs[capacity][1]
+        stepped_again[capacity] = solver.frames_stepped_again
     assert runs[2][1] > 2 and runs[64][1] == 64          # the small lists grew; the large ones never had to
     np.testing.assert_array_equal(runs[2][0], runs[64][0])
+    # Doubling from 2 to the room the sheets need would have stepped log2(room / 2) frames again.
+    assert stepped_again[64] == 0 and 1 <= stepped_again[2] < np.log2(runs[2][1] / 2), (stepped_again, runs[2][1])
 
 
 def test_sweep_lanes_follow_the_thread_budget():
