@@ -2,12 +2,15 @@
 per sequence.
 
 CLI:
-  python -m pipeline.simulate LEVEL SETTINGS.json GROUP [GROUP ...] [--device D] [--threads N] [--quiet]
+  python -m pipeline.simulate LEVEL SETTINGS.json GROUP [GROUP ...] [--settled RUN] [--device D] [--threads N]
+                              [--quiet]
 A GROUP is one sequence's files, its scene file (results/<scene>/sequences/<name>/scene.h5, which also sets the
 frame count) first and its output last; what lies between is the level's (the runs a solver kind makes). The XPBD
 cloth (pipeline/solvers/xpbd.py) makes two:
   low   SCENE.h5 OUT.h5                           the low-res run
   high  SCENE.h5 SUBDIV.h5 SIM_LOW.h5 OUT.h5      the high-res run, held to the low-res one by harmonic test functions
+A motion library's window starts from the cloth settled once at rest for the whole scene: the last frame of
+--settled, the run of results/<scene>/settle/ at the same level (scenes.sequences.SETTLE).
 Several sequences (of one garment) are stepped together as one batch, a solver world each: on a GPU a batch costs
 about what one sequence does until the device is full (the workflow's `shard` key sizes it). A batch's
 per-sequence work outside the solver runs on --threads threads, a sequence each: the adapter's before stepping,
@@ -30,11 +33,12 @@ import warp as wp
 from tqdm import tqdm
 
 from pipeline.artifacts.scene import read_library_window, read_rest_mesh
-from pipeline.artifacts.simulation import SimulationRun, SimulationWriter, simulation_writer
+from pipeline.artifacts.simulation import SimulationRun, SimulationWriter, read_last_frame, simulation_writer
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import SOURCE_MESH, dropped_reason, mesh_fingerprint, source_mesh_of, write_dropped
+from pipeline.core.h5 import (SOURCE_MESH, check_same_mesh, dropped_reason, mesh_fingerprint, source_mesh_of,
+                              write_dropped)
 from pipeline.solvers.level import Level, PreparedBatch
 from pipeline.solvers.registry import KINDS, level_names, solver_level
 from sim.solver import UnstableSimulation
@@ -89,12 +93,14 @@ OpenRun = Callable[[int, tuple[int, int]], SimulationWriter]    # (sequence, (fr
 
 
 def simulate(level: Level, settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
-             threads: int, open_run: OpenRun) -> tuple[list[SimulationRun], list[SimulationWriter]]:
+             threads: int, open_run: OpenRun, settled: np.ndarray | None = None
+             ) -> tuple[list[SimulationRun], list[SimulationWriter]]:
     """The runs of a batch of sequences (each group its input files and its output last), and their writers,
     which hold every frame already (the caller finishes them with the runs): each chunk of stepped frames is
-    measured and written on `threads` threads while the next ones are stepped."""
+    measured and written on `threads` threads while the next ones are stepped. `settled`: where a sequence that
+    starts settled starts (settled_cloth)."""
     start = time.perf_counter()
-    batch = level.prepare(settings, [group[:-1] for group in groups], device, quiet, threads)
+    batch = level.prepare(settings, [group[:-1] for group in groups], device, quiet, threads, settled)
     setup = time.perf_counter() - start
     first_frame = batch.solver.state.read_world_positions()
     writers = [open_run(w, (n, first_frame.shape[1])) for w, n in enumerate(batch.n_frames)]
@@ -119,11 +125,20 @@ def simulate(level: Level, settings: dict, groups: Sequence[tuple[str, ...]], de
     if not quiet:
         print(f"{batch.label}: the last chunks' measures and writing after stepping: "
               f"{time.perf_counter() - stepped_done:.1f} s", file=sys.stderr)
+        if batch.stepped is not None and (said := batch.stepped()):
+            print(f"{batch.label}: {said}", file=sys.stderr)
     runs = [batch.run(w, positions[:n, w], solve_ms[:n], setup) for w, n in enumerate(batch.n_frames)]
     if batch.tangled is not None:
         runs = [dataclasses.replace(run, dropped=batch.tangled(run.positions)) if droppable(path) else run
                 for run, path in zip(runs, batch.scene_paths)]
     return runs, writers
+
+
+def settled_cloth(run_path: str, scene_path: str) -> np.ndarray:
+    """The last frame (V, 3) of a scene's settle run (results/<scene>/settle/sim_<level>.h5), where a motion
+    library's windows start; an error if the run is of another mesh than the scene `scene_path`."""
+    check_same_mesh(run_path, scene_path)
+    return read_last_frame(run_path)
 
 
 def droppable(scene_path: str) -> bool:
@@ -161,6 +176,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1,
                         help="sequences whose work outside the solver is done at once (Snakemake: the rule's "
                              "threads)")
+    parser.add_argument("--settled", metavar="RUN", help="the scene's settle run at this level "
+                        "(results/<scene>/settle/sim_LEVEL.h5): a sequence whose scene starts settled (a motion "
+                        "library's window) starts from its last frame")
     cli.add_quiet(parser)
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -188,6 +206,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     def source_mesh() -> str:       # asked for once the adapter has checked the scene files
         return mesh_fingerprint(*read_rest_mesh(groups[0][0]))
 
+    settled = settled_cloth(args.settled, groups[0][0]) if args.settled else None
     while remaining and not runs:
         try:
             with contextlib.ExitStack() as outputs:
@@ -195,7 +214,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                     return outputs.enter_context(simulation_writer(remaining[w][-1], args.level, settings,
                                                                    frames_vertices, device, source_mesh()))
 
-                runs, writers = simulate(level, settings, remaining, device, args.quiet, args.threads, open_run)
+                runs, writers = simulate(level, settings, remaining, device, args.quiet, args.threads, open_run,
+                                         settled)
                 start = time.perf_counter()
                 for writer, run in zip(writers, runs):
                     writer.finish(run)

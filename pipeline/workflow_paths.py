@@ -1,7 +1,7 @@
 """The paths and names the workflow gives a scene's stage chain and its applications (the Snakefile,
 workflow/rules/common.smk, simulate.smk, applications.smk): from a scene's name, its resolved settings and its
 sequence names, what `results/<scene>/`, `results/<scene>/pose/` and `results/<scene>/pca/` stand for, each
-sequence's files, the motion-capture files a scene needs, which operators.h5 an application reads and the names of
+sequence's files, the settle run a motion library's windows start from, the motion-capture files a scene needs, which operators.h5 an application reads and the names of
 sharded scenes' batch rules. The experiment families lay out theirs beside their code (experiments.tradeoff.grid,
 experiments.study.points, experiments.multi.garments). The Snakefile imports this at every start: it reads
 settings only and imports nothing heavy.
@@ -14,7 +14,7 @@ from typing import Any, Iterable
 
 from pipeline.core.config import application_settings
 from pipeline.core.errors import PipelineError
-from scenes.sequences import sequence_bvh_files
+from scenes.sequences import is_window_name, sequence_bvh_files
 
 Settings = dict[str, Any]
 
@@ -52,6 +52,23 @@ def scene_products(scene: str, sequences: list[str]) -> list[str]:
     """What `results/<scene>/` stands for: each sequence's runs, then the scene's products."""
     return ([f"results/{scene}/sequences/{seq}/{name}" for seq in sequences for name in SEQUENCE_PRODUCTS]
             + [f"results/{scene}/{name}" for name in SCENE_PRODUCTS])
+
+
+def settle_folder(scene: str) -> str:
+    """Where a scene with a motion library keeps its settle sequence (scenes.sequences.SETTLE): scene.h5 and its
+    runs, apart from the sequences the dataset gathers."""
+    return f"results/{scene}/settle"
+
+
+def settled_runs(scene: str, sequences: Iterable[str], level: str) -> list[str]:
+    """The settle run that a simulate job of these sequences starts from at `level` (low, high): the scene's when
+    one of them is a motion library's window, none otherwise."""
+    return [f"{settle_folder(scene)}/sim_{level}.h5"] if any(map(is_window_name, sequences)) else []
+
+
+def settled_flag(scene: str, sequences: Iterable[str], level: str) -> list[str]:
+    """The simulate stage's `--settled RUN` for settled_runs, or nothing."""
+    return [flag for run in settled_runs(scene, sequences, level) for flag in ("--settled", run)]
 
 
 def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> None:

@@ -1,7 +1,8 @@
 """The garment scene: a garment on the procedural mannequin, its attachment vertices (waist band, shoulders)
 pinned to the body part they follow. Every sequence wears the same garment; a training sequence plays a seeded
 motion program over the training clips, a held-out sequence its one test clip, a motion library's window its
-window the paper's way (scenes.sequences, scenes.library, scenes.motion.play_window)."""
+window the paper's way (scenes.sequences, scenes.library, scenes.motion.play_window), starting from the cloth its
+settle sequence left at rest."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,11 +16,12 @@ from scenes.capsules import capsule_velocities, capsules_world, limbs_through_ea
 from scenes.garments import make_garment
 from scenes.kinematics import rest_transforms
 from scenes.library import LibraryWindow, UnusableWindow, find_window
-from scenes.motion import BodyState, ClipSequence, Motion, body_state, play_clips, play_window, pose_vectors
+from scenes.motion import (BodyState, ClipSequence, Motion, at_rest, body_state, play_clips, play_window,
+                           pose_vectors)
 from scenes.program import plan_program, play_program
 from scenes.scene import Mannequin, Pins, PosedCapsules, Scene, SceneRest
 from scenes.retarget import retarget
-from scenes.sequences import TRAIN, is_window_name, parse_sequence_name, sequence_clips, window_key
+from scenes.sequences import SETTLE, TRAIN, is_window_name, parse_sequence_name, sequence_clips, window_key
 from scenes.skeleton import TORSO, Skeleton, default_skeleton
 from scenes.skinning import rest_to_posed, skinning_weights
 
@@ -46,10 +48,13 @@ def garment_scene(settings: dict, rest: SceneRest, sequence: str) -> Scene:
     clips, a BVH file that is missing or cannot be mapped), UnusableWindow for a library window that cannot be
     played (its sequence is dropped, not the run)."""
     drive, skel, fps = settings["drivers"]["mannequin"], rest.skeleton, 1.0 / settings["solver"]["dt"]
+    if sequence == SETTLE:      # settle_frames steps at rest: the state every library window starts from
+        played = at_rest(drive["settle_frames"] + 1, fps, skel)
+        return _posed(settings, rest, sequence, played, (), None, body_state(skel, played.motion))
     if is_window_name(sequence):
         window = find_window(drive["library"], window_key(sequence))
-        played = play_window(load_window(window, skel, fps), drive["settle_frames"], drive["blend_frames"],
-                             drive["library"]["hold_frames"], skel)
+        played = play_window(load_window(window, skel, fps), drive["blend_frames"], drive["library"]["hold_frames"],
+                             skel)
         state = body_state(skel, played.motion)
         through = limbs_through_each_other(skel, state.transforms, worn_pairs(rest))
         if through is not None:
@@ -57,7 +62,7 @@ def garment_scene(settings: dict, rest: SceneRest, sequence: str) -> Scene:
             raise UnusableWindow(f"{window.clip.path}: seconds {window.start:g}-{window.end:g} drive "
                                  f"{' and '.join(parts)} through each other ({overlap * 100:.1f} cm deep, frame "
                                  f"{frame}): the garment would be caught between them")
-        return _posed(settings, rest, sequence, played, (), window.describe(), state)
+        return _posed(settings, rest, sequence, played, (), window.describe(), state, settled_start=True)
     role, index = parse_sequence_name(sequence)
     clips = [load_clip(entry, skel, fps) for entry in sequence_clips(settings, sequence)]
     timing = settings["frames"], drive["settle_frames"], drive["blend_frames"]
@@ -86,9 +91,9 @@ def worn_pairs(rest: SceneRest) -> np.ndarray:
 
 
 def _posed(settings: dict, rest: SceneRest, sequence: str, played: ClipSequence, program: tuple,
-           library_window: dict | None, state: BodyState) -> Scene:
+           library_window: dict | None, state: BodyState, settled_start: bool = False) -> Scene:
     """The sequence of a garment scene whose mannequin plays `played` (the parts' world `state`): its body,
-    capsules, pins and poses."""
+    capsules, pins and poses; `settled_start`: its cloth starts where the settle sequence's runs end."""
     skel = rest.skeleton
     n_frames = played.motion.n_frames
     a, b, radius_a, radius_b = capsules_world(skel, state.transforms)
@@ -108,7 +113,7 @@ def _posed(settings: dict, rest: SceneRest, sequence: str, played: ClipSequence,
         pose=pose_vectors(skel, played.motion), torso_transforms=torso_transforms)
     return Scene(rest=rest, sequence=sequence, dt=settings["solver"]["dt"],
                  pins=Pins(ids=rest.pin_ids, part=rest.pin_part, transforms=transforms, targets=targets),
-                 mannequin=mannequin, library_window=library_window)
+                 mannequin=mannequin, library_window=library_window, settled_start=settled_start)
 
 
 def load_window(window: LibraryWindow, skel: Skeleton, fps: float) -> Motion:

@@ -553,19 +553,32 @@ def play_clips(clips: list[str | Motion], n_frames: int, settle_frames: int, ble
     return ClipSequence(motion, np.concatenate(clip), ("settle", *names))
 
 
-def play_window(clip: Motion, settle_frames: int, blend_frames: int, hold_frames: int,
-                skel: Skeleton | None = None) -> ClipSequence:
-    """One motion-capture window the paper's way: `settle_frames` at rest, the rest pose blended over
-    `blend_frames` into the clip's first pose, held there `hold_frames` (the cloth settles on the posed body),
-    then the clip as it is, at full amplitude from its first frame (a raw Motion at its fps,
-    scenes.retarget.retarget). The blend moves joint angles and the root by a quintic smoothstep, so it starts and
-    ends at rest; where the blended pose would put a foot through the floor the root is lifted (ground_lift). The
-    frames before the clip are the sequence's lead-in, clip index 0 ("settle"), as a program's settle period is."""
+def at_rest(n_frames: int, fps: float, skel: Skeleton | None = None) -> ClipSequence:
+    """`n_frames` at the rest pose, clip index 0 ("settle"): a garment's settle sequence, the cloth settling on the
+    still body once for every library window (scenes.garment_scene), whose frame 0 is this pose."""
+    skel = skel or default_skeleton()
+    if n_frames < 1:
+        raise ValueError(f"a settle sequence needs a frame or more, got {n_frames}")
+    zeros = np.zeros((n_frames, skel.n_parts, 3))
+    motion = Motion("rest", float(fps), 0, n_frames, 1, np.tile(skel.joint_offsets[0], (n_frames, 1)),
+                    np.zeros((n_frames, 3)), zeros, zeros.copy())
+    return ClipSequence(motion, np.zeros(n_frames, dtype=np.int64), ("settle",))
+
+
+def play_window(clip: Motion, blend_frames: int, hold_frames: int, skel: Skeleton | None = None) -> ClipSequence:
+    """One motion-capture window the paper's way, from the rest pose at frame 0 (where the garment's settle
+    sequence, at_rest, leaves the cloth: the settle at rest is the same for every window, so it is simulated once):
+    the rest pose blended over `blend_frames` into the clip's first pose, held there `hold_frames` (the cloth
+    settles on the posed body), then the clip as it is, at full amplitude from its first frame (a raw Motion at its
+    fps, scenes.retarget.retarget). The blend moves joint angles and the root by a quintic smoothstep, so it starts
+    and ends at rest; where the blended pose would put a foot through the floor the root is lifted (ground_lift).
+    The frames before the clip are the sequence's lead-in, clip index 0 ("settle"), as a program's settle period
+    is."""
     skel = skel or default_skeleton()
     fps = clip.fps
-    if blend_frames < 1 or settle_frames < 0 or hold_frames < 0 or clip.n_frames < 2:
-        raise ValueError(f"a window needs blend_frames >= 1, settle_frames and hold_frames >= 0 and a clip of 2 "
-                         f"frames or more; got {blend_frames}, {settle_frames}, {hold_frames}, {clip.n_frames}")
+    if blend_frames < 1 or hold_frames < 0 or clip.n_frames < 2:
+        raise ValueError(f"a window needs blend_frames >= 1, hold_frames >= 0 and a clip of 2 frames or more; got "
+                         f"{blend_frames}, {hold_frames}, {clip.n_frames}")
     rest_root = skel.joint_offsets[0]
     w, dw, _ = fade_in(np.arange(blend_frames) / fps, (blend_frames - 1) / fps if blend_frames > 1 else 1 / fps)
     first_angles, first_root = clip.joint_angles[0], clip.root_position[0] - rest_root
@@ -581,13 +594,11 @@ def play_window(clip: Motion, settle_frames: int, blend_frames: int, hold_frames
     root_velocity[:, 1] += lift_rate + dw * (lift[0] - lift[-1])
     still = lambda n, value: np.broadcast_to(value, (n, *value.shape)).copy()     # noqa: E731
     segments = [
-        (still(settle_frames, rest_root), np.zeros((settle_frames, 3)),
-         np.zeros((settle_frames, *first_angles.shape)), np.zeros((settle_frames, *first_angles.shape))),
         (root, root_velocity, angles, rates),
         (still(hold_frames, clip.root_position[0]), np.zeros((hold_frames, 3)), still(hold_frames, first_angles),
          np.zeros((hold_frames, *first_angles.shape))),
         (clip.root_position, clip.root_velocity, clip.joint_angles, clip.joint_angle_rates)]
-    lead_in = settle_frames + blend_frames + hold_frames
+    lead_in = blend_frames + hold_frames
     motion = Motion(clip.kind, float(fps), clip.seed, lead_in, int(blend_frames),
                     *(np.concatenate([segment[k] for segment in segments]) for k in range(4)))
     return ClipSequence(motion, np.repeat([0, 1], [lead_in, clip.n_frames]).astype(np.int64), ("settle", clip.kind))

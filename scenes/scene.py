@@ -85,6 +85,8 @@ class Scene:
     mannequin: Mannequin | None = None    # garment scenes
     library_window: dict | None = None    # a motion library's window: file, subject, category, description,
                                           # start and end (seconds of its motion), frame_time (scenes.library)
+    settled_start: bool = False           # frame 0 is the garment's settled cloth (the last frame of its settle
+                                          # sequence's runs, scenes.sequences.SETTLE), not its rest shape
 
     @property
     def n_frames(self) -> int:

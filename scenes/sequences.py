@@ -15,7 +15,7 @@ window of a motion-capture file retargeted onto the mannequin (scenes.garment_sc
 A garment scene with a motion library (`drivers.mannequin.library`) also has one sequence per window of each of
 its files (scenes.library), after the programs: train_<file>_w<k> for a training subject, held_out_<file>_w<k>
 for a held-out one (`library_windows.held_out_subjects`), each named after its file so that adding files leaves
-the others' sequences as they were. This module reads settings (and a library's file headers); the workflow and
+the others' sequences as they were. Each window starts from the cloth settled once at rest (SETTLE). This module reads settings (and a library's file headers); the workflow and
 pipeline.core.config use it, so it imports nothing heavy.
 """
 from __future__ import annotations
@@ -26,6 +26,9 @@ import re
 from scenes.library import WINDOW_NAME, LibraryWindow, find_window, library_clips, subject_id, windows
 
 TRAIN, HELD_OUT = "train", "held_out"
+# A garment scene with a motion library also has its settle sequence (results/<scene>/settle/): the cloth settling
+# on the body at rest for `settle_frames`, simulated once at each level; every window starts from its last frame.
+SETTLE = "settle"
 # A sequence's name: its role, then its index among that role's programs or held-out clips, or a library window's
 # file and index (no braces: Snakemake reads them as wildcards).
 INDEXED_NAME = r"(?:train|held_out)_[0-9][0-9][0-9]+"
@@ -41,7 +44,9 @@ def window_sequence_name(role: str, window: LibraryWindow) -> str:
 
 
 def sequence_role(name: str) -> str:
-    """train or held_out: the role a sequence name starts with."""
+    """train or held_out: the role a sequence name starts with (the settle sequence's: settle)."""
+    if name == SETTLE:
+        return SETTLE
     if not re.fullmatch(NAME_PATTERN, name):
         raise ValueError(f"'{name}' is not a sequence name (train_000, ..., held_out_000, ..., or a library "
                          f"window's such as train_001-01-01_w00)")

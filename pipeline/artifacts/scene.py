@@ -30,6 +30,7 @@ REST_VERTICES, REST_FACES = "rest/vertices", "rest/faces"
 PIN_IDS, PIN_TARGETS, PIN_PART, PIN_TRANSFORMS = "pins/ids", "pins/targets", "pins/part", "pins/transforms"
 ROD = "driver"
 LIBRARY_WINDOW = "library_window"      # root attr: a motion library window's file, subject, category, ... (JSON)
+SETTLED_START = "settled_start"        # root attr, true: the cloth starts where the scene's settle runs end
 ROD_ROTATION, ROD_TRANSLATION, ROD_PIVOT = "driver/rotation", "driver/translation", "driver/pivot"
 # The mannequin: skeleton, state and motion arrays are stored under the names of the fields they hold.
 BODY = "body"
@@ -76,6 +77,8 @@ def write_scene(path: str | os.PathLike, scene: Scene, settings: Mapping[str, An
                        role=sequence_role(scene.sequence), frames=scene.n_frames, dt=scene.dt)
         if scene.library_window is not None:
             f.attrs[LIBRARY_WINDOW] = json.dumps(scene.library_window, sort_keys=True)
+        if scene.settled_start:
+            f.attrs[SETTLED_START] = True
 
 
 def write_dropped_scene(path: str | os.PathLike, rest: SceneRest, sequence: str, reason: str,
@@ -205,6 +208,7 @@ class SceneDrive:
     pins: Pins                         # ids and part int64, transforms and targets float64
     capsules: np.ndarray | None        # (N, P, 2, 3) float64 end points a, b of each capsule; None without collision
     capsule_radii: np.ndarray | None   # (P, 2) float64 radii at a and b
+    settled_start: bool = False        # the cloth starts settled (Scene.settled_start), not at its rest shape
 
     @property
     def n_frames(self) -> int:
@@ -234,7 +238,9 @@ def read_scene_drive(path: str | os.PathLike, body_collision: bool) -> SceneDriv
             radii = np.stack([read(f, CAPSULE_RADIUS_A, np.float64), read(f, CAPSULE_RADIUS_B, np.float64)], axis=1)
             if len(capsules) != len(targets):
                 raise PipelineError(f"{path}: {len(capsules)} frames of capsules but {len(targets)} of pin targets")
-    return SceneDrive(Pins(ids=ids, part=part, transforms=transforms, targets=targets), capsules, radii)
+        settled_start = bool(f.attrs.get(SETTLED_START, False))
+    return SceneDrive(Pins(ids=ids, part=part, transforms=transforms, targets=targets), capsules, radii,
+                      settled_start)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -127,6 +127,13 @@ def read_trajectory(path: str | os.PathLike) -> Trajectory:
         return Trajectory(read(f, "positions", np.float64), read_indices(f, "faces", n_vertices, shape=(None, 3)))
 
 
+def read_last_frame(path: str | os.PathLike) -> np.ndarray:
+    """A run's last frame (V, 3) float64, without reading the others (a settle run's, where windows start)."""
+    with open_artifact(path) as f:
+        n_frames = _positions_shape(f)[0]
+        return f["positions"][n_frames - 1].astype(np.float64)
+
+
 def read_run_outline(path: str | os.PathLike) -> tuple[int, np.ndarray]:
     """The number of frames of a run and its faces (T, 3) int64, without reading its positions."""
     with open_artifact(path) as f:

@@ -33,10 +33,14 @@ class PreparedBatch:
     tangled: Callable[[np.ndarray], str] | None = None
     # a world's positions (F, V, 3) -> why its run is unusable though it finished (a cloth caught and stretched
     # between limbs), "" if it is not: the stage drops such a run of a motion library's window
+    stepped: Callable[[], str] | None = None
+    # what the solver says of the stepping once it is done, for the log (the cloth: its self-contact lists' growth)
 
 
-# (settings, each sequence's input files, device, quiet, threads) -> the batch ready to step
-Prepare = Callable[[dict, Sequence[tuple[str, ...]], str, bool, int], PreparedBatch]
+# (settings, each sequence's input files, device, quiet, threads, settled) -> the batch ready to step; `settled`
+# (V, 3) is the last frame of the scene's settle run at this level (None without one), where each sequence whose
+# scene starts settled (a motion library's window) starts
+Prepare = Callable[[dict, Sequence[tuple[str, ...]], str, bool, int, np.ndarray | None], PreparedBatch]
 
 
 @dataclass(frozen=True, eq=False)

@@ -7,7 +7,9 @@ runs it makes of a sequence (LEVELS):
   5, Kavan et al. 2011; projected once a substep by default, `high_res.harmonic_every`), starting at S x_low of
   frame 0. Its per-sequence work outside the solver (the harmonic targets before stepping, the residual's
   products while the device steps on) runs on the job's threads, a sequence each.
-Several sequences of one garment are one batch, a solver world each.
+Several sequences of one garment are one batch, a solver world each. A motion library's window starts at both
+levels from the cloth that the scene's settle sequence left (the last frame of that sequence's run at the same
+level, the stage's --settled), not from the rest shape: the settle at rest is the same for every window.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -79,6 +81,21 @@ class ClothBatch:
     def capsule_radii(self) -> np.ndarray | None:
         """The body's shape, the same in every sequence (None without body collision)."""
         return self.drives[0].capsule_radii
+
+    def initial_positions(self, unsettled: Callable[[int], np.ndarray], settled: np.ndarray | None) -> np.ndarray:
+        """(B, V, 3) where each world's cloth starts: `settled` (the settle run's last frame) for a sequence whose
+        scene starts settled, `unsettled(w)` for the others; an error naming the scene where `settled` is missing
+        or of another mesh."""
+        starts = []
+        for w, (drive, path) in enumerate(zip(self.drives, self.scene_paths)):
+            start = unsettled(w)
+            if drive.settled_start:
+                if settled is None or settled.shape != start.shape:
+                    raise PipelineError(f"{path}: starts from the scene's settled cloth: give the settle run of its "
+                                        f"mesh (--settled results/<scene>/settle/sim_<level>.h5)")
+                start = settled
+            starts.append(start)
+        return np.stack(starts)
 
     def capsules(self, f: int) -> np.ndarray | None:
         """(B, N, 2, 3) frame f's capsules of every sequence (None without body collision)."""
@@ -149,16 +166,26 @@ def frame_work(solver: ClothSolver) -> str:
             f"{solver.n_constraints:,} constraints")
 
 
+def contact_growth(solver: ClothSolver) -> str:
+    """The self-contact lists' room and how many frames filled it and were stepped again (a batch's cost beyond
+    its frames: issue 35 saw dance-heavy shards at a quarter of the fastest ones' rate)."""
+    if not solver.model.settings.self_collision:
+        return ""
+    return (f"self-contact lists: room for {solver.contacts.vertex_contacts.shape[1]} entries, "
+            f"{solver.frames_stepped_again} frame(s) stepped again after filling them")
+
+
 def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
-                threads: int) -> PreparedBatch:
-    """The low-res runs of a batch of sequences, each group (SCENE,)."""
+                threads: int, settled: np.ndarray | None) -> PreparedBatch:
+    """The low-res runs of a batch of sequences, each group (SCENE,), from the rest shape or `settled`."""
     scene_paths = [group[0] for group in groups]
     s = solver_settings(settings)
     batch = read_batch(scene_paths, s.body_collision)
     rest, faces = read_rest_mesh(scene_paths[0])
     pin_ids = batch.drives[0].pins.ids
     solver = ClothSolver(batch.model(rest, faces, s, pin_ids), device, worlds=len(scene_paths),
-                         initial_inputs=FrameInputs(capsules=batch.capsules(0)))
+                         initial_inputs=FrameInputs(capsules=batch.capsules(0)),
+                         initial_positions=batch.initial_positions(lambda w: rest, settled))
     targets = [d.pins.targets for d in batch.drives]
 
     def inputs(f: int) -> FrameInputs:
@@ -169,12 +196,13 @@ def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, 
                              batch_worlds=solver.worlds, setup_seconds=setup_seconds)
 
     return PreparedBatch("low-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run,
-                         tangled=tangle_check(rest, faces))
+                         tangled=tangle_check(rest, faces), stepped=lambda: contact_growth(solver))
 
 
 def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
-                 threads: int) -> PreparedBatch:
-    """The high-res runs of a batch of sequences, each group (SCENE, SUBDIV, SIM_LOW), one subdivision; each
+                 threads: int, settled: np.ndarray | None) -> PreparedBatch:
+    """The high-res runs of a batch of sequences, each group (SCENE, SUBDIV, SIM_LOW), one subdivision, from S
+    x_low of frame 0 or, for a sequence that starts settled, from `settled` (held to its low-res run's frame 0); each
     sequence's harmonic targets (here) and residual (`measure`, while the device steps on) computed on `threads`
     threads (numpy, scipy and the products release the GIL; the same numbers whatever the count)."""
     start = time.perf_counter()
@@ -224,7 +252,7 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
         solver = ClothSolver(model, device, worlds=len(scene_paths),
                              initial_inputs=FrameInputs(harmonic_target=np.concatenate(frame0_targets),
                                                         capsules=batch.capsules(0)),
-                             initial_positions=np.stack([S @ x[0] for x in x_lows]))
+                             initial_positions=batch.initial_positions(lambda w: S @ x_lows[w][0], settled))
         solver_done = time.perf_counter()
         harmonic_targets = [job.result() for job in computing]
     if not quiet:   # where the setup goes (issue 12: a batch job's wall against its stepping)
@@ -252,7 +280,8 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
                              (harmonic_residual(residual, basis.shape[1]),), batch_worlds=solver.worlds,
                              setup_seconds=setup_seconds)
 
-    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure)
+    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure,
+                         stepped=lambda: contact_growth(solver))
 
 
 LEVELS = {

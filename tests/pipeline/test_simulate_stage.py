@@ -329,7 +329,7 @@ def drifting_level(offsets: np.ndarray, unstable_at: int | None = None):
                 raise UnstableSimulation(1, 2, "drifted off")
             state.positions = state.positions + inputs
 
-    def prepare(settings, groups, device, quiet, threads):
+    def prepare(settings, groups, device, quiet, threads, settled):
         scene_paths = [group[0] for group in groups]
         rest, faces = read_rest_mesh(scene_paths[0])
         n_frames = [read_scene_drive(path, False).n_frames for path in scene_paths]

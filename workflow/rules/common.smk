@@ -5,7 +5,7 @@ import sys
 
 from pipeline import workflow_paths
 from pipeline.core.config import resolve_scene, shared_settings, simulation_settings
-from scenes.sequences import NAME_PATTERN, sequence_bvh_files, sequence_names, sequence_shards
+from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, sequence_names, sequence_shards
 
 # Resolving every scene now turns a bad or missing key into one error before any job starts.
 SETTINGS = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
@@ -17,6 +17,8 @@ SEQUENCES = {scene: sequence_names(settings) for scene, settings in SETTINGS.ite
 PY = sys.executable
 OUT = "results/{scene}"
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
+# The scenes with a motion library, whose windows start from their settle sequence's runs (results/<scene>/settle/)
+LIBRARY_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if library_of(settings) is not None)
 
 wildcard_constraints:
     scene=workflow_paths.one_of(SETTINGS),
@@ -70,3 +72,13 @@ def sequence_folders(wildcards):
 def scene_products(scene):
     """What `results/<scene>/` stands for."""
     return workflow_paths.scene_products(scene, SEQUENCES[scene])
+
+
+def settled_runs(level):
+    """An input function: the settle run a sequence's simulate job starts from at `level`, if it is a window."""
+    return lambda w: workflow_paths.settled_runs(w.scene, [w.seq], level)
+
+
+def settled_flag(level):
+    """A params function: the simulate stage's `--settled RUN` for settled_runs, or nothing."""
+    return lambda w: workflow_paths.settled_flag(w.scene, [w.seq], level)

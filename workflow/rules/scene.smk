@@ -53,7 +53,22 @@ rule sequence:
     benchmark: benchmark_of("sequence", per_sequence=True)
     threads: 1
     resources: mem_mb=2000
+    priority: 10        # the low-res shards wait on them (simulate.smk: the order of the GPU's jobs)
     shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} 2>&1 | tee {log:q}"
+
+
+# A scene with a motion library: the body at rest for settle_frames, whose cloth every window starts from once its
+# runs settle it (simulate.smk).
+rule settle_scene:
+    input: settings=f"{OUT}/simulation.json"
+    output: f"{OUT}/settle/scene.h5"
+    wildcard_constraints: scene=LIBRARY_SCENES
+    log: log_of("settle_scene")
+    benchmark: benchmark_of("settle_scene")
+    threads: 1
+    resources: mem_mb=2000
+    priority: 10
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle 2>&1 | tee {log:q}"
 
 
 rule subdivide:
