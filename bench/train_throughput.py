@@ -28,7 +28,7 @@ import torch
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.losses import LossWeights, total_loss
 from model.networks import NetworkSpec, build_network
-from model.training import Frames
+from model.training import Frames, in_batches
 from model.training_step import WARMUP_STEPS, GraphedStep, adam, eager_step
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.operators import load_hierarchy
@@ -53,6 +53,9 @@ class PrecomputedFeatures:
         self.inputs = torch.cat([x for x, _ in encoded])
         self.local = None if encoded[0][1] is None else torch.cat([f for _, f in encoded])
 
+    def feed(self, slots: torch.Tensor, batch_size: int):
+        return in_batches(slots, batch_size)
+
     def batch_loss(self, model, mesh, slots: torch.Tensor, weights: LossWeights):
         real = self.ids[slots]
         positions = self.frames.store.predictor(real)
@@ -71,14 +74,16 @@ def seconds_per_step(model, mesh, frames: Frames, ids: torch.Tensor, batch_size:
         step = GraphedStep(step, batch_size, ids.device)
     sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
     times = []
+    # A step's time includes getting its batch from the problem (a streamed dataset's wait for its loader).
+    batches = problem.feed(samples[:(warmup + steps) * batch_size], batch_size)
     for k in range(warmup + steps):
-        batch = samples[k * batch_size:(k + 1) * batch_size]
         sync()
         start = time.perf_counter()
-        step(batch)
+        step(next(batches))
         sync()
         if k >= warmup:
             times.append(time.perf_counter() - start)
+    batches.close()
     return statistics.median(times)
 
 
