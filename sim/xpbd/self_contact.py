@@ -282,6 +282,13 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
     sc.vertex_count[i] = count
 
 
+@wp.kernel
+def widen_lists(lists: wp.array2d(dtype=int), wider: wp.array2d(dtype=int)):
+    """Copy contact lists into the first columns of wider ones (the solver growing them after an overflow)."""
+    i, a = wp.tid()
+    wider[i, a] = lists[i, a]
+
+
 @wp.func
 def sort_list(lists: wp.array2d(dtype=int), row: int, n: int):
     """Sort the first n entries of a contact list by the id they name, ignoring the side's sign (insertion sort of

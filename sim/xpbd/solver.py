@@ -354,7 +354,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         sc.edge_offsets, sc.vertex_neighbors = arr(edge_offsets, int), arr(neighbors, int)
         sc.face_lower = self._zeros(n_faces, wp.vec3)
         sc.face_upper = self._zeros(n_faces, wp.vec3)
-        self._size_contact_lists(sc, capacity, np.zeros((total, 0)))
+        self._size_contact_lists(sc, capacity, total)
         sc.face_count = self._zeros(n_faces, int)
         sc.thickness = s.self_thickness
         sc.reach = reach
@@ -367,18 +367,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         sc.face_bvh = self._face_bvh.id
         return sc
 
-    def _size_contact_lists(self, sc: self_contact.SelfContacts, capacity: int, vertex_lists: np.ndarray) -> None:
-        """(Re)allocate the contact lists with `capacity` entries, the vertices' lists starting as `vertex_lists`
-        (the previous substep's, whose sides the next search keeps)."""
-        shape = (len(vertex_lists), capacity)
-        if vertex_lists.shape[1]:
-            lists = np.zeros(shape, dtype=np.int32)
-            lists[:, :vertex_lists.shape[1]] = vertex_lists
-            sc.vertex_contacts, sc.previous, self._saved_lists = (self._array(lists, int) for _ in range(3))
-        else:
-            sc.vertex_contacts, sc.previous, self._saved_lists = (self._zeros(shape, int) for _ in range(3))
+    def _size_contact_lists(self, sc: self_contact.SelfContacts, capacity: int, vertices: int) -> None:
+        """(Re)allocate the contact lists, empty, with `capacity` entries (zeros made on the device)."""
+        sc.vertex_contacts, sc.previous, self._saved_lists = (self._zeros((vertices, capacity), int) for _ in range(3))
         sc.face_contacts = self._zeros((sc.faces.shape[0], capacity), int)
-        self._saved_count = self._zeros(len(vertex_lists), int)
+        self._saved_count = self._zeros(vertices, int)
 
     def _grow_contact_lists(self, needed: int) -> bool:
         """After a frame that overflowed: grow the lists' capacity to twice the `needed` entries (a power of two,
@@ -389,9 +382,14 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             return False
         capacity = min(1 << (2 * needed - 1).bit_length(), MAX_CONTACT_CAPACITY)
         self.frames_stepped_again += 1
-        saved_count = self._saved_count.numpy()
-        self._size_contact_lists(sc, capacity, self._saved_lists.numpy())
-        sc.vertex_count.assign(saved_count)
+        saved_lists, saved_count = self._saved_lists, self._saved_count
+        self._size_contact_lists(sc, capacity, len(saved_count))
+        # The vertices' lists as the frame started (the sides the search keeps), widened on the device rather than
+        # through the host (3 uploads of ~1.5 GB for 64 paper-pants worlds at 256 entries). The other lists are
+        # written before they are read: `previous` by the search, the saved ones at the frame's start.
+        wp.launch(self_contact.widen_lists, dim=saved_lists.shape, device=self.device,
+                  inputs=[saved_lists, sc.vertex_contacts])
+        wp.copy(sc.vertex_count, saved_count)
         wp.copy(self.state.positions, self._frame_start.positions)
         wp.copy(self.state.velocities, self._frame_start.velocities)
         self._graph = None   # the graph holds the old lists
