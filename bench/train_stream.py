@@ -44,7 +44,7 @@ SEQUENCE_FRAMES = 1000
 def write_sheet(folder: Path, vertices: int, n_frames: int) -> Path:
     """folder/dataset_<n_frames>.h5 (made unless there) and folder/operators.h5 of a sheet of about `vertices`
     high-res vertices waving in sequences of SEQUENCE_FRAMES frames."""
-    n = max(2, round((vertices ** 0.5 - 1) / 4) + 1)          # an n x n grid has (4 (n - 1) + 1)^2 vertices twice subdivided
+    n = max(2, round((vertices ** 0.5 - 1) / 4) + 1)      # n x n grid: (4 (n - 1) + 1)^2 vertices twice subdivided
     r, c = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     low_rest = np.stack([c.ravel() / (n - 1), np.zeros(n * n), r.ravel() / (n - 1)], axis=1)
     idx = np.arange(n * n).reshape(n, n)

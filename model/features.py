@@ -6,7 +6,8 @@ umbrella Laplacian), to time (velocity), to the body (distance and direction to 
 vertex (rest positions), following Zhang & Li 2024 (Neural Garment Dynamic Super-Resolution).
 
 Everything is batched torch: positions (B, V, 3) of the Loop-subdivided coarse mesh S x_low in the dataset's
-frame (subdivided on the device from the low-res run, `FrameStore`), capsules (B, P, 3) in that same frame. `InputFeatures` stacks the named features into the network's
+frame (subdivided on the device from the low-res run, `FrameStore`), capsules (B, P, 3) in that same
+frame. `InputFeatures` stacks the named features into the network's
 (B, V, C) input; `FEATURE_CHANNELS` (model.feature_spec) says how many channels each name gives.
 """
 from __future__ import annotations

@@ -2,7 +2,8 @@
 checkpoints that a killed run resumes from, ending where an uninterrupted run with the same seed ends.
 
 Everything random after the network's initialisation is the epoch's draw of frames (model.sampler), drawn from
-its own generator whose state travels in the checkpoint with the sampler's; with `torch.use_deterministic_algorithms` a resumed run repeats the same
+its own generator whose state travels in the checkpoint with the sampler's;
+with `torch.use_deterministic_algorithms` a resumed run repeats the same
 arithmetic as an uninterrupted one.
 
 A checkpoint is a dict of tensors and plain Python values only (dicts, lists, str, int, float, bool, None), so

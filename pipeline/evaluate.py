@@ -275,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
     frames = task.frames(data, device)
     weights = LossWeights(**state["training"]["loss_weights"])
-    predicted_all = infer_all(model, mesh, frames.store, device)      # the network runs once: every split is scored on it
+    predicted_all = infer_all(model, mesh, frames.store, device)   # the network runs once: every split is scored on it
     splits = {split: torch.as_tensor(ids, device=device) for split, ids in data.splits().items()}
     errors = {"network": {split: displacement_errors(predicted_all, frames, ids, 8, weights)
                           for split, ids in splits.items()},

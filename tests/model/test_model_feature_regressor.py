@@ -22,7 +22,8 @@ def _store(vertices: np.ndarray, n_frames: int = 9) -> FrameStore:
     capsule = np.broadcast_to(np.array([[[0.0, -1.0, 0.0]]]), (n_frames, 1, 3))
     t32 = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=torch.float32)      # noqa: E731
     previous = previous_frames(np.array([0] * 4 + [1] * (n_frames - 4)))
-    return FrameStore(t32(positions), identity_subdivider(positions.shape[1]), torch.as_tensor(previous), t32(capsule), t32(capsule + [1.0, 0.0, 0.0]),
+    return FrameStore(t32(positions), identity_subdivider(positions.shape[1]), torch.as_tensor(previous),
+                      t32(capsule), t32(capsule + [1.0, 0.0, 0.0]),
                       torch.tensor([0.3]), torch.tensor([0.2]), t32(np.tile([0.0, -1.0, 0.0], (n_frames, 1))), 0.1)
 
 

@@ -170,7 +170,8 @@ def test_previous_frames_restart_at_each_sequence_and_batches_gather_history():
         previous_frames(np.array([1, 1, 2, 1]))
     positions = torch.arange(6, dtype=F64)[:, None, None].expand(6, 2, 3)          # frame f sits at f
     capsules = torch.zeros(6, 1, 3, dtype=F64)
-    source = FrameStore(positions, identity_subdivider(2), torch.as_tensor(previous), capsules, capsules, torch.ones(1), torch.ones(1),
+    source = FrameStore(positions, identity_subdivider(2), torch.as_tensor(previous), capsules, capsules,
+                        torch.ones(1), torch.ones(1),
                          torch.zeros(6, 3, dtype=F64), 0.5)
     batch = source.batch(torch.tensor([2, 3, 4]))
     assert batch.positions[:, 0, 0].tolist() == [2, 3, 4]

@@ -24,7 +24,8 @@ def _problem(grid):
     inputs = base + 0.05 * torch.randn(7, *base.shape, generator=generator)
     targets = 0.01 * torch.sin(7 * inputs)
     no_body = torch.zeros(len(inputs), 0, 3)
-    store = FrameStore(inputs, identity_subdivider(inputs.shape[1]), torch.arange(len(inputs)), no_body, no_body, torch.zeros(0), torch.zeros(0),
+    store = FrameStore(inputs, identity_subdivider(inputs.shape[1]), torch.arange(len(inputs)), no_body, no_body,
+                       torch.zeros(0), torch.zeros(0),
                        torch.tensor([[0.0, -1.0, 0.0]]).expand(len(inputs), 3), 0.1)
     return mesh, Frames(store, targets, torch.as_tensor(faces))
 
@@ -149,7 +150,8 @@ def test_no_op_of_a_training_step_reads_uninitialised_memory(grid):
     _, frames = _problem(grid)
     store = frames.store
     capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(len(store), 2, 3)
-    store = FrameStore(store.low, store.subdivide, torch.clamp(torch.arange(len(store)) - 1, min=0), capsule_a,
+    store = FrameStore(store.low, store.subdivide, torch.clamp(torch.arange(len(store)) - 1, min=0),
+                       capsule_a,
                        capsule_a + 0.3, torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]), store.gravity, 0.1)
     frames = Frames(store, frames.targets, frames.faces)
     spec = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")

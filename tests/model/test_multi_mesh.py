@@ -30,7 +30,8 @@ def _garment(name: str, rows: int, cols: int, n_frames: int, n_train: int, seed:
     inputs = base + 0.05 * torch.randn(n_frames, *base.shape, generator=generator)
     targets = 0.01 * torch.sin(7 * inputs) + 0.002 * seed
     no_body = torch.zeros(n_frames, 0, 3)
-    store = FrameStore(inputs, identity_subdivider(inputs.shape[1]), torch.arange(n_frames), no_body, no_body, torch.zeros(0), torch.zeros(0),
+    store = FrameStore(inputs, identity_subdivider(inputs.shape[1]), torch.arange(n_frames), no_body, no_body,
+                       torch.zeros(0), torch.zeros(0),
                        torch.tensor([[0.0, -1.0, 0.0]]).expand(n_frames, 3), 0.1)
     frames = Frames(store, targets, torch.as_tensor(faces))
     mesh = build_hierarchy(faces, len(vertices), 7, 3)

@@ -31,7 +31,8 @@ def test_an_encoder_decoder_comes_back_as_the_same_feature_regressor(grid):
     assert isinstance(again, FeatureRegressor) and again.spec == features
     frames = torch.as_tensor(vertices, dtype=torch.float32)[None].repeat(2, 1, 1)
     frames += 0.01 * torch.randn_like(frames)
-    store = FrameStore(frames, identity_subdivider(frames.shape[1]), torch.tensor([0, 0]), torch.zeros(2, 0, 3), torch.zeros(2, 0, 3), torch.zeros(0),
+    store = FrameStore(frames, identity_subdivider(frames.shape[1]), torch.tensor([0, 0]), torch.zeros(2, 0, 3),
+                       torch.zeros(2, 0, 3), torch.zeros(0),
                        torch.zeros(0), torch.tensor([[0.0, -1.0, 0.0]] * 2), 1 / 60)
     batch = store.batch(torch.arange(2))
     with torch.no_grad():

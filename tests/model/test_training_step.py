@@ -27,7 +27,8 @@ def _problem(grid, device):
     base = torch.as_tensor(vertices, dtype=torch.float32)
     positions = base + 0.05 * torch.randn(8, *base.shape, generator=generator)
     capsule_a = torch.tensor([[0.2, 0.0, 0.1], [0.5, 0.3, -0.1]]).expand(8, 2, 3)
-    store = FrameStore(positions, identity_subdivider(positions.shape[1], device), torch.tensor([0, 0, 1, 2, 4, 4, 5, 6]), capsule_a, capsule_a + 0.3,
+    store = FrameStore(positions, identity_subdivider(positions.shape[1], device),
+                       torch.tensor([0, 0, 1, 2, 4, 4, 5, 6]), capsule_a, capsule_a + 0.3,
                        torch.tensor([0.05, 0.1]), torch.tensor([0.08, 0.02]),
                        torch.tensor([[0.0, -1.0, 0.0]]).expand(8, 3), 0.1)
     on = {f.name: getattr(store, f.name) for f in dataclasses.fields(store)}
