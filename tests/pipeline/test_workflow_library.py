@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from pipeline.artifacts.dataset import DROPPED_NAMES, DROPPED_REASONS, SEQUENCE_NAMES, WINDOW_FIELDS
-from workflow_runs import REPO, build, tail, tiny_pants
+from workflow_runs import REPO, build, planned_jobs, snakemake, tail, tiny_pants
 
 SHARED = REPO.parent / "shared" / "mocap" / "cmu"
 GOOD = {"003/03_01.bvh.gz": "3", "007/07_01.bvh.gz": "7"}      # a walk on uneven terrain; a walk (held out)
@@ -84,6 +84,37 @@ def test_the_run_completes_trains_on_the_good_clips_and_lists_each_bad_one(libra
     held = workdir / "results/pants/sequences/held_out_007-07-01_w00"
     with h5py.File(held / "scene.h5") as f:
         frames = int(f.attrs["frames"])
-    with h5py.File(held / "sim_high.h5") as f:
-        # the lead-in (3 settle, 5 blend, 3 hold) and the clip's 2.6 s after its T-pose, at 60 frames a second
-        assert f["positions"].shape[0] == frames > 3 + 5 + 3 + 150 and np.isfinite(f["positions"][()]).all()
+    with h5py.File(held / "sim_high.h5") as f, h5py.File(workdir / "results/pants/settle/sim_high.h5") as settle:
+        # the lead-in (5 blend, 3 hold) and the clip's 2.6 s after its T-pose, at 60 frames a second, from the cloth
+        # settled once (3 frames at rest) for every window
+        assert f["positions"].shape[0] == frames > 5 + 3 + 150 and np.isfinite(f["positions"][()]).all()
+        assert settle["positions"].shape[0] == 3 + 1
+        np.testing.assert_array_equal(f["positions"][0], settle["positions"][-1])
+
+
+def test_the_plan_settles_once_then_steps_every_low_res_shard_before_the_high_res_ones(tmp_path):
+    """The settle sequence's jobs, the windows' jobs given its runs (`--settled`), and the priorities that put the
+    settle runs first and every low-res shard before any high-res one on a GPU taken one job at a time."""
+    if not SHARED.is_dir():
+        pytest.skip(f"the shared CMU library is not at {SHARED}")
+    config = tiny_pants(tmp_path, sequences=1, shard=2)
+    overlay = yaml.safe_load(config.read_text())
+    pants = overlay["profiles"]["cpu"]["scenes"]["pants"]
+    pants["drivers"]["mannequin"]["library"] = {"dir": str(SHARED), "manifest": None, "fps_column": None,
+                                               "frame_rates": {}, "window": 4.0, "hold_frames": 3}
+    pants["library_windows"] = {"include": ["003/03_01.bvh.gz"], "exclude": [], "max_clips": 0,
+                                "held_out_subjects": []}
+    config.write_text(yaml.safe_dump(overlay))
+    run = snakemake(tmp_path, "-n", "-p", "results/pants/", "--configfile", str(config), "--config", "device=cuda:0")
+    assert run.returncode == 0, tail(run)
+    jobs = planned_jobs(run)
+    assert jobs["settle_scene"]["shell"].split(" 2>&1")[0].endswith("results/pants/settle/scene.h5 --sequence settle")
+    # Shard 0 holds the program train_000 and the window, whose runs start from the settle runs of their level.
+    for level in ("low", "high"):
+        shard = jobs[f"simulate_{level}_batch_pants_000"]
+        assert f" --settled results/pants/settle/sim_{level}.h5 " in shard["shell"]
+        assert f"results/pants/settle/sim_{level}.h5" in shard["input"]
+    assert "--settled" not in jobs["simulate_low_batch_pants_001"]["shell"]     # the held-out walk: no window
+    priority = {name: int(job.get("priority", 0)) for name, job in jobs.items()}
+    assert priority["simulate_settle_low"] == priority["simulate_settle_high"] > priority["sequence"] \
+        == priority["simulate_low_batch_pants_000"] > priority["simulate_high_batch_pants_000"] == 0

@@ -74,11 +74,12 @@ def scene_products(scene):
     return workflow_paths.scene_products(scene, SEQUENCES[scene])
 
 
-def settled_runs(level):
-    """An input function: the settle run a sequence's simulate job starts from at `level`, if it is a window."""
-    return lambda w: workflow_paths.settled_runs(w.scene, [w.seq], level)
+def settled_runs(level, sequences=lambda w: [w.seq]):
+    """An input function: the settle run a simulate job of `sequences(wildcards)` (default: the job's sequence)
+    starts from at `level`, if one of them is a library's window."""
+    return lambda w: workflow_paths.settled_runs(w.scene, sequences(w), level)
 
 
-def settled_flag(level):
+def settled_flag(level, sequences=lambda w: [w.seq]):
     """A params function: the simulate stage's `--settled RUN` for settled_runs, or nothing."""
-    return lambda w: workflow_paths.settled_flag(w.scene, [w.seq], level)
+    return lambda w: workflow_paths.settled_flag(w.scene, sequences(w), level)

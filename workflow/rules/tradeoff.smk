@@ -36,9 +36,11 @@ TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained o
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
 TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
 
-# One sequence's high-res run held to the scene's low-res run of it (the rule's settings say which budget).
+# One sequence's high-res run held to the scene's low-res run of it (the rule's settings say which budget). A
+# library's window starts, at every budget, from the scene's settle run of its level (`params.settled`): the budgets
+# differ in how the windows are stepped, not in the cloth they start from.
 HIGH_RES_ALONE = ("{PY:q} -m pipeline.simulate high {input.settings:q} {input.scene:q} {input.subdiv:q} "
-                  "{input.sim_low:q} {output:q} --quiet 2>&1 | tee {log:q}")
+                  "{input.sim_low:q} {output:q} {params.settled:q} --quiet 2>&1 | tee {log:q}")
 
 wildcard_constraints:
     substeps="[1-9][0-9]*",
@@ -54,6 +56,10 @@ wildcard_constraints:
 def first_sequence_file(name):
     """The scene's first sequence's file `name`: what a timing run simulates alone."""
     return lambda w: f"results/{w.scene}/sequences/{SEQUENCES[w.scene][0]}/{name}"
+
+
+def first_sequence(wildcards):
+    return SEQUENCES[wildcards.scene][:1]
 
 
 def tradeoff_sequence_files(name):
@@ -93,29 +99,33 @@ rule tradeoff_simulation_settings:
 
 
 rule tradeoff_simulate_low:
-    input: settings=f"{TRADEOFF_POINT}/simulation.json", scene=f"{SEQ}/scene.h5"
+    input: settings=f"{TRADEOFF_POINT}/simulation.json", scene=f"{SEQ}/scene.h5", settled=settled_runs("low")
     output: f"{TRADEOFF_SEQ}/sim_low.h5"
     wildcard_constraints: scene=UNSHARDED
+    params: settled=settled_flag("low")
     log: f"{TRADEOFF_POINT}/logs/{{seq}}/simulate_low.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/{{seq}}/simulate_low.tsv"
     threads: 1
     resources: mem_mb=4000, gpu=gpus_on_device
     shell:
-        "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} --quiet 2>&1 | tee {log:q}"
+        "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} {params.settled:q} --quiet "
+        "2>&1 | tee {log:q}"
 
 
 # The first sequence alone, one solver world: the low-res timing of a sharded scene's budget.
 rule tradeoff_timing_low:
     input:
         settings=f"{TRADEOFF_POINT}/simulation.json",
-        scene=first_sequence_file("scene.h5"),
+        scene=first_sequence_file("scene.h5"), settled=settled_runs("low", first_sequence),
     output: f"{TRADEOFF_POINT}/timing/sim_low.h5"
+    params: settled=settled_flag("low", first_sequence)
     log: f"{TRADEOFF_POINT}/logs/timing_low.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/timing_low.tsv"
     threads: 1
     resources: mem_mb=4000, gpu=gpus_on_device
     shell:
-        "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} --quiet 2>&1 | tee {log:q}"
+        "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} {params.settled:q} --quiet "
+        "2>&1 | tee {log:q}"
 
 
 rule tradeoff_high_settings:
@@ -140,9 +150,10 @@ rule tradeoff_high_settings:
 rule tradeoff_simulate_high:
     input:
         settings=f"{TRADEOFF_HIGH}/simulation.json", scene=f"{SEQ}/scene.h5", subdiv=f"{OUT}/subdiv.h5",
-        sim_low=f"{SEQ}/sim_low.h5",
+        sim_low=f"{SEQ}/sim_low.h5", settled=settled_runs("high"),
     output: f"{TRADEOFF_HIGH}/sequences/{{seq}}/sim_high.h5"
     wildcard_constraints: scene=UNSHARDED
+    params: settled=settled_flag("high")
     log: f"{TRADEOFF_HIGH}/logs/{{seq}}/simulate_high.log"
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/{{seq}}/simulate_high.tsv"
     threads: 1
@@ -158,7 +169,9 @@ rule tradeoff_timing_high:
     input:
         settings=f"{TRADEOFF_HIGH}/simulation.json", subdiv=f"{OUT}/subdiv.h5",
         scene=first_sequence_file("scene.h5"), sim_low=first_sequence_file("sim_low.h5"),
+        settled=settled_runs("high", first_sequence),
     output: f"{TRADEOFF_HIGH}/timing/sim_high.h5"
+    params: settled=settled_flag("high", first_sequence)
     log: f"{TRADEOFF_HIGH}/logs/timing_high.log"
     benchmark: f"{TRADEOFF_HIGH}/benchmarks/timing_high.tsv"
     threads: 1
@@ -179,17 +192,21 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             name: workflow_paths.batch_rule_name("tradeoff_simulate_low", _scene, _k)
             input:
                 settings=f"{_point}/simulation.json",
-                scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names]
+                scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names],
+                settled=workflow_paths.settled_runs(_scene, _names, "low"),
             output: [f"{_point}/sequences/{n}/sim_low.h5" for n in _names]
             params:
                 files=lambda w, names=_names, scene=_scene: [
                     p for n in names for p in (f"results/{scene}/sequences/{n}/scene.h5",
-                                               f"results/{scene}/tradeoff/s{w.substeps}/sequences/{n}/sim_low.h5")]
+                                               f"results/{scene}/tradeoff/s{w.substeps}/sequences/{n}/sim_low.h5")],
+                settled=workflow_paths.settled_flag(_scene, _names, "low"),
             log: f"{_point}/logs/shard_{_k:03d}/simulate_low.log"
             benchmark: f"{_point}/benchmarks/shard_{_k:03d}/simulate_low.tsv"
             threads: 1
             resources: mem_mb=4000 + 500 * len(_names), gpu=_gpu
-            shell: "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} --quiet 2>&1 | tee {log:q}"
+            shell:
+                "{PY:q} -m pipeline.simulate low {input.settings:q} {params.files:q} {params.settled:q} --quiet 2>&1 "
+                "| tee {log:q}"
 
         rule:
             name: workflow_paths.batch_rule_name("tradeoff_simulate_high", _scene, _k)
@@ -197,20 +214,22 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
                 settings=f"{_high}/simulation.json", subdiv=f"{_out}/subdiv.h5",
                 scenes=[f"{_out}/sequences/{n}/scene.h5" for n in _names],
                 sim_low=[f"{_out}/sequences/{n}/sim_low.h5" for n in _names],
+                settled=workflow_paths.settled_runs(_scene, _names, "high"),
             output: [f"{_high}/sequences/{n}/sim_high.h5" for n in _names]
             params:
                 files=lambda w, names=_names, scene=_scene: [
                     p for n in names for p in (
                         f"results/{scene}/sequences/{n}/scene.h5", f"results/{scene}/subdiv.h5",
                         f"results/{scene}/sequences/{n}/sim_low.h5",
-                        tradeoff_grid.high_res_file(scene, (w.hsubsteps, w.hiterations, w.schedule), n))]
+                        tradeoff_grid.high_res_file(scene, (w.hsubsteps, w.hiterations, w.schedule), n))],
+                settled=workflow_paths.settled_flag(_scene, _names, "high"),
             log: f"{_high}/logs/shard_{_k:03d}/simulate_high.log"
             benchmark: f"{_high}/benchmarks/shard_{_k:03d}/simulate_high.tsv"
             threads: high_batch_threads(_scene, len(_names))
             resources: mem_mb=8000 + 2000 * len(_names), gpu=_gpu
             shell:
-                "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} --threads {threads} --quiet "
-                "2>&1 | tee {log:q}"
+                "{PY:q} -m pipeline.simulate high {input.settings:q} {params.files:q} {params.settled:q} "
+                "--threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 # The sequence's own scene.h5 and high-res run, linked (relative) into the budget's sequence folder.
