@@ -125,7 +125,7 @@ def simulate(level: Level, settings: dict, groups: Sequence[tuple[str, ...]], de
     if not quiet:
         print(f"{batch.label}: the last chunks' measures and writing after stepping: "
               f"{time.perf_counter() - stepped_done:.1f} s", file=sys.stderr)
-        if batch.stepped is not None and (said := batch.stepped()):
+        if batch.summary is not None and (said := batch.summary()):
             print(f"{batch.label}: {said}", file=sys.stderr)
     runs = [batch.run(w, positions[:n, w], solve_ms[:n], setup) for w, n in enumerate(batch.n_frames)]
     if batch.tangled is not None:

@@ -33,7 +33,7 @@ class PreparedBatch:
     tangled: Callable[[np.ndarray], str] | None = None
     # a world's positions (F, V, 3) -> why its run is unusable though it finished (a cloth caught and stretched
     # between limbs), "" if it is not: the stage drops such a run of a motion library's window
-    stepped: Callable[[], str] | None = None
+    summary: Callable[[], str] | None = None
     # what the solver says of the stepping once it is done, for the log (the cloth: its self-contact lists' growth)
 
 

@@ -196,7 +196,7 @@ def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, 
                              batch_worlds=solver.worlds, setup_seconds=setup_seconds)
 
     return PreparedBatch("low-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run,
-                         tangled=tangle_check(rest, faces), stepped=lambda: contact_growth(solver))
+                         tangled=tangle_check(rest, faces), summary=lambda: contact_growth(solver))
 
 
 def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
@@ -281,7 +281,7 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
                              setup_seconds=setup_seconds)
 
     return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure,
-                         stepped=lambda: contact_growth(solver))
+                         summary=lambda: contact_growth(solver))
 
 
 LEVELS = {
