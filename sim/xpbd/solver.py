@@ -45,9 +45,11 @@ class ClothState:
         return self.positions.numpy().astype(np.float64)
 
     def read_world_positions(self) -> np.ndarray:
-        """(B, V, 3) float32 copy on the host (on the CPU device `numpy()` is a view of the live array, which the
-        next step would overwrite)."""
-        return self.positions.numpy().reshape(self.worlds, -1, 3).copy()
+        """(B, V, 3) float32 copy on the host. On the CPU device `numpy()` is a view of the live array, which the
+        next step would overwrite, so it is copied; on CUDA it is a copy already (a second one cost ~2 ms a frame of
+        64 paper-pants worlds, 9 MB)."""
+        host = self.positions.numpy().reshape(self.worlds, -1, 3)
+        return host.copy() if self.positions.device.is_cpu else host
 
     def read_velocities(self) -> np.ndarray:
         return self.velocities.numpy().astype(np.float64)
