@@ -203,11 +203,13 @@ def main(argv: Sequence[str] | None = None) -> None:
             remaining.append(group)
     runs = []
 
+    # Both from a sequence still to be stepped: a dropped sequence's scene file holds no mesh (and a shard of a
+    # library's windows, batched by length, may begin with one).
     @functools.cache
     def source_mesh() -> str:       # asked for once the adapter has checked the scene files
-        return mesh_fingerprint(*read_rest_mesh(groups[0][0]))
+        return mesh_fingerprint(*read_rest_mesh(remaining[0][0]))
 
-    settled = settled_cloth(args.settled, groups[0][0]) if args.settled else None
+    settled = settled_cloth(args.settled, remaining[0][0]) if args.settled and remaining else None
     while remaining and not runs:
         try:
             with contextlib.ExitStack() as outputs:

@@ -13,9 +13,11 @@ import yaml
 
 from pipeline import scene as scene_stage
 from pipeline import simulate, subdivide
-from pipeline.artifacts.scene import read_sequence
-from pipeline.core.config import resolve_scene, simulation_settings, write_settings
+from pipeline.artifacts.scene import read_sequence, write_dropped_scene
+from pipeline.core.config import LEARNING_ONLY, read_settings, resolve_scene, simulation_settings, write_settings
+from pipeline.core.h5 import dropped_reason
 from pipeline.solvers.xpbd import tangle_check
+from scenes.registry import build_rest
 from stage_inputs import stage
 from workflow_runs import REPO, tiny_pants
 
@@ -102,3 +104,19 @@ def test_a_window_without_its_settle_run_is_refused(runs, tmp_path, capsys):
     said = capsys.readouterr().err
     assert f"{window / 'scene.h5'}: starts from the scene's settled cloth" in said and "--settled" in said
     assert not (tmp_path / "sim_low.h5").exists()
+
+
+def test_a_batch_that_begins_with_a_dropped_window_steps_the_others_as_before(runs, tmp_path):
+    """Shards of windows are batched by length, so one may begin with a window dropped at the scene stage (whose
+    scene file holds no mesh): the others are stepped, from the settled cloth, exactly as alone."""
+    root, settings = runs
+    window = root / "sequences" / WINDOW
+    dropped = tmp_path / "dropped" / "scene.h5"
+    dropped.parent.mkdir()
+    scene_settings = read_settings(settings, unread=LEARNING_ONLY)
+    write_dropped_scene(dropped, build_rest(scene_settings), "train_003-03-01_w01", "cannot be played", None,
+                        scene_settings)
+    stage(simulate.main, "low", settings, dropped, dropped.parent / "sim_low.h5", window / "scene.h5",
+          tmp_path / "sim_low.h5", "--settled", root / "settle" / "sim_low.h5", "--quiet")
+    assert dropped_reason(dropped.parent / "sim_low.h5").endswith("dropped: cannot be played")
+    np.testing.assert_array_equal(positions(tmp_path / "sim_low.h5"), positions(window / "sim_low.h5"))

@@ -87,9 +87,11 @@ def test_sequences_follow_the_programs_and_hold_whole_subjects_out(folder):
     assert [sequence_role(n) for n in names] == [TRAIN] * 6 + [HELD_OUT] * 4
     assert [is_window_name(n) for n in names] == [False, False] + [True] * 8
     assert window_key(names[-1]) == "016-16-02_w00"
-    # Training and held-out sequences shard apart, in order.
-    assert sequence_shards(garment_settings(folder, held=["16"])) == [names[:2], names[2:4], names[4:6], names[6:8],
-                                                                      names[8:]]
+    # Training and held-out sequences shard apart, the programs in order, the windows by length: the 3 s hop
+    # before the walk's 6.7 s windows, the unreadable file's empty window before the salsa's.
+    by_length = names[:2] + names[5:6] + names[2:5] + names[9:] + names[6:9]
+    assert sequence_shards(garment_settings(folder, held=["16"])) == [by_length[:2], by_length[2:4], by_length[4:6],
+                                                                      by_length[6:8], by_length[8:]]
     # Selection: globs and the first max_clips files; without a held-out subject everything trains.
     assert sequence_names(garment_settings(folder, include=["016/*"], exclude=["*.gz"])) == [
         "train_000", "train_001", "train_016-16-01_w00", "train_016-16-01_w01", "train_016-16-01_w02"]
