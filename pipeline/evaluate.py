@@ -442,6 +442,9 @@ def _training_option_rows(training: dict) -> list[list[str]]:
         subjects = sorted({str(s) for s in sequences.get("subjects", []) if s}, key=lambda s: (len(s), s))
         rows.append(["sequences trained on", f"{len(sequences['names'])}" + (
             f" ({len(subjects)} subject(s): {', '.join(subjects)})" if subjects else "")])
+    frames = training.get("train_frames")
+    if isinstance(frames, int) and not isinstance(frames, bool):
+        rows.append(["frames trained on", f"{frames:,}"])
     return rows
 
 

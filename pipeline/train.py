@@ -92,6 +92,18 @@ def trained_frames(data: LearningData, train_on: list[str], dataset: str) -> np.
     return np.sort(np.concatenate([data.train, data.held_out if "held_out" in train_on else data.held_out[:0]]))
 
 
+def sequences_within(data: LearningData, ids: np.ndarray, budget: int, seed: int) -> np.ndarray:
+    """The frames of whole training sequences, drawn in a seeded order, while their total stays within `budget`
+    (at least one sequence): less of the same motion, for the gain against training frames. Held-out frames among
+    `ids` (an oracle's) are all kept."""
+    held = np.isin(ids, data.held_out)
+    sequences = np.unique(data.sequence[ids[~held]])
+    order = np.random.default_rng(seed).permutation(sequences)
+    sizes = np.array([np.count_nonzero(data.sequence[ids[~held]] == k) for k in order])
+    kept = order[:max(1, int(np.searchsorted(np.cumsum(sizes), budget, side="right")))]
+    return ids[held | np.isin(data.sequence[ids], kept)]
+
+
 def trained_sequences(dataset: str, data: LearningData, ids: np.ndarray) -> dict[str, list[str]]:
     """The sequences with frames among `ids`: their names and, for a dataset of motion-library windows, each
     one's library file and subject ("" for a sequence that plays none)."""
@@ -160,6 +172,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                              "half the free memory)")
     parser.add_argument("--train-on", type=split_list, default=["train"], metavar="train[,held_out]",
                         help="the splits trained on; train,held_out: the oracle of the held-out motion")
+    parser.add_argument("--train-frames", type=int,
+                        help="train on whole training sequences drawn (seeded) up to this many frames: less of the "
+                             "same motion (default: every training frame)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
@@ -169,6 +184,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError("--epochs and --batch-size must be >= 1 and --lr finite and > 0")
     if not all(0 <= w < math.inf for w in (args.loss_l1, args.loss_l2, args.loss_normal)):
         raise PipelineError("loss weights must be finite and >= 0")
+    if args.train_frames is not None and args.train_frames < 1:
+        raise PipelineError(f"--train-frames {args.train_frames}: give at least 1")
     if not 0 <= args.input_noise < math.inf:
         raise PipelineError("--input-noise must be finite and >= 0")
     try:
@@ -194,6 +211,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     spec, model, mesh = built.spec, built.model, built.mesh
     parameter_count = model.net.parameter_count()
     trained = trained_frames(data, args.train_on, args.dataset)
+    if args.train_frames is not None:
+        trained = sequences_within(data, trained, args.train_frames, args.seed)
     reader = FrameReader(args.dataset) if stream else None
     try:
         frames = (task.streamed_frames(data, reader, args.batch_size, device, args.sample_buffer) if stream
@@ -215,7 +234,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             on_batch = batch_reporter(bar, args.epochs, steps_per_epoch)
             identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(),
                         "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
-                        "train_on": args.train_on}
+                        "train_on": args.train_on, "train_frames": args.train_frames}
             try:
                 history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
                               settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
@@ -230,7 +249,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
                 "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
                 "input_noise": args.input_noise, "sampling": dataclasses.asdict(sampling),
-                "streamed": stream, "train_on": args.train_on,
+                "streamed": stream, "train_on": args.train_on, "train_frames": len(trained),
                 "sequences": trained_sequences(args.dataset, data, trained),
                 "device": str(device), "loss_weights": dataclasses.asdict(settings.weights),
                 "final_train_loss": history.train["total"][-1], "final_test_loss": history.test["total"][-1],

@@ -11,6 +11,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from pipeline.core.config import load_settings, require_complete_settings
 from pipeline.core.errors import PipelineError
+from pipeline.core.gpu_slots import claim_gpu
 
 
 def run(main: Callable[[Sequence[str] | None], None], argv: Sequence[str] | None = None) -> None:
@@ -79,11 +80,14 @@ def settings_of(argv: Sequence[str] | None) -> str | None:
 
 def check_device(device: str, library: str, cuda_count: Callable[[], int]) -> None:
     """Refuse a device that is not `cpu`, `cuda` or `cuda:N`, or a CUDA device beyond the `cuda_count()` that
-    `library` (torch, Warp) sees, before the library itself fails on it with a traceback."""
+    `library` (torch, Warp) sees, before the library itself fails on it with a traceback. A CUDA device of a job
+    that shares several GPUs with others is the free one it takes first (pipeline.core.gpu_slots), before the
+    library reads which GPUs it may see."""
     match = re.fullmatch(r"cpu|cuda(?::([0-9]+))?", device)
     if match is None:
         raise PipelineError(f"device '{device}' is not cpu, cuda or cuda:N (--device)")
     if device != "cpu":
+        claim_gpu()
         count = cuda_count()
         if int(match[1] or 0) >= count:
             raise PipelineError(f"device '{device}' requested but {library} finds {count} CUDA device(s) "

@@ -1,11 +1,13 @@
 """Issue 35, item 4, at the stages: `train` streams a dataset that does not fit --device-cache-gb from disk and
 trains what it trains with the dataset resident, bit for bit; --train-on train,held_out (the oracle) is recorded
 in model.pt and train.h5 and the evaluation's report says it plainly; model.pt lists the sequences trained on;
-a dataset.h5 of the old layout (S x_low stored as `input`) is refused with one error line."""
+a dataset.h5 of the old layout (S x_low stored as `input`) is refused with one error line; --train-frames trains
+on whole sequences within a budget (the study's curve against training frames)."""
 from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import h5py
 import numpy as np
@@ -62,7 +64,7 @@ def test_a_streamed_training_is_the_resident_one_bit_for_bit(sheets):
 
 
 def test_the_oracle_is_recorded_and_the_report_says_the_held_out_frames_were_trained_on(sheets):
-    state = _train(sheets, "oracle", "--train-on", "train,held_out")
+    state = _train(sheets, "oracle", "--train-on", "train,held_out", "--train-frames", "1")  # one sequence at least
     assert state["training"]["train_on"] == ["train", "held_out"]
     assert state["training"]["sequences"]["names"] == ["train_000", "held_out_000"]
     with h5py.File(sheets / "oracle" / "train.h5") as f:
@@ -74,6 +76,7 @@ def test_the_oracle_is_recorded_and_the_report_says_the_held_out_frames_were_tra
     report = (out / "report.md").read_text()
     assert "The held-out frames were trained on" in report and "train and held-out: an oracle" in report
     assert "| sequences trained on | 2 |" in report
+    assert f"| frames trained on | {state['training']['train_frames']} |" in report
 
 
 def test_a_dataset_of_the_old_layout_is_refused_with_one_error_line(sheets, tmp_path, capsys):
@@ -89,3 +92,20 @@ def test_a_dataset_of_the_old_layout_is_refused_with_one_error_line(sheets, tmp_
     assert exit_info.value.code == 2 and len(lines) == 1
     assert lines[0].startswith(f"error: {old}: a dataset of an older pipeline.dataset") and "make it again" in lines[0]
     assert not (tmp_path / "model.pt").exists()
+
+
+def test_train_frames_keeps_whole_sequences_within_the_budget_and_every_held_out_frame():
+    # Sequences 0-3 of 5, 3, 4, 2 training frames, sequence 4 held out (3 frames); ids as an oracle trains on.
+    sequence = np.repeat([0, 1, 2, 3, 4], [5, 3, 4, 2, 3])
+    data = SimpleNamespace(sequence=sequence, held_out=np.arange(14, 17))
+    ids = np.arange(17)
+    for budget in (1, 2, 6, 9, 14, 100):
+        kept = train.sequences_within(data, ids, budget, seed=3)
+        trained = np.setdiff1d(kept, data.held_out)
+        sizes = np.bincount(sequence[trained], minlength=4)[:4]
+        assert set(np.arange(14, 17)) <= set(kept)                                   # the oracle's frames stay
+        assert all(sizes[k] in (0, [5, 3, 4, 2][k]) for k in range(4))                # whole sequences only
+        assert sizes.sum() <= budget or np.count_nonzero(sizes) == 1                # within it, or the first one
+        if budget >= 14:
+            assert sizes.sum() == 14
+    assert np.array_equal(train.sequences_within(data, ids, 7, seed=3), train.sequences_within(data, ids, 7, seed=3))

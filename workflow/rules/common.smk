@@ -1,9 +1,11 @@
 # Shared by the rule files: every scene's resolved settings and sequences, the wildcard constraints, the paths
 # and the functions the rules read (resources from a scene's settings, what `results/<scene>/` stands for). The
 # paths' logic is pipeline.workflow_paths'; the functions here feed it a scene's settings and sequences.
+import os
 import sys
 
 from pipeline import workflow_paths
+from pipeline.core import gpu_slots
 from pipeline.core.config import resolve_scene, shared_settings, simulation_settings
 from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, sequence_names, sequence_shards
 
@@ -19,6 +21,9 @@ OUT = "results/{scene}"
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
 # The scenes with a motion library, whose windows start from their settle sequence's runs (results/<scene>/settle/)
 LIBRARY_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if library_of(settings) is not None)
+
+# Several GPUs: each CUDA job takes a free one (pipeline.core.gpu_slots), told how many through its environment.
+os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))
 
 wildcard_constraints:
     scene=workflow_paths.one_of(SETTINGS),

@@ -1,0 +1,69 @@
+"""Several GPUs shared by a workflow's jobs: each CUDA job takes one that no other job holds.
+
+Snakemake counts GPUs (`--resources gpu=N`) but does not say which one a job gets, so without this every job
+would open cuda:0. With `gpus: N` (N > 1) in the workflow config the workflow exports LEARNED_CLOTH_GPUS=N; a
+stage about to touch CUDA (pipeline.core.cli.check_device) then locks the first free GPU's lock file and sees
+only that GPU (CUDA_VISIBLE_DEVICES), as cuda:0. The lock is an flock on an open file: the kernel releases it when
+the process ends, a crash or a kill included, so no slot is ever left taken. Where CUDA_VISIBLE_DEVICES already
+lists GPUs (a scheduler's allocation) the slots are the first N of those.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from pipeline.core.errors import PipelineError
+
+GPUS_VARIABLE = "LEARNED_CLOTH_GPUS"
+LOCKS_VARIABLE = "LEARNED_CLOTH_GPU_LOCKS"    # the lock files' folder (default: one per user under the temp dir)
+
+_held: tuple[str, int] | None = None         # (the GPU's id, the locked file's descriptor) for the process's life
+
+
+def claim_gpu(poll_seconds: float = 0.5) -> str | None:
+    """Take a free GPU of LEARNED_CLOTH_GPUS and make it the only one CUDA shows this process; its id, or None
+    where the variable is absent or 1. Waits while every slot is held (more CUDA jobs than `--resources gpu`)."""
+    global _held
+    if _held is not None:
+        return _held[0]
+    ids = _slot_ids(os.environ.get(GPUS_VARIABLE), os.environ.get("CUDA_VISIBLE_DEVICES"))
+    if ids is None:
+        return None
+    folder = Path(os.environ.get(LOCKS_VARIABLE) or Path(tempfile.gettempdir()) / f"learned-cloth-gpus-{os.getuid()}")
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    announced = False
+    while True:
+        for gpu in ids:
+            fd = os.open(folder / f"gpu-{gpu}.lock", os.O_RDWR | os.O_CREAT, 0o600)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                continue
+            _held = (gpu, fd)
+            os.environ["CUDA_VISIBLE_DEVICES"] = gpu
+            os.environ[GPUS_VARIABLE] = "1"     # what this process starts shares its GPU, as torch's own workers do
+            print(f"GPU {gpu} (a free one of {len(ids)}: {GPUS_VARIABLE}) is this job's cuda:0", file=sys.stderr)
+            return gpu
+        if not announced:
+            print(f"all {len(ids)} GPUs held by other jobs: waiting for one", file=sys.stderr)
+            announced = True
+        time.sleep(poll_seconds)
+
+
+def _slot_ids(count_text: str | None, visible: str | None) -> list[str] | None:
+    """The GPU ids to share, or None when there is nothing to choose (no count, a count of 1)."""
+    if count_text is None or count_text.strip() in ("", "1"):
+        return None
+    if not count_text.strip().isdigit() or int(count_text) < 1:
+        raise PipelineError(f"{GPUS_VARIABLE}={count_text!r}: give a whole number of GPUs, at least 1")
+    count = int(count_text)
+    ids = [gpu.strip() for gpu in visible.split(",") if gpu.strip()] if visible is not None else \
+        [str(gpu) for gpu in range(count)]
+    if len(ids) < count:
+        raise PipelineError(f"{GPUS_VARIABLE}={count} but CUDA_VISIBLE_DEVICES={visible!r} lists {len(ids)} GPU(s)")
+    return ids[:count]

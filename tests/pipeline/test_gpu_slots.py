@@ -1,0 +1,57 @@
+"""Several GPUs shared by jobs: each process takes a GPU no other live process holds, waits when all are held, and
+gets its GPU back the moment its holder ends (crash or kill included). Checked with real processes and flock."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from pipeline.core.errors import PipelineError
+from pipeline.core.gpu_slots import GPUS_VARIABLE, LOCKS_VARIABLE, _slot_ids
+
+# A job: take a GPU, say which (and what its children would be told), then live until stdin closes.
+JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu; gpu = claim_gpu(poll_seconds=0.05); "
+       "print(gpu, os.environ['CUDA_VISIBLE_DEVICES'], os.environ['LEARNED_CLOTH_GPUS'], flush=True); "
+       "sys.stdin.read()")
+
+
+def start_job(tmp_path, count, visible=None):
+    env = {**os.environ, GPUS_VARIABLE: str(count), LOCKS_VARIABLE: str(tmp_path / "locks")}
+    env.pop("CUDA_VISIBLE_DEVICES", None)
+    if visible is not None:
+        env["CUDA_VISIBLE_DEVICES"] = visible
+    return subprocess.Popen([sys.executable, "-c", JOB], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def test_jobs_take_distinct_gpus_wait_and_get_a_released_one(tmp_path):
+    first, second = start_job(tmp_path, 2), start_job(tmp_path, 2)
+    first_gpu, second_gpu = first.stdout.readline().split()[0], second.stdout.readline().split()[0]
+    assert {first_gpu, second_gpu} == {"0", "1"}
+    third = start_job(tmp_path, 2)           # both held: it waits
+    assert "waiting" in third.stderr.readline()
+    assert third.poll() is None
+    first.kill()                            # a killed holder's lock goes with it
+    first.wait()
+    # The freed GPU, seen alone; its own children are not told to share again.
+    assert third.stdout.readline().split() == [first_gpu, first_gpu, "1"]
+    for job in (second, third):
+        job.communicate("")
+
+
+def test_slots_are_the_first_of_a_schedulers_gpus(tmp_path):
+    job = start_job(tmp_path, 2, visible="3,5,7")
+    assert job.stdout.readline().split()[:2] == ["3", "3"]
+    job.communicate("")
+
+
+@pytest.mark.parametrize("count, visible, ids", [(None, None, None), ("1", "0,1", None), ("2", None, ["0", "1"]),
+                                                 ("2", "4,6,8", ["4", "6"])])
+def test_slot_ids(count, visible, ids):
+    assert _slot_ids(count, visible) == ids
+
+
+@pytest.mark.parametrize("count, visible", [("two", None), ("0", None), ("-1", None), ("3", "0,1")])
+def test_bad_counts_are_one_error(count, visible):
+    with pytest.raises(PipelineError, match=GPUS_VARIABLE):
+        _slot_ids(count, visible)
