@@ -47,7 +47,7 @@ import torch
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
 from model.sampler import Sampler, SampleSettings
-from model.training import CheckpointError, TrainSettings, fit
+from model.training import CheckpointError, TrainSettings, fit, split_batch_size
 from model.training_step import LR_SCHEDULES
 from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, LearningData, frame_bytes, load_dataset,
                                         read_frame_origins, read_library_windows)
@@ -215,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         trained = sequences_within(data, trained, args.train_frames, args.seed)
     reader = FrameReader(args.dataset) if stream else None
     try:
-        frames = (task.streamed_frames(data, reader, args.batch_size, device, args.sample_buffer) if stream
+        frames = (task.streamed_frames(data, reader, split_batch_size(args.batch_size), device, args.sample_buffer) if stream
                   else task.frames(data, device))
         if stream and not args.quiet:
             print(f"train: {n_bytes / 2 ** 30:.2f} GiB of frames streamed from {args.dataset} (more than "

@@ -16,7 +16,7 @@ from model.features import FrameStore, Subdivider, previous_frames
 from model.networks import NetworkSpec, build_network
 from model.sampler import Sampler, SampleSettings
 from model.streaming import FrameSource, StreamedFrames
-from model.training import Frames, TrainSettings, fit
+from model.training import Frames, TrainSettings, fit, split_batch_size
 from model_meshes import build_hierarchy, grid_mesh
 
 N_FRAMES = 40
@@ -97,8 +97,8 @@ def _frames(sheet, streamed: bool) -> Frames:
     if streamed:
         source = FrameSource(lambda first, stop: (low[first:stop], targets[first:stop]), N_FRAMES, previous,
                              no_body, no_body, np.zeros(0, np.float32), np.zeros(0, np.float32), gravity, 0.1)
-        return StreamedFrames.create(source, subdivide, torch.as_tensor(faces), S.shape[0], 3, torch.device("cpu"),
-                                     window=7)
+        return StreamedFrames.create(source, subdivide, torch.as_tensor(faces), S.shape[0], split_batch_size(3),
+                                     torch.device("cpu"), window=7)
     t = torch.as_tensor
     store = FrameStore(t(low), subdivide, t(previous), t(no_body), t(no_body), torch.zeros(0), torch.zeros(0),
                        t(gravity), 0.1)
