@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import re
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 from pipeline.core.config import application_settings
 from pipeline.core.errors import PipelineError
@@ -69,6 +69,15 @@ def settled_runs(scene: str, sequences: Iterable[str], level: str) -> list[str]:
 def settled_flag(scene: str, sequences: Iterable[str], level: str) -> list[str]:
     """The simulate stage's `--settled RUN` for settled_runs, or nothing."""
     return [flag for run in settled_runs(scene, sequences, level) for flag in ("--settled", run)]
+
+
+def sequences_or_error(scene: str, names: Callable[[], list[str]]) -> list[str]:
+    """A scene's sequence names; a motion library that cannot be listed (its folder or manifest missing or
+    unreadable: scenes.library raises ValueError naming the path) becomes one error naming the scene."""
+    try:
+        return names()
+    except ValueError as err:
+        raise PipelineError(f"scene '{scene}': {err}") from None
 
 
 def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> None:

@@ -105,3 +105,16 @@ def test_the_workflows_helper_modules_add_no_import_to_the_snakefiles_own():
     added, heavy = json.loads(run.stdout)
     packages = {"experiments", "experiments.tradeoff", "experiments.study", "experiments.multi"}
     assert set(added) == set(modules) | packages and not heavy
+
+
+def test_a_library_that_cannot_be_listed_is_one_error_naming_the_scene_and_the_folder(tmp_path):
+    from scenes.sequences import sequence_names
+    settings = {"sequences": 0, "mesh": {"generator": "garment"}, "library_windows": {"include": ["*"], "exclude": [], "max_clips": 0,
+                                                    "held_out_subjects": []},
+                "drivers": {"mannequin": {"library": {"dir": str(tmp_path / "absent"), "manifest": None,
+                                                      "fps_column": None, "frame_rates": {}, "window": 10.0,
+                                                      "hold_frames": 100}}}}
+    with pytest.raises(PipelineError, match=f"scene 'pants': {re.escape(str(tmp_path / 'absent'))}: motion library "
+                                            f"folder does not exist"):
+        workflow_paths.sequences_or_error("pants", lambda: sequence_names(settings))
+    assert workflow_paths.sequences_or_error("pants", lambda: ["train_000"]) == ["train_000"]

@@ -13,7 +13,9 @@ from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, seque
 SETTINGS = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
 # Each scene's sequences (train_000, ..., held_out_000, ...): the count is in SETTINGS, not in settings.json, so
 # raising it adds sequences without touching an input of those already made.
-SEQUENCES = {scene: sequence_names(settings) for scene, settings in SETTINGS.items()}
+# A library that cannot be listed (no folder, no manifest) is one error naming the scene, before any job starts.
+SEQUENCES = {scene: workflow_paths.sequences_or_error(scene, lambda: sequence_names(settings))
+             for scene, settings in SETTINGS.items()}
 # The interpreter running Snakemake (the project's venv): jobs run the stages as `{PY} -m pipeline.<stage>`,
 # which works from any working directory once the project is installed (`pip install -e .`).
 PY = sys.executable
