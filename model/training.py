@@ -34,6 +34,10 @@ TERMS = ("total", *LOSS_TERMS)
 # training batch, and at a batch of 3 the pass is launch-bound: with a sample share of 0.1 an epoch trains on a
 # tenth of the training frames but scores every test frame (as many as that tenth).
 SPLIT_BATCH = 32
+# The test frames scored after each epoch: at most this many, evenly spaced through the split. The per-epoch test
+# loss is a monitor (the evaluate stage scores every frame); a library's 12k test frames would otherwise cost each
+# epoch of a tenth of the training frames as much again, and a study point's many short epochs far more.
+MONITORED_TEST_FRAMES = 4096
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,6 +185,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, sampler, on_notice,
                           train_ids.device)
     steps_per_epoch = -(-sampler.frames_per_epoch // settings.batch_size)
+    monitored = monitored_test_frames(test_ids)
     for epoch in range(history.epochs_done, settings.epochs):
         start = time.perf_counter()
         model.train()
@@ -201,7 +206,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         for name, total in zip(TERMS, torch.stack(weighted).sum(dim=0).tolist()):
             history.train[name].append(total / len(order))
         model.eval()
-        test = frames.errors(model, mesh, test_ids, split_batch_size(settings.batch_size), settings.weights)
+        test = frames.errors(model, mesh, monitored, split_batch_size(settings.batch_size), settings.weights)
         for name in TERMS:
             history.test[name].append(test[name])
         history.epoch_seconds.append(time.perf_counter() - start)
@@ -212,6 +217,13 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
                              "noise": _noise_state(train_ids.device), "history": dataclasses.asdict(history)})
     model.eval()
     return history
+
+
+def monitored_test_frames(test_ids: torch.Tensor) -> torch.Tensor:
+    """The test frames each epoch scores: all of them up to MONITORED_TEST_FRAMES, else that many evenly spaced."""
+    if len(test_ids) <= MONITORED_TEST_FRAMES:
+        return test_ids
+    return test_ids[torch.linspace(0, len(test_ids) - 1, MONITORED_TEST_FRAMES).round().long().to(test_ids.device)]
 
 
 def split_batch_size(batch_size: int) -> int:

@@ -104,6 +104,15 @@ def sequences_within(data: LearningData, ids: np.ndarray, budget: int, seed: int
     return ids[held | np.isin(data.sequence[ids], kept)]
 
 
+def same_steps(every: int, kept: int, epochs: int, sampling: SampleSettings) -> tuple[int, SampleSettings]:
+    """Epochs and sampling over `kept` frames that visit as many frames as `epochs` of `sampling` over `every`:
+    the share rises first (up to every frame an epoch: fewer epochs, fewer per-epoch test passes), then the epochs."""
+    target = epochs * Sampler(every, sampling).frames_per_epoch
+    share = min(1.0, sampling.share * every / kept)
+    raised = dataclasses.replace(sampling, share=share)
+    return max(1, round(target / Sampler(kept, raised).frames_per_epoch)), raised
+
+
 def trained_sequences(dataset: str, data: LearningData, ids: np.ndarray) -> dict[str, list[str]]:
     """The sequences with frames among `ids`: their names and, for a dataset of motion-library windows, each
     one's library file and subject ("" for a sequence that plays none)."""
@@ -173,8 +182,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--train-on", type=split_list, default=["train"], metavar="train[,held_out]",
                         help="the splits trained on; train,held_out: the oracle of the held-out motion")
     parser.add_argument("--train-frames", type=int,
-                        help="train on whole training sequences drawn (seeded) up to this many frames: less of the "
-                             "same motion (default: every training frame)")
+                        help="train on whole training sequences drawn (seeded) up to this many frames, for as many "
+                             "optimiser steps as every frame would take (the sample share, then the epochs, raised): "
+                             "less of the same motion, nothing else changed (default: every training frame)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
@@ -212,7 +222,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parameter_count = model.net.parameter_count()
     trained = trained_frames(data, args.train_on, args.dataset)
     if args.train_frames is not None:
+        every = len(trained)
         trained = sequences_within(data, trained, args.train_frames, args.seed)
+        args.epochs, sampling = same_steps(every, len(trained), args.epochs, sampling)
+        if not args.quiet:
+            print(f"train: {len(trained):,} of {every:,} frames (--train-frames {args.train_frames}), {args.epochs} "
+                  f"epochs at a sample share of {sampling.share:g}: the steps of every frame", file=sys.stderr)
     reader = FrameReader(args.dataset) if stream else None
     try:
         frames = (task.streamed_frames(data, reader, split_batch_size(args.batch_size), device, args.sample_buffer) if stream

@@ -175,3 +175,15 @@ def test_a_read_error_reaches_the_training_as_the_readers_exception(sheet):
     frames = dataclasses.replace(frames, source=dataclasses.replace(frames.source, read=broken))
     with pytest.raises(OSError, match="unreadable"):
         list(frames.feed(torch.arange(10), 3))
+
+
+def test_the_test_frames_an_epoch_scores_are_all_of_them_or_an_even_spread_of_the_most():
+    from model.training import MONITORED_TEST_FRAMES, monitored_test_frames
+    few = torch.arange(10, 10 + MONITORED_TEST_FRAMES)
+    assert torch.equal(monitored_test_frames(few), few)
+    many = torch.arange(3 * MONITORED_TEST_FRAMES + 5) * 2
+    chosen = monitored_test_frames(many)
+    assert len(chosen) == MONITORED_TEST_FRAMES and len(torch.unique(chosen)) == MONITORED_TEST_FRAMES
+    assert chosen[0] == many[0] and chosen[-1] == many[-1] and bool(torch.isin(chosen, many).all())
+    gaps = torch.diff(chosen) // 2
+    assert gaps.min() >= 2 and gaps.max() <= 4                                     # evenly spread, ~3 apart

@@ -109,3 +109,16 @@ def test_train_frames_keeps_whole_sequences_within_the_budget_and_every_held_out
         if budget >= 14:
             assert sizes.sum() == 14
     assert np.array_equal(train.sequences_within(data, ids, 7, seed=3), train.sequences_within(data, ids, 7, seed=3))
+
+
+@pytest.mark.parametrize("every, kept, epochs, share, block", [(112_000, 1_000, 6, 0.1, 1), (112_000, 10_000, 6, 0.1, 1),
+                                                              (112_000, 60_000, 6, 0.1, 1), (900, 300, 8, 1.0, 1),
+                                                              (5_000, 700, 3, 0.25, 4)])
+def test_fewer_frames_take_the_steps_of_every_frame_share_first(every, kept, epochs, share, block):
+    sampling = train.SampleSettings(share, block, 4096)
+    new_epochs, new_sampling = train.same_steps(every, kept, epochs, sampling)
+    full = epochs * train.Sampler(every, sampling).frames_per_epoch
+    visited = new_epochs * train.Sampler(kept, new_sampling).frames_per_epoch
+    assert abs(visited - full) <= train.Sampler(kept, new_sampling).frames_per_epoch / 2   # within half an epoch
+    assert new_sampling.share == min(1.0, share * every / kept) and new_sampling.block == block
+    assert new_epochs >= epochs or new_sampling.share < 1.0
