@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pipeline.core.errors import PipelineError
+from pipeline.core.h5_indirection import refuse_indirection
 
 _VERSIONED_PACKAGES = ("numpy", "scipy", "h5py", "warp-lang", "trimesh", "lap", "torch", "snakemake")
 
@@ -150,7 +151,8 @@ def open_artifact(path: str | os.PathLike) -> Iterator[h5py.File]:
     Damaged metadata (a header, a B-tree or a heap overwritten) makes h5py raise what libhdf5 reports, as
     OSError, KeyError, RuntimeError or ValueError, and the reader's conversions of what it got may raise more:
     inside the block all of it is about this file's contents, so all of it becomes one `PipelineError` naming
-    the file (the reader's own `PipelineError`s pass unchanged).
+    the file (the reader's own `PipelineError`s pass unchanged). A file that takes data from other files
+    (external links, virtual datasets, external storage) is refused before the block reads anything.
     """
     path = Path(path)
     if not path.is_file():
@@ -161,6 +163,7 @@ def open_artifact(path: str | os.PathLike) -> Iterator[h5py.File]:
         raise PipelineError(f"{path}: not a readable HDF5 file ({_one_line(err)})") from None
     with f:
         try:
+            refuse_indirection(f)
             yield f
         except PipelineError:
             raise
