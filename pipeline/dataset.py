@@ -4,7 +4,7 @@ seeded train/test split of the training sequences and the held-out sequences as 
     python -m pipeline.dataset SUBDIV.h5 OUT.h5 SEQUENCE [SEQUENCE ...] [--settings SETTINGS.json]
                                [--frame world|torso] [--test-fraction 0.1] [--seed 0]
                                [--test-split random|windows] [--test-window 2] [--guard 1]
-                               [--task upsampling|pose|pca] [--components K] [--quiet]
+                               [--task upsampling|pose|pca] [--components K] [--threads N] [--quiet]
 
 A SEQUENCE is a folder holding one sequence's sim_low.h5 and sim_high.h5 and, where there is one, its scene.h5
 (results/<scene>/sequences/<name>/, so `results/pants/sequences/*` gathers a scene); a sequence dropped on the way
@@ -35,16 +35,16 @@ With --settings (a scene's resolved settings.json), `dataset.frame`, `dataset.te
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import sys
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
-from geometry.rigid import apply_rigid_inverse
-from pipeline.artifacts.dataset import (RANDOM, WINDOWS, DatasetLayout, SequenceFrames, Split, SplitRule,
-                                        write_dataset)
+from pipeline.artifacts.dataset import RANDOM, WINDOWS, DatasetLayout, Split, SplitRule, write_dataset
 from pipeline.artifacts.scene import (CAPSULE_A, CAPSULE_B, read_library_window, read_mannequin_frames, read_sequence,
                                       read_torso_transforms)
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
@@ -54,10 +54,11 @@ from pipeline.core.config import LEARNING_ONLY
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import check_same_mesh, dropped_reason, source_mesh_of
 from pipeline.tasks import TASKS, task_of
-from pipeline.tasks.task import DatasetRequest, FrameMaker, SequenceRun
+from pipeline.tasks.task import DatasetRequest, SequenceRun, in_reference_frames
 from scenes.sequences import HELD_OUT, TRAIN
 
 SCENE, SIM_LOW, SIM_HIGH = "scene.h5", "sim_low.h5", "sim_high.h5"
+Item, Result, Prepared = TypeVar("Item"), TypeVar("Result"), TypeVar("Prepared")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -288,29 +289,48 @@ def read_run(source: SequenceSource, subdivision: Subdivision, low_faces: np.nda
         if source.scene is None:
             raise PipelineError(f"{source.folder}: --frame torso needs the sequence's {SCENE} (torso_transforms)")
         transforms = read_torso_transforms(source.scene, source.n_frames)[source.first:]
-        low = apply_rigid_inverse(transforms[:, None], low)
-        high = apply_rigid_inverse(transforms[:, None], high)
+        low, high = in_reference_frames(transforms, low), in_reference_frames(transforms, high)
         gravity = np.einsum("fji,fj->fi", transforms[:, :3, :3], gravity)      # R^T g: a direction turns only
         if capsules is not None:
-            capsules = tuple(apply_rigid_inverse(transforms[:, None], ends) for ends in capsules)
+            capsules = tuple(in_reference_frames(transforms, ends) for ends in capsules)
     return SequenceRun(source.scene or source.folder, low, high, transforms, gravity, mannequin, capsules)
 
 
-def _all_runs(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
-              physics: RunPhysics) -> Iterator[SequenceRun]:
-    """Each sequence's run in turn, read when asked for; all with a mannequin or none."""
+def prepared_in_order(sources: list[SequenceSource], subdivision: Subdivision, low_faces: np.ndarray, frame: str,
+                      physics: RunPhysics, prepare: Callable[[SequenceRun], Prepared],
+                      threads: int) -> Iterator[Prepared]:
+    """`prepare` of each sequence's run, in dataset order; all runs with a mannequin or none. Reading a run and
+    preparing it is most of the stage's work, and numpy and HDF5 reads of whole arrays leave the GIL to the other
+    threads: `threads` sequences are read and prepared at once while the caller takes the earlier ones in turn."""
+    def read_and_prepare(source: SequenceSource) -> tuple[Path, bool, Prepared]:
+        run = read_run(source, subdivision, low_faces, frame, physics)   # let go once prepared: memory
+        return run.where, run.mannequin is not None, prepare(run)
+
     with_body = None
-    for source in sources:
-        run = read_run(source, subdivision, low_faces, frame, physics)
-        if with_body is not None and (run.mannequin is not None) != with_body:
-            raise PipelineError(f"{run.where}: some sequences have a mannequin and some not")
-        with_body = run.mannequin is not None
-        yield run
+    for where, has_body, prepared in in_order(read_and_prepare, sources, threads):
+        if with_body is not None and has_body != with_body:
+            raise PipelineError(f"{where}: some sequences have a mannequin and some not")
+        with_body = has_body
+        yield prepared
 
 
-def _all_frames(runs: Iterator[SequenceRun], make_frames: FrameMaker) -> Iterator[SequenceFrames]:
-    for run in runs:
-        yield make_frames(run)
+def in_order(work: Callable[[Item], Result], items: Sequence[Item], threads: int) -> Iterator[Result]:
+    """work(item) of each item, done on `threads` threads and yielded in the items' order. At most `threads` items
+    are taken ahead of the one the caller waits for, so only that many sequences are held in memory at once; the
+    first item (in order) whose work fails raises its error, as a loop would, and the work not yet started is
+    dropped."""
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        pending: collections.deque[Future] = collections.deque()
+        try:
+            for item in items:
+                pending.append(pool.submit(work, item))
+                if len(pending) > threads:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+        finally:
+            for future in pending:
+                future.cancel()
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
@@ -354,6 +374,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--task", choices=list(TASKS), default="upsampling",
                         help="the learning problem: its input and predictor (pipeline/tasks)")
     parser.add_argument("--components", type=int, help="PCA components (task pca)")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="sequences read and prepared at once, beside the thread writing the dataset (Snakemake: "
+                             "the rule's threads); the dataset is the same for any number")
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings, unread=LEARNING_ONLY)
     if not 0 < args.test_fraction < 1:
@@ -361,6 +384,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     if not (np.isfinite(args.test_window) and np.isfinite(args.guard) and args.test_window > 0 and args.guard >= 0):
         raise PipelineError(f"--test-window must be > 0 and --guard >= 0 seconds, got {args.test_window} and "
                             f"{args.guard}")
+    if args.threads < 1:
+        raise PipelineError(f"--threads {args.threads}: give at least 1")
     if (args.components is not None) != (args.task == "pca") or (args.components is not None and args.components < 1):
         raise PipelineError("--components K >= 1 goes with --task pca, and only with it")
     task = task_of(args.task, "--task")
@@ -379,8 +404,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     if rule.kind == WINDOWS:
         for note in windows_notes(layout, sources):
             print(f"dataset: {note}", file=sys.stderr)
-    def runs() -> Iterator[SequenceRun]:
-        return _all_runs(sources, subdivision, low_faces, args.frame, physics)
+    def prepared(prepare: Callable[[SequenceRun], Prepared]) -> Iterator[Prepared]:
+        return prepared_in_order(sources, subdivision, low_faces, args.frame, physics, prepare, args.threads)
+
+    def runs() -> Iterator[SequenceRun]:      # a task's own pass over them (PCA fits its basis to them)
+        return prepared(lambda run: run)
 
     task_layout, make_frames = task.prepare(DatasetRequest(layout, subdivision, runs, sources[0].scene,
                                                            args.components))
@@ -390,7 +418,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     names = ("subdiv", "sequences", "frame", "test_fraction", "seed")
     names += ("test_split", "test_window", "guard") if rule.kind == WINDOWS else ()
     config = {name: getattr(args, name) for name in names + (() if task_layout is None else ("task", "components"))}
-    write_dataset(args.out, config, layout, _all_frames(runs(), make_frames), source_mesh_of(args.subdiv))
+    write_dataset(args.out, config, layout, prepared(make_frames), source_mesh_of(args.subdiv))
     if not args.quiet:
         split = layout.split
         guard = f", {len(split.guard)} guard" if rule.kind == WINDOWS else ""

@@ -195,7 +195,7 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             for name, dataset in arrays.items():
                 values = np.ascontiguousarray(getattr(part, name), dtype=np.float32)
                 dataset[rows] = values
-                digest.update(values.tobytes())
+                digest.update(values)     # its buffer: the bytes tobytes() would copy
             gravity[rows] = part.gravity
             if part.mannequin is not None:
                 _write_mannequin(f, part.mannequin, rows, n_frames)

@@ -11,12 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from geometry.rigid import apply_rigid_inverse
 from pipeline.artifacts.dataset import TaskLayout
 from pipeline.artifacts.scene import BODY_STATE, POSE, read_body, read_mannequin_frames, read_skinning
 from pipeline.core.errors import PipelineError
 from pipeline.tasks.decoder import DecoderTask, decoder_frames
-from pipeline.tasks.task import DatasetRequest, SequenceRun
+from pipeline.tasks.task import DatasetRequest, SequenceRun, in_reference_frames
 from scenes.kinematics import rest_transforms
 from scenes.skinning import linear_blend_skinning
 
@@ -60,7 +59,7 @@ class PoseTask(DecoderTask):
                 linear_blend_skinning(rest, every_part, high_weights, rest_pose,
                                       (rotation[i:i + SKINNING_CHUNK], translation[i:i + SKINNING_CHUNK]))
                 for i in range(0, len(rotation), SKINNING_CHUNK)])
-            predictor = world if run.transforms is None else apply_rigid_inverse(run.transforms[:, None], world)
+            predictor = world if run.transforms is None else in_reference_frames(run.transforms, world)
             return decoder_frames(run, state[POSE], predictor)
 
         layout = TaskLayout(self.name, pose_size, "pose to cloth (paper Table 2)",
