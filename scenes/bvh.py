@@ -8,6 +8,14 @@ Files are read as UTF-8 text (a byte-order mark allowed), gunzipped where the na
 are kept; read_bvh_header reads a file only as far as its MOTION header (a library reads every file's header at
 every start), with the same parser as the full read.
 
+A file from elsewhere is read within bounds, checked as it streams in, so that no file makes the reader run out of
+memory, time or stack: lines of at most MAX_LINE characters and MAX_TEXT in all (a file of zeros without a newline
+was once read whole as one line), MAX_JOINTS joints parsed without recursion (10,000 nested joints overflowed the
+stack), at most six channels a joint, finite numbers, and no more than MAX_CLIP_VALUES numbers in the arrays a
+clip fills (frames x (channels + 7 per joint)), checked before they are allocated. An error names the file, the
+line and the problem, never the file's words: a path mistyped as /proc/self/environ once put the environment into
+the logs.
+
 Conventions (those of the BVH format as Blender and MotionBuilder read it): a joint's CHANNELS list its Euler
 rotations in the order they compose, R = R_first R_second R_third, in degrees; its local translation is its OFFSET,
 or its position channels where it has them; the rest pose has every rotation the identity. Quaternions are
@@ -17,6 +25,7 @@ axes are kept as in the file (Y-up or Z-up): the retargeting works them out from
 from __future__ import annotations
 
 import gzip
+import itertools
 import math
 import numbers
 import zlib
@@ -32,6 +41,13 @@ from scipy.spatial.transform import Rotation
 # Metres per file unit. CMU's ASF-derived files use 1/0.45 inch; the others are the usual ones.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "CMU ASF unit": 0.0254 / 0.45}
 TYPICAL_EXTENT = 1.7  # metres: a standing adult's rest pose spans about this much (height or arm span)
+
+# Bounds far beyond real capture (CMU's rigs have 31-100 joints, its longest clips 3,262 frames, 1.3 MB): a
+# file of CMU's 31-joint rig at 120 fps may still run 44 minutes.
+MAX_JOINTS = 1000
+MAX_CLIP_VALUES = 100_000_000      # float64s a clip fills: 800 MB
+MAX_LINE = 1 << 20                 # characters; a frame of 1000 joints x 6 channels takes about 60,000
+MAX_TEXT = 1 << 30                 # characters in all
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,11 +147,14 @@ def _parse_header(tokens: _Tokens) -> tuple[_Tree, int, float]:
     """The hierarchy and the MOTION header up to the frame time (the last word read)."""
     tokens.expect("HIERARCHY")
     tokens.expect("ROOT")
-    tree = _Tree()
-    _parse_joint(tokens, tree, -1)
+    tree = _parse_hierarchy(tokens)
     tokens.expect("MOTION")
     tokens.expect("Frames:")
-    n_frames = tokens.count("frame count", 1)
+    n_frames = tokens.count("frame count", 1, MAX_CLIP_VALUES)
+    held = n_frames * (sum(len(c) for c in tree.channels) + 7 * len(tree.names))
+    if held > MAX_CLIP_VALUES:
+        tokens.fail(f"{n_frames} frames of {len(tree.names)} joints would hold {held:,} numbers, more than "
+                    f"{MAX_CLIP_VALUES:,} (a shorter file, or a window of it)")
     tokens.expect("Frame")
     tokens.expect("Time:")
     frame_time = tokens.number("frame time")
@@ -151,11 +170,26 @@ def _lines(path: Path) -> Iterator[Iterable[str]]:
     opener = gzip.open if path.suffix.lower() == ".gz" else open
     try:
         with opener(path, "rt", encoding="utf-8-sig") as stream:
-            yield stream
-    except (gzip.BadGzipFile, EOFError, zlib.error) as err:
-        raise ValueError(f"{path}: not a readable gzip file ({err})") from None
+            yield _bounded_lines(stream, path)
+    except (gzip.BadGzipFile, EOFError, zlib.error):
+        # gzip's own message quotes the file's first bytes
+        raise ValueError(f"{path}: not a readable gzip file (a damaged or cut-short stream)") from None
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not UTF-8 text (byte 0x{err.object[err.start]:02x}: {err.reason})") from None
+        raise ValueError(f"{path}: not UTF-8 text ({err.reason})") from None
+
+
+def _bounded_lines(stream, path: Path) -> Iterator[str]:
+    """The stream's lines, each read no further than MAX_LINE characters, and no more than MAX_TEXT in all."""
+    total = 0
+    for number in itertools.count(1):
+        line = stream.readline(MAX_LINE + 1)
+        if not line:
+            return
+        total += len(line)
+        if len(line) > MAX_LINE or total > MAX_TEXT:
+            too_long = f"line longer than {MAX_LINE:,}" if len(line) > MAX_LINE else f"more than {MAX_TEXT:,}"
+            raise ValueError(f"{path}:{number}: {too_long} characters: not a BVH file this reader takes")
+        yield line
 
 
 def _clip_name(path: Path) -> str:
@@ -208,14 +242,36 @@ class _Tree:
         self.offsets: list[np.ndarray] = []
         self.channels: list[list[tuple[str, str]]] = []
         self.end_sites: dict[int, np.ndarray] = {}
+        self.lines: dict[str, int] = {}     # joint name -> the line it is named on (a linear duplicate check)
 
 
-def _parse_joint(tokens: _Tokens, tree: _Tree, parent: int) -> None:
-    """Parse one ROOT/JOINT block (the keyword already read) and, recursively, its children."""
+def _parse_hierarchy(tokens: _Tokens) -> _Tree:
+    """The ROOT block (its keyword already read) and every joint in it, with a stack of the joints still open
+    rather than recursion: nesting as deep as MAX_JOINTS stays within Python's stack."""
+    tree = _Tree()
+    open_joints = [_parse_joint(tokens, tree, -1)]    # innermost last
+    while open_joints:
+        joint = open_joints[-1]
+        word = tokens.word("JOINT, End Site or }")
+        if word == "}":
+            open_joints.pop()
+        elif word == "JOINT":
+            open_joints.append(_parse_joint(tokens, tree, joint))
+        elif word == "End":
+            _parse_end_site(tokens, tree, joint)
+        else:
+            tokens.fail("expected JOINT, End Site or '}' in a joint")
+    return tree
+
+
+def _parse_joint(tokens: _Tokens, tree: _Tree, parent: int) -> int:
+    """One joint's name, OFFSET and CHANNELS (the ROOT or JOINT keyword already read); its index."""
     name = tokens.name()
-    if name in tree.names:
-        tokens.fail(f"joint name '{name}' appears twice")
-    joint = len(tree.names)
+    if name in tree.lines:
+        tokens.fail(f"a joint name appears twice (first on line {tree.lines[name]})")
+    if len(tree.names) == MAX_JOINTS:
+        tokens.fail(f"more than {MAX_JOINTS} joints")
+    tree.lines[name] = tokens.line
     tree.names.append(name)
     tree.parents.append(parent)
     tokens.expect("{")
@@ -223,22 +279,18 @@ def _parse_joint(tokens: _Tokens, tree: _Tree, parent: int) -> None:
     tree.offsets.append(np.array([tokens.number("OFFSET value") for _ in range(3)]))
     tokens.expect("CHANNELS")
     tree.channels.append(tokens.channels())
-    while True:
-        word = tokens.word("JOINT, End Site or }")
-        if word == "}":
-            return
-        if word == "JOINT":
-            _parse_joint(tokens, tree, joint)
-        elif word == "End":
-            if joint in tree.end_sites:
-                tokens.fail(f"joint '{name}' has a second End Site")
-            tokens.expect("Site")
-            tokens.expect("{")
-            tokens.expect("OFFSET")
-            tree.end_sites[joint] = np.array([tokens.number("OFFSET value") for _ in range(3)])
-            tokens.expect("}")
-        else:
-            tokens.fail(f"expected JOINT, End Site or '}}' in joint '{name}', got '{word}'")
+    return len(tree.names) - 1
+
+
+def _parse_end_site(tokens: _Tokens, tree: _Tree, joint: int) -> None:
+    """An End Site block of `joint` (the word End already read)."""
+    if joint in tree.end_sites:
+        tokens.fail("a joint has a second End Site")
+    tokens.expect("Site")
+    tokens.expect("{")
+    tokens.expect("OFFSET")
+    tree.end_sites[joint] = np.array([tokens.number("OFFSET value") for _ in range(3)])
+    tokens.expect("}")
 
 
 _CHANNEL_NAMES = {f"{axis}{kind}".lower(): (axis, kind) for axis in "XYZ" for kind in ("position", "rotation")}
@@ -271,7 +323,7 @@ class _Tokens:
     def expect(self, keyword: str) -> None:
         word = self.word(f"'{keyword}'")
         if word.lower() != keyword.lower():
-            self.fail(f"expected '{keyword}', got '{word}'")
+            self.fail(f"expected '{keyword}'")
 
     def name(self) -> str:
         """A joint name: the words after the keyword on its line, up to an opening brace."""
@@ -283,25 +335,29 @@ class _Tokens:
         return " ".join(parts)
 
     def number(self, what: str) -> float:
-        word = self.word(what)
+        """A finite number: NaN and inf would pass every comparison made of them later (a NaN OFFSET once read
+        as a rest pose without extent)."""
         try:
-            return float(word)
+            value = float(self.word(what))
         except ValueError:
-            self.fail(f"expected a number ({what}), got '{word}'")
+            self.fail(f"expected a number ({what})")
+        if not math.isfinite(value):
+            self.fail(f"{what} is not a finite number")
+        return value
 
-    def count(self, what: str, minimum: int) -> int:
+    def count(self, what: str, minimum: int, maximum: int) -> int:
         value = self.number(what)
-        if value != int(value) or value < minimum:
-            self.fail(f"{what} must be a whole number >= {minimum}, got {value:g}")
+        if value != int(value) or not minimum <= value <= maximum:
+            self.fail(f"{what} must be a whole number from {minimum} to {maximum:,}, got {value:g}")
         return int(value)
 
     def channels(self) -> list[tuple[str, str]]:
-        n = self.count("channel count", 0)
+        n = self.count("channel count", 0, 6)      # each axis once as a position and once as a rotation
         channels = []
         for _ in range(n):
             word = self.word("a channel name")
             if word.lower() not in _CHANNEL_NAMES:
-                self.fail(f"unknown channel '{word}' (expected Xposition ... Zrotation)")
+                self.fail("unknown channel name (expected Xposition ... Zrotation)")
             channels.append(_CHANNEL_NAMES[word.lower()])
         for kind in ("position", "rotation"):
             axes = [axis for axis, k in channels if k == kind]
@@ -310,21 +366,33 @@ class _Tokens:
         return channels
 
     def frames(self, n_frames: int, n_channels: int) -> np.ndarray:
-        """The motion data: the lines after 'Frame Time', one frame each with `n_channels` numbers."""
+        """The motion data: the lines after 'Frame Time', one frame each with `n_channels` numbers, converted as
+        they stream in. A wrong line count is reported before a wrong line, as the file's shape comes first."""
         first = self.line  # the line holding the frame time; data starts on the next
-        numbered = enumerate(map(str.split, self.lines), start=self.lines_taken + 1)
-        rows = [(i, words) for i, words in numbered if words]
-        if len(rows) != n_frames:
-            raise ValueError(f"{self.source}:{first}: 'Frames: {n_frames}' but {len(rows)} data lines follow")
-        values = np.empty((n_frames, n_channels))
-        for k, (line, words) in enumerate(rows):
-            if len(words) != n_channels:
-                raise ValueError(f"{self.source}:{line}: expected {n_channels} channel values, got {len(words)}")
-            try:
-                values[k] = [float(w) for w in words]
-            except ValueError:
-                raise ValueError(f"{self.source}:{line}: a channel value is not a number") from None
-        bad = ~np.isfinite(values).all(axis=1)
-        if bad.any():
-            raise ValueError(f"{self.source}:{rows[int(np.argmax(bad))][0]}: a channel value is not finite")
+        values = np.empty((n_frames, n_channels))     # bounded by MAX_CLIP_VALUES in the header
+        rows, problem = 0, None
+        for number, line in enumerate(self.lines, start=self.lines_taken + 1):
+            words = line.split()
+            if not words:
+                continue
+            if rows < n_frames and problem is None:
+                problem = _fill_row(values[rows], words, f"{self.source}:{number}")
+            rows += 1
+        if rows != n_frames:
+            raise ValueError(f"{self.source}:{first}: 'Frames: {n_frames}' but {rows} data lines follow")
+        if problem is not None:
+            raise ValueError(problem)
         return values
+
+
+def _fill_row(row: np.ndarray, words: list[str], where: str) -> str | None:
+    """Parse one frame's words into `row`; what is wrong with them, or None."""
+    if len(words) != len(row):
+        return f"{where}: expected {len(row)} channel values, got {len(words)}"
+    try:
+        row[:] = [float(w) for w in words]
+    except ValueError:
+        return f"{where}: a channel value is not a number"
+    if not np.isfinite(row).all():
+        return f"{where}: a channel value is not finite"
+    return None

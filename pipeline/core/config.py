@@ -53,6 +53,8 @@ def load_config(path: str | os.PathLike) -> dict:
         raise PipelineError(f"{path}: cannot read the config ({err})") from None
     except yaml.YAMLError as err:
         raise PipelineError(_yaml_error(path, err)) from None
+    if not isinstance(config, dict):    # the schema's message would quote the whole of a file that is no config
+        raise PipelineError(f"{path}: not a config (a config is YAML whose top level maps keys to values)")
     validate_config(config, str(path))
     return config
 
