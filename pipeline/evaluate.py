@@ -52,7 +52,7 @@ from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.core import cli
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import atomic_write, check_same_mesh
+from pipeline.core.h5 import atomic_write, check_same_mesh, write_bytes
 from pipeline.core.torch_setup import configure_torch
 from pipeline.tasks import task_of
 from pipeline.tasks.task import Task
@@ -60,7 +60,7 @@ from pipeline.tasks.timing import WARMUP_RUNS, pick_frames
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
 from viz.comparison import Comparison, FrameMeshes, comparison_image, fit_comparison
-from viz.export import write_glb, write_obj_sequence
+from viz.export import glb_bytes, obj_bytes
 from viz.html_report import Links, Paragraphs, Picture, Section, Table, Video, report_html
 from viz.markdown_report import report_markdown
 from viz.plots import error_over_time, figure_bytes, training_curve
@@ -317,7 +317,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         for frame in stills:
             image = comparison_image(comparison, frame_meshes(frame), frame_title(frame))
             pictures.append(staged["renders"] / f"frame_{frame:04d}.png")
-            pictures[-1].write_bytes(png_bytes(image))
+            write_bytes(pictures[-1], png_bytes(image))
         plots = _write_plots(staged["renders"], per_frame, data, train_log, task) if args.render_frames else {}
         steps.update()
         videos = [(_write_video(staged["videos"] / name, comparison, clip_frames, fps, frame_meshes, frame_title),
@@ -348,7 +348,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
         write_evaluation(args.eval, config, Evaluation(errors, per_frame, None if args.no_predictions else predicted,
                                                        times, timed, where, WARMUP_RUNS, state["parameter_count"],
-                                                       by_kind))
+                                                       trained_frame_count(state["training"], data), by_kind))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:
@@ -366,7 +366,7 @@ def _write_video(stem: Path, comparison: Comparison, frames: np.ndarray, fps: fl
                                                    predictor_error=False, panel_height=VIDEO_PANEL_HEIGHT,
                                                    supersample=1) for frame in frames), fps)
     path = stem.with_suffix(animation.suffix)
-    path.write_bytes(animation.data)
+    write_bytes(path, animation.data)
     return path
 
 
@@ -376,15 +376,17 @@ def _write_exports(folder: Path, export_frames: int, glb_frames: np.ndarray,
     """The first `export_frames` (0: all) predicted frames as OBJ, and each of `glb_frames` as a GLB comparison;
     (label, path) of each."""
     n_export = len(predicted) if export_frames <= 0 else min(export_frames, len(predicted))
-    written = write_obj_sequence(folder / "predicted_obj", predicted[:n_export], faces, range(n_export))
-    exports = [(f"predicted_obj/: predicted positions of frames 0-{n_export - 1} as OBJ", written[0].parent)]
+    for frame in range(n_export):
+        write_bytes(folder / "predicted_obj" / f"frame_{frame:04d}.obj", obj_bytes(predicted[frame], faces))
+    exports = [(f"predicted_obj/: predicted positions of frames 0-{n_export - 1} as OBJ", folder / "predicted_obj")]
     for frame in glb_frames:
         meshes = frame_meshes(frame)
         error = np.linalg.norm(meshes.predicted - meshes.truth, axis=1)
-        path = write_glb(folder / f"comparison_frame_{frame:04d}.glb",
-                         [(task.input_label.replace(" ", "_").replace("-", "_"), meshes.low, low_faces, None),
-                          ("ground_truth", meshes.truth, faces, None),
-                          ("network_output", meshes.predicted, faces, value_colors(error, float(error.max())))])
+        path = folder / f"comparison_frame_{frame:04d}.glb"
+        write_bytes(path, glb_bytes(
+            [(task.input_label.replace(" ", "_").replace("-", "_"), meshes.low, low_faces, None),
+             ("ground_truth", meshes.truth, faces, None),
+             ("network_output", meshes.predicted, faces, value_colors(error, float(error.max())))]))
         exports.append((f"{path.name}: input, truth and error-coloured prediction side by side (any glTF viewer)",
                         path))
     return exports
@@ -410,7 +412,7 @@ def _write_plots(folder: Path, per_frame: dict, data: LearningData, train_log: T
     paths = {}
     for name, figure in figures.items():
         paths[name] = folder / f"{name}.png"
-        paths[name].write_bytes(figure_bytes(figure, "png", dpi=100))
+        write_bytes(paths[name], figure_bytes(figure, "png", dpi=100))
     return paths
 
 
@@ -446,6 +448,15 @@ def _training_option_rows(training: dict) -> list[list[str]]:
     if isinstance(frames, int) and not isinstance(frames, bool):
         rows.append(["frames trained on", f"{frames:,}"])
     return rows
+
+
+def trained_frame_count(training: dict, data: LearningData) -> int:
+    """The frames the model trained on: as its model.pt records them, or (one that records none) the train split,
+    with the held-out frames for an oracle."""
+    frames = training.get("train_frames")
+    if isinstance(frames, int) and not isinstance(frames, bool) and frames > 0:
+        return frames
+    return len(data.train) + (len(data.held_out) if trained_on_held_out(training) else 0)
 
 
 def trained_on_held_out(training: dict) -> bool:

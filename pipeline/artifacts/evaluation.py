@@ -42,6 +42,7 @@ class Evaluation:
     device: str                                      # where it ran, in words (e.g. "cpu, 2 threads")
     warmup_runs: int                                 # untimed runs before the timed ones
     parameter_count: int
+    trained_frames: int                              # the frames the network trained on (model.pt's training)
     by_kind: dict[str, GroupErrors] = dataclasses.field(default_factory=dict)   # grouping -> errors; empty: a
                                                                                 # dataset without library windows
 
@@ -67,6 +68,7 @@ def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluat
         f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
         f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
                        warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
+                       trained_frames=evaluation.trained_frames,
                        timing="input features and network, batch of one frame")
         for grouping, groups in evaluation.by_kind.items():
             _write_groups(f, f"{BY_KIND}/{grouping}", groups)
@@ -155,6 +157,16 @@ def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
     if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
         raise PipelineError(f"{path}: 'inference_ms' must hold the finite ms of at least one timed frame")
     return NetworkTiming(times, device, read_parameter_count(path), name)
+
+
+def read_trained_frames(path: str | os.PathLike) -> int:
+    """The frames the evaluated network trained on (the attribute `trained_frames`)."""
+    with open_artifact(path) as f:
+        frames = f.attrs.get("trained_frames")
+    if not isinstance(frames, (int, np.integer)) or frames < 1:
+        raise PipelineError(f"{path}: attribute 'trained_frames' must be a positive integer: not an eval.h5 of "
+                            f"pipeline.evaluate (or one made before it recorded them: evaluate again)")
+    return int(frames)
 
 
 def read_parameter_count(path: str | os.PathLike) -> int:

@@ -81,7 +81,7 @@ def write_eval(path, network, predictor, inference_ms, params, conv="RC9", width
               for who, splits in (("network", network), ("predictor", predictor))}
     write_evaluation(path, {"model_spec": {"conv": conv, "width": width} if spec is None else spec},
                      Evaluation(errors, {}, np.zeros((1, 3, 3)), np.asarray(inference_ms, dtype=float),
-                                np.arange(len(inference_ms)), device, 3, params))
+                                np.arange(len(inference_ms)), device, 3, params, 100))
     return str(path)
 
 

@@ -146,11 +146,13 @@ def test_a_high_res_batch_job_takes_a_thread_a_sequence_on_a_gpu(tmp_path, devic
     assert job.get("threads", "1") == str(threads) and f" --threads {threads} " in job["shell"]   # 1: not printed
 
 
-@pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2]})
+@pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],
+                                                               "oracle": True})
 def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(tiny_pants_build):
     """`results/pants/study/` on the tiny pants: datasets of the first 1 and 2 training sequences (each with the
-    held-out walk), both input variants trained on each for the same number of optimiser steps, one table. Built
-    by tests/conftest.py's `tiny_pants_build` with the scene (the mark above: the target and its study block)."""
+    held-out walk), the scene's dataset within 10 frames (one whole sequence) and the oracle, both input variants
+    trained on each for the same number of optimiser steps, one table. Built by tests/conftest.py's
+    `tiny_pants_build` with the scene (the mark above: the target and its study block)."""
     run, workdir = tiny_pants_build.run, tiny_pants_build.workdir
     assert "results/pants/study/" in tiny_pants_build.targets
     assert run.returncode == 0, tail(run)
@@ -158,9 +160,14 @@ def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequenc
     with h5py.File(out / "n1" / "dataset.h5") as f:
         assert [n.decode() for n in f["sequences/names"][()]] == ["train_000", "held_out_000"]
     with h5py.File(out / "study.h5") as f:
-        assert f["counts"][()].tolist() == [1, 2]
+        assert [v.decode() for v in f["labels"][()]] == ["n1", "n2", "f10", "oracle"]
         assert [v.decode() for v in f["variants"][()]] == ["positions", "body_relative"]
         assert np.isfinite(f["l1/network/held_out"][()]).all()
+        frames = f["trained_frames"][()]
+    one, two, within, oracle = frames[0]
+    assert (frames == frames[0]).all() and one < two and within <= two < oracle    # the oracle adds the walk
+    with h5py.File(out / "f10" / "body_relative" / "train.h5") as f:    # one sequence, the steps of two
+        assert f.attrs["epochs"] == 2
     epochs = {}
     for n in (1, 2):
         with h5py.File(out / f"n{n}" / "body_relative" / "train.h5") as f:
