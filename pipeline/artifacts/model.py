@@ -3,11 +3,16 @@ recognise the operators it was trained on (docs/artifacts.md, section "model.pt"
 checkpoint of a running training, whose contents are model/training.py's business.
 
 Both are read with `torch.load(weights_only=True)`, which builds tensors and plain values only: a file from
-elsewhere is refused with one error, never unpickled into code."""
+elsewhere is refused with one error, never unpickled into code. Nor may it hold more than its own size: a 3.3 MB
+zip bomb once inflated to 2 GB, and a 1.4 MB file held a (10^9, 3) tensor of stride 0 over three numbers, which
+evaluate materialised (7.5 GiB). torch.save stores its members uncompressed and each tensor over storage of its
+own, so a member that inflates, or a tensor that needs more elements than its storage holds, is refused
+(`_load`) before anything is built from it."""
 from __future__ import annotations
 
 import dataclasses
 import os
+import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -29,10 +34,7 @@ def read_model_state(path: str | os.PathLike, expected_format: str, what: str) -
     if it is missing, unreadable or not of `expected_format` (`what` says which writer's file was expected)."""
     if not Path(path).is_file():
         raise PipelineError(f"{path}: model file does not exist")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a corrupt or foreign file
-        raise PipelineError(f"{path}: not a readable model file ({type(err).__name__})") from None
+    state = _load(path, f"{path}: not a readable model file")
     if not isinstance(state, dict) or state.get("format") != expected_format:
         raise PipelineError(f"{path}: not {what} (format {expected_format})")
     return state
@@ -112,14 +114,56 @@ def read_checkpoint(path: Path) -> dict[str, Any] | None:
     rather than overwritten and later deleted: it is not this trainer's file."""
     refusal = f"{path}: not a training checkpoint ({CHECKPOINT_FORMAT}); remove it or choose another --checkpoint"
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = _load(path, refusal)
     except FileNotFoundError:
         return None
-    except Exception as err:  # torch raises many types for a foreign, damaged or code-carrying file
-        raise PipelineError(f"{refusal} ({type(err).__name__})") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise PipelineError(refusal)
     return state
+
+
+class _Oversized(ValueError):
+    """A file that would take more memory than its own size."""
+
+
+def _load(path: str | os.PathLike, refusal: str) -> Any:
+    """What torch.save wrote at `path`, read without unpickling and within the file's own size; `refusal` and
+    the reason as one error otherwise (FileNotFoundError passes, for the checkpoint that is not there yet)."""
+    try:
+        _check_archive(path)
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        _check_tensors(state)
+    except FileNotFoundError:
+        raise
+    except _Oversized as err:
+        raise PipelineError(f"{refusal} ({err})") from None
+    except Exception as err:  # torch and zipfile raise many types for a foreign, damaged or code-carrying file
+        raise PipelineError(f"{refusal} ({type(err).__name__})") from None
+    return state
+
+
+def _check_archive(path: str | os.PathLike) -> None:
+    """Every member stored as torch.save stores it, so that reading it takes no more than the file's size."""
+    with zipfile.ZipFile(path) as archive:
+        members = archive.infolist()
+    if (any(m.compress_type != zipfile.ZIP_STORED for m in members)
+            or sum(m.file_size for m in members) > os.path.getsize(path)):
+        raise _Oversized("compressed members, which torch.save never writes: the file may inflate far beyond "
+                         "its size")
+
+
+def _check_tensors(value: Any) -> None:
+    """Every tensor in `value` (dicts and lists walked) dense over storage that holds all its elements; an
+    expanded view (stride 0) of a few numbers becomes as large as its shape once anything computes with it."""
+    if isinstance(value, dict):
+        value = list(value.values())
+    if isinstance(value, (list, tuple)):
+        for item in value:
+            _check_tensors(item)
+    elif isinstance(value, torch.Tensor) and not (
+            value.is_contiguous() and value.numel() * value.element_size() <= value.untyped_storage().nbytes()):
+        raise _Oversized(f"a tensor of shape {tuple(value.shape)} is not stored element by element (an expanded "
+                         f"or overlapping view)")
 
 
 def save_state(path: Path, state: dict[str, Any]) -> None:
