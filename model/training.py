@@ -14,6 +14,7 @@ to resume from and a function that saves each new one).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from typing import Any, Callable, Iterator, Mapping, Protocol
 
@@ -71,6 +72,11 @@ class History:
 
 class CheckpointError(ValueError):
     """A checkpoint written for this run (format and identity match) whose contents cannot be restored."""
+
+
+class Diverged(ValueError):
+    """An epoch whose training or test loss is NaN or infinite: the weights have overflowed, so training on
+    would only save and report a useless network (the learning rate is too high for the data)."""
 
 
 def in_batches(ids: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
@@ -210,6 +216,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         for name in TERMS:
             history.test[name].append(test[name])
         history.epoch_seconds.append(time.perf_counter() - start)
+        _check_finite(history, epoch)
         if save_checkpoint is not None:
             save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
                              "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
@@ -217,6 +224,14 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
                              "noise": _noise_state(train_ids.device), "history": dataclasses.asdict(history)})
     model.eval()
     return history
+
+
+def _check_finite(history: History, epoch: int) -> None:
+    losses = {"training": history.train["total"][-1], "test": history.test["total"][-1]}
+    for split, loss in losses.items():
+        if not math.isfinite(loss):
+            raise Diverged(f"the {split} loss of epoch {epoch + 1} is {loss}: the weights overflowed "
+                           f"; lower the learning rate")
 
 
 def monitored_test_frames(test_ids: torch.Tensor) -> torch.Tensor:

@@ -47,7 +47,7 @@ import torch
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
 from model.sampler import Sampler, SampleSettings
-from model.training import CheckpointError, TrainSettings, fit, split_batch_size
+from model.training import CheckpointError, Diverged, TrainSettings, fit, split_batch_size
 from model.training_step import LR_SCHEDULES
 from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, LearningData, frame_bytes, load_dataset,
                                         read_frame_origins, read_library_windows)
@@ -59,6 +59,8 @@ from pipeline.core.progress import batch_reporter, training_bar
 from pipeline.core.torch_setup import configure_torch
 from pipeline.tasks import task_of
 from pipeline.tasks.task import NetworkRequest
+
+MAX_LR = 1.0       # the schema's training.lr maximum: beyond it Adam's first steps overflow the weights
 
 
 def flags_from_settings(settings: dict) -> dict[str, Any]:
@@ -190,8 +192,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if args.arch is None:    # required, but may come from --settings
         parser.error("the following arguments are required: --arch")
-    if args.epochs < 1 or args.batch_size < 1 or not 0 < args.lr < math.inf:
-        raise PipelineError("--epochs and --batch-size must be >= 1 and --lr finite and > 0")
+    if args.epochs < 1 or args.batch_size < 1 or not 0 < args.lr <= MAX_LR:
+        raise PipelineError(f"--epochs and --batch-size must be >= 1 and --lr in (0, {MAX_LR}]")
     if not all(0 <= w < math.inf for w in (args.loss_l1, args.loss_l2, args.loss_normal)):
         raise PipelineError("loss weights must be finite and >= 0")
     if args.train_frames is not None and args.train_frames < 1:
@@ -256,6 +258,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                               on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
             except CheckpointError as err:
                 raise PipelineError(f"{checkpoint}: {err}") from None
+            except Diverged as err:
+                raise PipelineError(f"{args.model}: {err} (--lr {args.lr:g})") from None
         seconds = time.perf_counter() - start
     finally:
         if reader is not None:

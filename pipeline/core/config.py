@@ -82,10 +82,21 @@ def _validate(document: Any, schema: dict, source: str) -> None:
     if unbounded is not None:
         where, value = unbounded
         raise PipelineError(f"{source}: {where}: {value!r} is not a finite number within float32's range")
-    validator = jsonschema.Draft202012Validator(schema)
+    validator = _whole_string_patterns(jsonschema)(schema)
     error = jsonschema.exceptions.best_match(validator.iter_errors(document))
     if error is not None:
         raise PipelineError(f"{source}: {_describe(error)}")
+
+
+def _whole_string_patterns(jsonschema):
+    """The draft 2020-12 validator with every `pattern` matched against the whole string. jsonschema searches
+    (`re.search`), where `$` also matches before a trailing newline: "evil\\n" passed as a scene name (a folder,
+    a Snakemake wildcard, a word of shell commands) and "RC9\\n" as a convolution."""
+    def pattern(validator, regex, instance, schema):
+        if validator.is_type(instance, "string") and re.fullmatch(regex, instance) is None:
+            yield jsonschema.ValidationError(f"{instance!r} does not match {regex!r}")
+
+    return jsonschema.validators.extend(jsonschema.Draft202012Validator, {"pattern": pattern})
 
 
 def _first_unbounded_number(value: Any, where: tuple[str, ...] = ()) -> tuple[str, Any] | None:

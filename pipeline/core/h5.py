@@ -12,17 +12,20 @@ Reads trust nothing in the file: `read` refuses NaN/inf and values beyond float3
 arrays out of range or of the wrong shape, `read_csr` malformed sparse matrices, each as one `PipelineError`
 naming the file and dataset (an out-of-range index would otherwise reach scipy's or Warp's unchecked loops: a
 segfault, not an error); whatever else a damaged file makes h5py raise inside `open_artifact` becomes one such
-error too. A write that the file system refuses (a read-only folder, an output path that is a folder) is one
-error naming the output.
+error too. A write that the file system refuses (a read-only folder, an output path that is a folder, a full
+disk) is one error naming the output, whichever library wrote (`_TempFile`).
 """
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import functools
 import hashlib
 import importlib.metadata
 import json
 import os
+import re
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator, Mapping
@@ -60,39 +63,163 @@ _FILE_MODE = 0o666 & ~_current_umask()     # what open() would give a new file; 
 
 
 @contextlib.contextmanager
-def _replaced_on_success(path: str | os.PathLike, suffix: str) -> Iterator[str]:
-    """The name of a new, empty temporary file beside `path` that replaces `path` once the block finishes, and
-    is removed if it fails.
+def _replaced_on_success(path: str | os.PathLike, suffix: str, keep_going: bool) -> Iterator[_TempFile]:
+    """A new, empty temporary file beside `path` that replaces `path` once the block finishes, and is removed
+    if it fails; a write the file system refused is one error naming `path`, whatever the writer (torch, h5py)
+    made of it (`_TempFile`, `keep_going`).
 
     mkstemp picks an unused name and creates it exclusively (O_EXCL), so neither a link planted beside the
     output nor a second run writing the same output at the same time can be written through; `os.replace`
     renames within one directory, so readers see the old file or the whole new one, and a link at `path`
-    itself is replaced, not followed.
+    itself is replaced, not followed. Temporary files of this output left by a killed run go first
+    (`_sweep_stale`): each is as large as the partial output.
     """
     path = Path(path)
     with _output_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        _sweep_stale(path, suffix)
+        out = _TempFile(*_locked_temp(path, suffix), keep_going)
     try:
+        try:
+            yield out
+        except BaseException:
+            if out.error is None:
+                raise
         with _output_errors(path):
-            os.fchmod(fd, _FILE_MODE)
-            os.close(fd)
-        yield tmp_name
-        with _output_errors(path):
-            os.replace(tmp_name, path)
+            if out.error is not None:
+                raise out.error
+            os.replace(out.name, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
-            os.remove(tmp_name)
+            os.remove(out.name)
         raise
+    finally:
+        os.close(out.fd)
+
+
+def _temp_names(path: Path, suffix: str) -> re.Pattern:
+    """The names tempfile.mkstemp gives this output's temporary files (8 characters of its alphabet)."""
+    return re.compile(re.escape(f".{path.name}.") + r"[a-z0-9_]{8}" + re.escape(suffix))
+
+
+def _locked_temp(path: Path, suffix: str) -> tuple[int, str]:
+    """A new temporary file for `path`, locked (flock) for as long as its descriptor is open, so that
+    `_sweep_stale` of a run writing the same output tells it from one a killed run left: the kernel drops a
+    dead process's locks. One swept between its creation and its lock is made anew."""
+    while True:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        if os.fstat(fd).st_nlink > 0:
+            os.fchmod(fd, _FILE_MODE)
+            return fd, name
+        os.close(fd)
+
+
+def _sweep_stale(path: Path, suffix: str) -> None:
+    """Remove the temporary files of `path` (its own names only: `_temp_names`) that no live writer holds."""
+    names = _temp_names(path, suffix)
+    for entry in os.scandir(path.parent):
+        if not names.fullmatch(entry.name):
+            continue
+        try:      # O_NOFOLLOW, O_NONBLOCK and the regular-file check: a planted link or FIFO is left alone
+            fd = os.open(entry.path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        except OSError:
+            continue
+        try:
+            if stat.S_ISREG(os.fstat(fd).st_mode) and _unlocked(fd):
+                os.remove(entry.path)
+        finally:
+            os.close(fd)
+
+
+def _unlocked(fd: int) -> bool:
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
+class _TempFile:
+    """An output's temporary file as a binary file object (positioned reads and writes on its descriptor) that
+    remembers the first write the file system refused (a full disk, a file size limit, a read-only or
+    vanished medium).
+
+    Writers turn that refusal into their own errors (torch: `RuntimeError ... unexpected pos`), so the output
+    layer reports the remembered one. With `keep_going` (HDF5, through h5py's file-object driver) the refused
+    write and every later one are dropped and reported done: libhdf5 fails to clean up after a failed write
+    (closing the file after one leaves dataset ids over freed memory: a segfault at exit), so it must never
+    see one; the block runs to its end and the remembered error replaces its output.
+    """
+
+    def __init__(self, fd: int, name: str, keep_going: bool):
+        self.fd, self.name, self.keep_going = fd, name, keep_going
+        self.error: OSError | None = None
+        self._position = 0
+        self._end = 0          # the end of the file, writes dropped after an error included
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        if self.error is None:
+            try:
+                done = 0
+                while done < len(view):
+                    done += os.pwrite(self.fd, view[done:], self._position + done)
+            except OSError as err:
+                self.error = err
+                if not self.keep_going:
+                    raise
+        self._position += len(view)
+        self._end = max(self._end, self._position)
+        return len(view)
+
+    def read(self, size: int) -> bytes:
+        buffer = bytearray(size)
+        return bytes(buffer[:self.readinto(buffer)])
+
+    def readinto(self, buffer) -> int:
+        view = memoryview(buffer).cast("B")
+        count = os.preadv(self.fd, [view], self._position)
+        self._position += count
+        return count
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        base = {os.SEEK_SET: 0, os.SEEK_CUR: self._position, os.SEEK_END: self._end}[whence]
+        self._position = base + offset
+        return self._position
+
+    def tell(self) -> int:
+        return self._position
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._position if size is None else size
+        if self.error is None:
+            try:
+                os.ftruncate(self.fd, size)
+            except OSError as err:
+                self.error = err
+                if not self.keep_going:
+                    raise
+        self._end = size
+        return size
+
+    def flush(self) -> None:
+        """Writes go straight to the descriptor: nothing to flush."""
+
+    def readable(self) -> bool:
+        return True
+
+    writable = seekable = readable
 
 
 @contextlib.contextmanager
-def _output_errors(path: Path) -> Iterator[None]:
+def _output_errors(path: str | os.PathLike) -> Iterator[None]:
     """The file system's refusal to create, fill or rename an output (a read-only folder, a folder or a regular
     file where the output or its folder should be, a full disk) as one error naming the output."""
     try:
         yield
     except OSError as err:
+        path = Path(path)
         raise PipelineError(f"{path}: cannot write the output ({_why_unwritable(path, err)})") from None
 
 
@@ -108,24 +235,26 @@ def _why_unwritable(path: Path, err: OSError) -> str:
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """A binary file to write that appears at `path` only if the block finishes without error (every output
-    that is not HDF5: model.pt, the training checkpoint, report.md)."""
-    with _replaced_on_success(path, ".tmp") as tmp_name:
-        with _output_errors(path):
-            f = open(tmp_name, "wb")
-        with f:
-            yield f
+    that is not HDF5: model.pt, the training checkpoint, report.md, renders, videos)."""
+    with _replaced_on_success(path, ".tmp", keep_going=False) as out:
+        yield out
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """`data` as the file `path`, through `atomic_write`."""
+    with atomic_write(path) as f:
+        f.write(data)
 
 
 @contextlib.contextmanager
 def atomic_h5(path: str | os.PathLike, stage: str, config: Mapping[str, Any] | None = None) -> Iterator[h5py.File]:
     """Open a new HDF5 file for writing that appears at `path` only if the block finishes without error.
 
-    Provenance attrs are set up front; the caller adds datasets and stage-specific attrs.
+    Provenance attrs are set up front; the caller adds datasets and stage-specific attrs. libhdf5 writes
+    through h5py's file-object driver into a `_TempFile` that never tells it of a refused write (see there).
     """
-    with _replaced_on_success(path, ".tmp.h5") as tmp_name:
-        with _output_errors(path):
-            f = h5py.File(tmp_name, "w")
-        with f:
+    with _replaced_on_success(path, ".tmp.h5", keep_going=True) as out:
+        with h5py.File(out, "w") as f:
             f.attrs["stage"] = stage
             f.attrs["config"] = json.dumps(config or {}, sort_keys=True, default=_json_default)
             f.attrs["versions"] = json.dumps(package_versions(), sort_keys=True)
@@ -143,6 +272,18 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot record {type(obj).__name__} in an artifact's config attr")
 
 
+def require_input_file(path: Path) -> None:
+    """Refuse an input path that is no regular file, saying what it is: a folder, a FIFO or a device such as
+    /dev/zero was once reported as "does not exist" (and a FIFO, opened, would block the stage)."""
+    if path.is_file():
+        return
+    if not path.exists():
+        raise PipelineError(f"{path}: input file does not exist")
+    kind = "a folder" if path.is_dir() else "a FIFO" if path.is_fifo() else "a device" if (
+        path.is_block_device() or path.is_char_device()) else "a socket"
+    raise PipelineError(f"{path}: input is {kind}, not a regular file")
+
+
 @contextlib.contextmanager
 def open_artifact(path: str | os.PathLike) -> Iterator[h5py.File]:
     """An existing artifact opened read-only for the block, with one clear error if it is missing or not HDF5,
@@ -155,8 +296,7 @@ def open_artifact(path: str | os.PathLike) -> Iterator[h5py.File]:
     (external links, virtual datasets, external storage) is refused before the block reads anything.
     """
     path = Path(path)
-    if not path.is_file():
-        raise PipelineError(f"{path}: input file does not exist")
+    require_input_file(path)
     try:
         f = h5py.File(path, "r")
     except OSError as err:

@@ -12,7 +12,7 @@ import numpy as np
 
 from geometry.mesh import validate_mesh
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import FLOAT32_MAX, open_artifact, read_indices
+from pipeline.core.h5 import FLOAT32_MAX, open_artifact, read_indices, require_input_file
 
 # Where each artifact kind keeps its mesh: the first group path found in a file wins.
 _H5_MESH_GROUPS = ("", "rest", "levels/0")
@@ -26,8 +26,7 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     `levels/0/`. A vertex that no face uses is refused by the validation, not dropped.
     """
     path = Path(path)
-    if not path.is_file():
-        raise PipelineError(f"{path}: input file does not exist")
+    require_input_file(path)
     if path.suffix.lower() in (".h5", ".hdf5"):
         vertices, faces = _load_h5_mesh(path)
     elif path.suffix.lower() == ".obj":
