@@ -12,9 +12,10 @@ one of another (an older one, which stored S x_low as `input`) is refused with o
 
 The per-frame arrays are chunked by a few frames (`chunk_frames`: about a MiB of targets a chunk), so that a run
 of consecutive frames is one contiguous read: training streams datasets larger than memory that way
-(`FrameReader`, model.streaming). The writer takes the sequences one at a time, so the stage holds one sequence
-in memory, not the whole dataset, and digests the frames as they pass (attr `frames_digest`): a dataset's
-fingerprint is known without reading every frame back.
+(`FrameReader`, model.streaming). The writer takes the sequences one at a time, so the stage holds a few
+sequences in memory (those its --threads prepare ahead), not the whole dataset, and digests the frames as they
+pass (attr `frames_digest`, on a thread beside the writing): a dataset's fingerprint is known without reading
+every frame back.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import dataclasses
 import functools
 import hashlib
 import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Iterable, Mapping
 
 import h5py
@@ -186,25 +188,8 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             arrays = {"inputs": per_frame(INPUT, (task.input_size,)),
                       "predictor": per_frame(PREDICTOR, (n_vertices, 3))}
         arrays["targets"] = per_frame(TARGET, (n_vertices, 3))
-        gravity = f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
-        start = 0
-        for part in sequences:
-            rows = slice(start, start + len(part.targets))
-            if any(getattr(part, name) is None for name in arrays) or (part.inputs is None) != (task is None):
-                raise PipelineError(f"{path}: a sequence's frames do not fit the dataset's task")
-            for name, dataset in arrays.items():
-                values = np.ascontiguousarray(getattr(part, name), dtype=np.float32)
-                dataset[rows] = values
-                digest.update(values)     # its buffer: the bytes tobytes() would copy
-            gravity[rows] = part.gravity
-            if part.mannequin is not None:
-                _write_mannequin(f, part.mannequin, rows, n_frames)
-            if part.capsules is not None:
-                for name, ends in zip((CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B), part.capsules):
-                    if name not in f:
-                        f.create_dataset(name, (n_frames, *ends.shape[1:]), np.float32)
-                    f[name][rows] = ends
-            start = rows.stop
+        f.create_dataset(CONTEXT_GRAVITY, (n_frames, 3), np.float32)
+        start = _write_frames(path, f, arrays, sequences, n_frames, task is None, digest)
         if start != n_frames:
             raise PipelineError(f"{path}: the sequences gave {start} frames, the layout says {n_frames}")
         f.attrs.update({FORMAT: DATASET_FORMAT, FRAMES_DIGEST: digest.hexdigest(), CHUNK_FRAMES: chunk})
@@ -247,6 +232,40 @@ def write_dataset(path: str | os.PathLike, config: Mapping[str, Any], layout: Da
             _write_task(f, task)
         f[SEQUENCE].attrs["meaning"] = ("index into sequences/names of each frame's sequence; frame f - 1 is the "
                                         "frame before f in time when both have the same sequence id")
+
+
+def _write_frames(path: str | os.PathLike, f, arrays: dict[str, h5py.Dataset], sequences: Iterable[SequenceFrames],
+                  n_frames: int, upsampling: bool, digest) -> int:
+    """Write each sequence's frames after the last one's, adding its `arrays` to `digest` in their order; returns
+    the frames written. Digesting takes about as long as writing, so it runs on a thread of its own (hashlib lets
+    go of the GIL) while the next sequence is written, at most one sequence behind."""
+    def digest_all(values: list[np.ndarray]) -> None:
+        for value in values:
+            digest.update(value)      # the array's buffer: no tobytes() copy
+
+    start = 0
+    with ThreadPoolExecutor(max_workers=1) as hasher:     # one thread: the arrays are digested in turn
+        digested = hasher.submit(lambda: None)
+        for part in sequences:
+            rows = slice(start, start + len(part.targets))
+            if any(getattr(part, name) is None for name in arrays) or (part.inputs is None) != upsampling:
+                raise PipelineError(f"{path}: a sequence's frames do not fit the dataset's task")
+            values = [np.ascontiguousarray(getattr(part, name), dtype=np.float32) for name in arrays]
+            digested.result()
+            digested = hasher.submit(digest_all, values)
+            for dataset, data in zip(arrays.values(), values):
+                dataset[rows] = data
+            f[CONTEXT_GRAVITY][rows] = part.gravity
+            if part.mannequin is not None:
+                _write_mannequin(f, part.mannequin, rows, n_frames)
+            if part.capsules is not None:
+                for name, ends in zip((CONTEXT_CAPSULE_A, CONTEXT_CAPSULE_B), part.capsules):
+                    if name not in f:
+                        f.create_dataset(name, (n_frames, *ends.shape[1:]), np.float32)
+                    f[name][rows] = ends
+            start = rows.stop
+        digested.result()
+    return start
 
 
 def _write_split(f, split: Split) -> None:

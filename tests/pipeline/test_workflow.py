@@ -225,7 +225,7 @@ def test_bare_snakemake_plans_the_default_scene_and_every_job_has_log_benchmark_
         assert job["benchmark"] == f"results/{scene}/benchmarks/{seq}{name}.tsv"
         assert "mem_mb=" in job["resources"] and "gpu=1" not in job["resources"]   # the cpu profile: no GPU
         assert name in SETTINGS_RULES or job["shell"].endswith(f" 2>&1 | tee {job['log']}")
-    assert jobs["train"]["threads"] == jobs["evaluate"]["threads"] == "2"             # --cores 2
+    assert jobs["train"]["threads"] == jobs["evaluate"]["threads"] == jobs["dataset"]["threads"] == "2"   # --cores 2
 
     other = snakemake(tmp_path, "-n", "--config", "default_scene=patch", "device=cuda:0")
     assert other.returncode == 0, tail(other)

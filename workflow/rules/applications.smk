@@ -68,11 +68,11 @@ rule pose_dataset:
     params: sequences=sequence_folders
     log: "results/{scene}/pose/logs/dataset.log"
     benchmark: "results/{scene}/pose/benchmarks/dataset.tsv"
-    threads: 1
+    threads: workflow.cores
     resources: mem_mb=8000
     shell:
         "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} --task pose "
-        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule pca_dataset:
@@ -83,11 +83,12 @@ rule pca_dataset:
     params: sequences=sequence_folders
     log: "results/{scene}/pca/k{components}/logs/dataset.log"
     benchmark: "results/{scene}/pca/k{components}/benchmarks/dataset.tsv"
-    threads: 1
+    threads: workflow.cores
     resources: mem_mb=8000
     shell:
         "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} --task pca "
-        "--components {wildcards.components:q} --settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "--components {wildcards.components:q} --settings {input.settings:q} --threads {threads} --quiet "
+        "2>&1 | tee {log:q}"
 
 
 rule application_train:

@@ -23,11 +23,11 @@ rule dataset:
     params: sequences=sequence_folders
     log: log_of("dataset")
     benchmark: benchmark_of("dataset")
-    threads: 1
+    threads: workflow.cores
     resources: mem_mb=8000
     shell:
         "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} "
-        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 # Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains.

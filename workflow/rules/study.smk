@@ -51,11 +51,11 @@ rule study_dataset:
     params: sequences=study_sequence_folders
     log: f"{STUDY_POINT}/logs/dataset.log"
     benchmark: f"{STUDY_POINT}/benchmarks/dataset.tsv"
-    threads: 1
+    threads: workflow.cores
     resources: mem_mb=8000
     shell:
         "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} "
-        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule study_train:

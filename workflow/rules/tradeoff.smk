@@ -259,11 +259,11 @@ rule tradeoff_dataset:
     params: sequences=tradeoff_sequence_folders
     log: f"{TRADEOFF_POINT}/logs/dataset.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/dataset.tsv"
-    threads: 1
+    threads: workflow.cores
     resources: mem_mb=8000
     shell:
         "{PY:q} -m pipeline.dataset {input.subdiv:q} {output:q} {params.sequences:q} "
-        "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule tradeoff_network_settings:
