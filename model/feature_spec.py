@@ -21,6 +21,8 @@ FEATURE_CHANNELS = {
     "strain": 2,             # principal stretches - 1 of S x_low against the rest mesh (compression < 0)
     "body": 4,               # signed distance to the nearest capsule, then the unit direction away from it
     "gravity": 3,            # unit gravity direction in the dataset frame (the same at every vertex)
+    "previous_output": 3,    # the network's own displacement at the previous frame (zero at a sequence's first
+                             # frame): autoregressive, for the detail that depends on the cloth's history
 }
 TANGENTS = ("edge", "gravity")   # how a local frame's tangent is chosen (model.local_frames)
 FRAMES = ("dataset", "local")    # the axes vectors are expressed in: the dataset's, or each vertex's own

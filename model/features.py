@@ -25,7 +25,7 @@ from model.local_frames import to_local, vertex_frames
 # name -> the channels that hold a vector of the current frame, which turn with the local frame when inputs are
 # local (rest positions name a material point, not a direction, so they stay as they are)
 VECTOR_CHANNELS = {name: slice(0, 3) for name in ("position", "centered_position", "normal", "laplacian",
-                                                   "velocity", "acceleration", "gravity")}
+                                                   "velocity", "acceleration", "gravity", "previous_output")}
 VECTOR_CHANNELS["body"] = slice(1, 4)
 
 _EPS = 1e-12
@@ -37,7 +37,10 @@ class FrameBatch:
 
     `previous` is S x_low at the previous frame of the same sequence (equal to `positions` at a sequence's first
     frame, which makes its velocity zero) and `before_previous` the previous frame's `previous` by the same rule;
-    `gravity` is the unit gravity direction per frame (B, 3).
+    `gravity` is the unit gravity direction per frame (B, 3). `previous_output` is the displacement (x_high -
+    S x_low) at the previous frame, zero at a sequence's first frame: the network's own output there when it runs
+    frame after frame (model.autoregressive), the truth where a store holds it for statistics; None for a network
+    that does not read it.
     """
 
     positions: torch.Tensor        # (B, V, 3)
@@ -49,6 +52,7 @@ class FrameBatch:
     radius_b: torch.Tensor         # (P,)
     gravity: torch.Tensor          # (B, 3)
     frame_time: float              # seconds between frames
+    previous_output: torch.Tensor | None = None   # (B, V, 3)
 
 
 class Subdivider:
@@ -89,6 +93,10 @@ class FrameStore:
     radius_b: torch.Tensor         # (P,)
     gravity: torch.Tensor          # (F, 3)
     frame_time: float
+    # Each frame's true displacement (F, V_high, 3), where the store has them: a batch's previous_output is then
+    # the truth at each frame's previous frame (what the input statistics are measured on; training and
+    # evaluation replace it with the network's own, model.autoregressive).
+    displacements: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.low)
@@ -99,7 +107,14 @@ class FrameStore:
         rows = torch.cat([ids, previous, self.previous[previous]])
         positions, before, before_previous = self.subdivide(self.low[rows]).split(len(ids))
         return FrameBatch(positions, before, before_previous, self.capsule_a[ids], self.capsule_b[ids],
-                          self.radius_a, self.radius_b, self.gravity[ids], self.frame_time)
+                          self.radius_a, self.radius_b, self.gravity[ids], self.frame_time,
+                          None if self.displacements is None else self.previous_displacement(ids))
+
+    def previous_displacement(self, ids: torch.Tensor) -> torch.Tensor:
+        """The true displacement at each frame's previous frame (B, V_high, 3), zero at a sequence's first."""
+        previous = self.previous[ids]
+        first = (previous == ids)[:, None, None]
+        return torch.where(first, torch.zeros((), device=ids.device), self.displacements[previous])
 
     def predictor(self, ids: torch.Tensor) -> torch.Tensor:
         """S x_low of the frames `ids` (B, V_high, 3): what the network's displacement is added to."""
@@ -295,4 +310,8 @@ class InputFeatures(nn.Module):
             distance, direction = nearest_capsule(x, inputs.capsule_a, inputs.capsule_b, inputs.radius_a,
                                                   inputs.radius_b)
             return torch.cat([distance[..., None], direction], dim=-1)
+        if name == "previous_output":
+            if inputs.previous_output is None:
+                raise ValueError("the network reads its previous output: give FrameBatch.previous_output")
+            return inputs.previous_output
         return inputs.gravity[:, None, :].expand_as(x)    # "gravity"

@@ -186,7 +186,7 @@ class FastRegressor(nn.Module):
         reorder = lambda x: None if x is None else x.index_select(1, self.order)  # noqa: E731
         reordered = FrameBatch(reorder(frame.positions), reorder(frame.previous), reorder(frame.before_previous),
                                frame.capsule_a, frame.capsule_b, frame.radius_a, frame.radius_b, frame.gravity,
-                               frame.frame_time)
+                               frame.frame_time, reorder(frame.previous_output))
         return self.displacement_reordered(reordered).index_select(1, self.new_of)
 
 
@@ -251,6 +251,10 @@ UPSAMPLER_INPUTS = ("low_positions", "low_previous", "low_before_previous", "cap
 def needed_inputs(model: FeatureRegressor) -> tuple[str, ...]:
     """The FastUpsampler inputs a model's features read, in the forward's order (low_positions always)."""
     spec = model.spec
+    if "previous_output" in spec.inputs:
+        # A frame's input would be the upsampler's own displacement at the frame before: state that this
+        # one-frame program does not keep (the evaluate stage rolls such a network out, model.autoregressive).
+        raise ValueError("the network reads its previous output: the one-frame upsampler cannot run it")
     needed = {"low_positions"}
     for name in spec.inputs:
         needed.update(_INPUTS_OF_FEATURE.get(name, ()))

@@ -20,6 +20,7 @@ from typing import Any, Callable, Iterator, Mapping, Protocol
 
 import torch
 
+from model.autoregressive import pushforward_inputs, reads_previous_output
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
@@ -106,13 +107,21 @@ class Frames:
     def batch_loss(self, model, mesh: MeshHierarchy, ids: torch.Tensor,
                    weights: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Eq. 7 over the frames `ids` taken together, and its terms (model.losses.total_loss)."""
-        inputs = self.store.batch(ids)
+        inputs = self.inputs(model, mesh, ids)
         return total_loss(inputs.positions + model(inputs, mesh), inputs.positions + self.targets[ids], self.faces,
                           weights)
 
+    def inputs(self, model, mesh: MeshHierarchy, ids: torch.Tensor) -> FrameBatch:
+        """What `model` is given for the frames `ids`: their inputs, and for a network that reads its previous
+        output its own at each previous frame (model.autoregressive)."""
+        if reads_previous_output(model):
+            return pushforward_inputs(lambda inputs: model(inputs, mesh), self.store, ids)
+        return self.store.batch(ids)
+
     def errors(self, model, mesh: MeshHierarchy, ids: torch.Tensor, batch_size: int,
                weights: LossWeights) -> dict[str, float]:
-        return split_errors(lambda inputs: model(inputs, mesh), self, ids, batch_size, weights)
+        return split_errors(lambda inputs: model(inputs, mesh), self, ids, batch_size, weights,
+                            lambda batch: self.inputs(model, mesh, batch))
 
 
 class Problem(BatchLoss, Protocol):
@@ -127,12 +136,14 @@ class Problem(BatchLoss, Protocol):
 
 
 def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, ids: torch.Tensor,
-                 batch_size: int, weights: LossWeights) -> dict[str, float]:
+                 batch_size: int, weights: LossWeights,
+                 inputs_of: Callable[[torch.Tensor], FrameBatch] | None = None) -> dict[str, float]:
     """L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and their weighted total over all frames `ids` taken together;
-    `predict` maps a batch of frames to predicted displacements. Positions are S x_low + displacement."""
+    `predict` maps a batch of frames (`inputs_of` the ids Frames.feed yields: by default the store's batch) to
+    predicted displacements. Positions are S x_low + displacement."""
     def batches():
         for batch in frames.feed(ids, batch_size):
-            inputs = frames.store.batch(batch)
+            inputs = (inputs_of or frames.store.batch)(batch)
             yield batch, inputs.positions, predict(inputs)
     with torch.no_grad():
         return _errors(batches(), frames, len(ids), weights)

@@ -40,6 +40,7 @@ import torch
 from tqdm import tqdm
 
 from geometry.rigid import apply_rigid_inverse
+from model.autoregressive import reads_previous_output, rollout
 from model.features import FrameStore
 from model.losses import LossWeights
 from model.training import displacement_errors, split_errors
@@ -75,7 +76,10 @@ NO_WINDOW, NO_CATEGORY = "(no library window)", "(no category)"
 
 
 def infer_all(model, mesh, store: FrameStore, device: torch.device, batch_size: int = 8) -> torch.Tensor:
-    """Predicted displacements of every frame (of a store on `device`)."""
+    """Predicted displacements of every frame (of a store on `device`); a network that reads its previous
+    output runs each sequence frame after frame from its first, fed its own outputs (model.autoregressive)."""
+    if reads_previous_output(model):
+        return rollout(lambda inputs: model(inputs, mesh), store, batch_size)
     ids = torch.arange(len(store), device=device)
     with torch.no_grad():
         return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])

@@ -46,6 +46,7 @@ import torch
 
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
+from model.autoregressive import reads_previous_output
 from model.sampler import Sampler, SampleSettings
 from model.training import CheckpointError, Diverged, TrainSettings, fit, split_batch_size
 from model.training_step import LR_SCHEDULES
@@ -221,6 +222,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                                       "--inputs/--input-frame/--output-frame/--frame-tangent"),
                        data, args.operators, args.dataset)
     spec, model, mesh = built.spec, built.model, built.mesh
+    if stream and reads_previous_output(model):
+        raise PipelineError(f"{args.dataset}: a network that reads its previous output is trained on the true "
+                            f"displacements of every frame, which a streamed dataset does not hold: give "
+                            f"--device-cache-gb room for {n_bytes / 2 ** 30:.1f} GiB")
     parameter_count = model.net.parameter_count()
     trained = trained_frames(data, args.train_on, args.dataset)
     if args.train_frames is not None:

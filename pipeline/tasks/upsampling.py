@@ -66,10 +66,11 @@ class UpsamplingTask(Task):
             return torch.as_tensor(array, device=device)
 
         context = data.context
+        targets = tensor(data.targets)
         store = FrameStore(tensor(data.inputs), subdivider(data, device), tensor(data.previous),
                            tensor(context.capsule_a), tensor(context.capsule_b), tensor(context.radius_a),
-                           tensor(context.radius_b), tensor(context.gravity), context.frame_time)
-        return Frames(store, tensor(data.targets), tensor(data.faces.astype(np.int64)))
+                           tensor(context.radius_b), tensor(context.gravity), context.frame_time, targets)
+        return Frames(store, targets, tensor(data.faces.astype(np.int64)))
 
     def streamed_frames(self, data: LearningData, reader: FrameReader, capacity: int, device: torch.device,
                         window: int) -> StreamedFrames:

@@ -31,14 +31,15 @@ def _random_rotation(seed: int) -> np.ndarray:
 
 
 def _frame_inputs(positions, previous=None, before_previous=None, a=None, b=None, gravity=None,
-                  frame_time=0.1) -> FrameBatch:
+                  frame_time=0.1, previous_output=None) -> FrameBatch:
     x = _t(positions)[None]
     a = _t([[[0.0, -2.0, 0.0]]]) if a is None else _t(a)
     b = _t([[[0.0, -3.0, 0.0]]]) if b is None else _t(b)
     radii = torch.full((a.shape[1],), 0.5, dtype=F64)
     return FrameBatch(x, x if previous is None else _t(previous)[None],
                        x if before_previous is None else _t(before_previous)[None], a, b, radii, radii.clone(),
-                       _t([[0.0, -1.0, 0.0]]) if gravity is None else _t(gravity), frame_time)
+                       _t([[0.0, -1.0, 0.0]]) if gravity is None else _t(gravity), frame_time,
+                       0.01 * x if previous_output is None else _t(previous_output)[None])
 
 
 def test_vertex_normals_converge_to_a_spheres_radial_direction_and_are_exact_on_a_plane():

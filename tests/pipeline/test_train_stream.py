@@ -122,3 +122,22 @@ def test_fewer_frames_take_the_steps_of_every_frame_share_first(every, kept, epo
     assert abs(visited - full) <= train.Sampler(kept, new_sampling).frames_per_epoch / 2   # within half an epoch
     assert new_sampling.share == min(1.0, share * every / kept) and new_sampling.block == block
     assert new_epochs >= epochs or new_sampling.share < 1.0
+
+
+def test_a_network_fed_its_previous_output_trains_evaluates_by_rollout_and_is_not_streamed(sheets, tmp_path, capsys):
+    state = _train(sheets, "autoregressive", "--inputs", "position,previous_output")
+    assert list(state["features"]["inputs"]) == ["position", "previous_output"]
+    out = sheets / "autoregressive"
+    stage(evaluate.main, sheets / "dataset.h5", sheets / "operators.h5", out / "model.pt", out / "eval.h5",
+          out / "report.md", "--render-frames", "0", "--video-frames", "0", "--export-frames", "0",
+          "--timing-frames", "1", "--quiet")
+    with h5py.File(out / "eval.h5") as f:
+        held_out = f["errors/network/held_out/l1"][()]
+        per_frame = f["per_frame/network_l1"][()]
+    assert np.isfinite(held_out) and np.isfinite(per_frame).all()
+    with pytest.raises(SystemExit) as exit_info:
+        stage(train.main, sheets / "dataset.h5", sheets / "operators.h5", tmp_path / "model.pt", tmp_path / "t.h5",
+              *ARCH, "--inputs", "position,previous_output", "--device-cache-gb", "0", "--epochs", "1", "--quiet")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(lines) == 1 and "previous output" in lines[0]
+    assert not (tmp_path / "model.pt").exists()
