@@ -10,8 +10,8 @@ import os
 
 from snakemake.utils import min_version, validate
 
+from pipeline.core.cli import exit_on_error
 from pipeline.core.config import validate_config
-from pipeline.core.errors import PipelineError
 
 min_version("9.0")
 
@@ -19,8 +19,9 @@ min_version("9.0")
 # `--config` merge over it.
 configfile: os.path.join(workflow.basedir, "workflow_config.yaml")
 
-# Our validator first: it names the offending key in one line; Snakemake's then records the schema check.
-validate_config(config, "workflow config")
+# Our validator first: it names the offending key in one line (and stops, not followed by Snakemake's stack of
+# Snakefile frames); Snakemake's then records the schema check.
+exit_on_error(validate_config, config, "workflow config")
 validate(config, "workflow/config.schema.yaml")
 
 include: "workflow/rules/common.smk"
@@ -31,11 +32,6 @@ include: "workflow/rules/study.smk"
 include: "workflow/rules/applications.smk"
 include: "workflow/rules/tradeoff.smk"
 include: "workflow/rules/multi.smk"
-
-if config["default_scene"] not in SETTINGS:
-    raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "
-                        f"(known: {', '.join(sorted(SETTINGS))})")
-
 
 rule all:
     default_target: True

@@ -48,6 +48,9 @@ MAX_JOINTS = 1000
 MAX_CLIP_VALUES = 100_000_000      # float64s a clip fills: 800 MB
 MAX_LINE = 1 << 20                 # characters; a frame of 1000 joints x 6 channels takes about 60,000
 MAX_TEXT = 1 << 30                 # characters in all
+# Frames a clip plays on the mannequin, resampled at the scene's rate: the bound of a sequence's `frames` in
+# workflow/config.schema.yaml, which a clip's length (its frame time, its window, the scene's dt) would bypass.
+MAX_PLAYED_FRAMES = 100_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,6 +96,11 @@ def read_bvh(path: str | Path, scale: float | None = None, frame_time: float | N
     path = Path(path)
     with _lines(path) as lines:
         return _parse(_Tokens(lines, str(path)), _clip_name(path), scale, frame_time)
+
+
+def played_frames(seconds: float, fps: float) -> int:
+    """Frames `seconds` of a clip's motion play at `fps`, both ends included (scenes.retarget resamples so)."""
+    return int(math.floor(seconds * fps + 1e-6)) + 1   # 1e-6: rounded frame times
 
 
 def read_bvh_header(path: str | Path) -> BvhHeader:

@@ -26,7 +26,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from scenes.bvh import BvhClip, world_transforms
+from scenes.bvh import MAX_PLAYED_FRAMES, BvhClip, played_frames, world_transforms
 from scenes.kinematics import rest_transforms
 from scenes.motion import Motion, ground_lift, soft_limit
 from scenes.skeleton import Skeleton, default_skeleton
@@ -133,6 +133,10 @@ def retarget(clip: BvhClip, skel: Skeleton, fps: float, start: float | None = No
         raise ValueError(f"BVH '{clip.name}': need fps > 0 and 0 <= start < end <= {duration:.3f} s (of motion, "
                          f"from frame {first_motion}) with at least one frame between them; got fps {fps}, "
                          f"start {start}, end {end}")
+    frames = played_frames(end - start, fps)
+    if frames > MAX_PLAYED_FRAMES:      # checked before the resampled arrays exist (Frame Time 100: 5.96 M frames)
+        raise ValueError(f"BVH '{clip.name}': {end - start:.6g} s of motion at {fps:g} frames/s play {frames:,} "
+                         f"frames, more than {MAX_PLAYED_FRAMES:,}")
     begin, finish = start + lead, end + lead   # seconds in the file
     sigma = 0.5 / fps  # seconds
     pad = int(np.ceil(4 * sigma / clip.frame_time))
@@ -142,7 +146,7 @@ def retarget(clip: BvhClip, skel: Skeleton, fps: float, start: float | None = No
     times = (first + np.arange(last - first + 1)) * clip.frame_time
     smooth = {name: PchipInterpolator(times, gaussian_filter1d(x, sigma / clip.frame_time, axis=0, mode="nearest"),
                                       axis=0) for name, x in (("angles", angles), ("travel", travel))}
-    t = begin + np.arange(int(np.floor((end - start) * fps + 1e-6)) + 1) / fps  # 1e-6: rounded frame times
+    t = begin + np.arange(frames) / fps
     joint_angles, joint_angle_rates = smooth["angles"](t), smooth["angles"].derivative()(t)
     root_position = skel.joint_offsets[0] + smooth["travel"](t) - smooth["travel"](begin)
     root_velocity = smooth["travel"].derivative()(t)

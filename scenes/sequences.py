@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import re
 
+from scenes.bvh import played_frames, read_bvh_header
 from scenes.library import WINDOW_NAME, LibraryWindow, find_window, library_clips, subject_id, windows
 
 TRAIN, HELD_OUT = "train", "held_out"
@@ -164,3 +165,32 @@ def sequence_bvh_files(settings: dict, name: str) -> list[str]:
     if is_window_name(name):
         return [find_window(library_of(settings), window_key(name)).clip.path]
     return [entry["bvh"] for entry in sequence_clips(settings, name) if isinstance(entry, dict)]
+
+
+def sequence_frames(settings: dict, name: str) -> int:
+    """The frames sequence `name` (or SETTLE) simulates, planned from the settings and motion-capture headers
+    alone: a program's or a grid's `frames`; a held-out BVH clip's settle_frames and the frames it plays (its
+    whole length as the header states it, or its start-end window); a library window's blend and hold frames and
+    its seconds of motion; the settle sequence's settle_frames and its frame 0. ValueError for an unreadable
+    header."""
+    fps = 1.0 / settings["solver"]["dt"]
+    drive = settings["drivers"].get("mannequin")
+    if name == SETTLE:
+        return drive["settle_frames"] + 1
+    if is_window_name(name):
+        window = find_window(library_of(settings), window_key(name))
+        return (drive["blend_frames"] + drive["library"]["hold_frames"]
+                + played_frames(window.end - window.start, fps))
+    role, index = parse_sequence_name(name)
+    entry = held_out_clips(settings)[index] if role == HELD_OUT else None
+    if not isinstance(entry, dict):
+        return settings["frames"]
+    return drive["settle_frames"] + played_frames(_clip_seconds(entry), fps)
+
+
+def _clip_seconds(entry: dict) -> float:
+    """Seconds a BVH clip entry plays at most: its window, or the file's whole length from its header (the
+    retargeter may drop a leading rest pose)."""
+    header = read_bvh_header(entry["bvh"])
+    end = entry.get("end", (header.n_frames - 1) * header.frame_time)
+    return end - entry.get("start", 0.0)

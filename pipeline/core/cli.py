@@ -7,17 +7,25 @@ import os
 import re
 import sys
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 from pipeline.core.config import load_settings, require_complete_settings
 from pipeline.core.errors import PipelineError
 from pipeline.core.gpu_slots import claim_gpu
 
+T = TypeVar("T")
+
 
 def run(main: Callable[[Sequence[str] | None], None], argv: Sequence[str] | None = None) -> None:
     """Run a stage's `main`, turning `PipelineError` into `error: ...` on stderr and exit status 2."""
+    exit_on_error(main, argv)
+
+
+def exit_on_error(work: Callable[..., T], *args: Any) -> T:
+    """`work(*args)`, a PipelineError becoming `error: ...` on stderr and exit status 2: for the stages, and for
+    the Snakefile, where Snakemake would follow the line with a stack of Snakefile frames."""
     try:
-        main(argv)
+        return work(*args)
     except PipelineError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)

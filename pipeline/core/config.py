@@ -78,10 +78,7 @@ def validate_config(config: Any, source: str = "config") -> None:
 def _validate(document: Any, schema: dict, source: str) -> None:
     """Every number finite within float32's range, then the schema; the first problem is one error."""
     import jsonschema  # here, not at the top: stages that only read resolved settings do not need it
-    unbounded = _first_unbounded_number(document)
-    if unbounded is not None:
-        where, value = unbounded
-        raise PipelineError(f"{source}: {where}: {value!r} is not a finite number within float32's range")
+    _check_numbers(document, source)
     validator = _whole_string_patterns(jsonschema)(schema)
     error = jsonschema.exceptions.best_match(validator.iter_errors(document))
     if error is not None:
@@ -99,22 +96,31 @@ def _whole_string_patterns(jsonschema):
     return jsonschema.validators.extend(jsonschema.Draft202012Validator, {"pattern": pattern})
 
 
-def _first_unbounded_number(value: Any, where: tuple[str, ...] = ()) -> tuple[str, Any] | None:
-    """The dotted key and value of the first number that is NaN, infinite or beyond float32's range (where the
-    solver and the network compute), or None."""
-    if isinstance(value, dict):
-        items = value.items()
-    elif isinstance(value, list):
-        items = enumerate(value)
-    else:
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and not abs(value) <= FLOAT32_MAX:
-            return ".".join(where) or "top level", value
-        return None
-    for key, item in items:
-        found = _first_unbounded_number(item, (*where, str(key)))
-        if found is not None:
-            return found
-    return None
+# Values a config may hold once its YAML aliases are expanded (the shipped workflow_config.yaml: ~1,000). PyYAML
+# builds an alias as one shared object, so ten lines of anchors each repeating the last ten times load at once,
+# yet hold 10^8 values to every walk of the tree (ours below, jsonschema's): refused before any walk stalls.
+MAX_CONFIG_VALUES = 100_000
+
+
+def _check_numbers(document: Any, source: str) -> None:
+    """Every number finite within float32's range (where the solver and the network compute), the first that is
+    not one error naming its dotted key; a document of more than MAX_CONFIG_VALUES values one error. Iterative,
+    depth first in document order, counting values as they are reached: nesting is bounded by memory rather than
+    the stack, and the count by the limit however wide each level."""
+    pending: list[tuple[tuple[str, ...], Any]] = [((), document)]
+    reached = 1
+    while pending:
+        where, value = pending.pop()
+        if isinstance(value, (dict, list)):
+            reached += len(value)
+            if reached > MAX_CONFIG_VALUES:
+                raise PipelineError(f"{source}: more than {MAX_CONFIG_VALUES:,} values once YAML aliases are "
+                                    f"expanded (an alias repeating another many times over?)")
+            items = value.items() if isinstance(value, dict) else enumerate(value)
+            pending += reversed([((*where, str(key)), item) for key, item in items])
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and not abs(value) <= FLOAT32_MAX:
+            raise PipelineError(f"{source}: {'.'.join(where) or 'top level'}: {value!r} is not a finite number "
+                                f"within float32's range")
 
 
 def _describe(error) -> str:

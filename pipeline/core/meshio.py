@@ -84,7 +84,9 @@ def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
                 ids = [i - 1 if i > 0 else len(vertices) + i for i in ids]
                 faces.extend((ids[0], ids[k], ids[k + 1]) for k in range(1, len(ids) - 1))
         except ValueError as err:
-            raise PipelineError(f"{path}: line {number} '{line.strip()[:60]}': {err}") from None
+            # Named by its number, never quoted: int() and float() would quote the line's words too.
+            raise PipelineError(f"{path}: line {number}: a 'v' line needs three numbers, an 'f' line three or "
+                                f"more vertex indices counted from 1") from None
     if not faces:
         raise PipelineError(f"{path}: file holds no triangle mesh")
     return np.asarray(vertices, dtype=np.float64).reshape(-1, 3), np.asarray(faces, dtype=np.int64)

@@ -4,18 +4,16 @@
 import os
 import sys
 
-from pipeline import workflow_paths
+from pipeline import workflow_paths, workflow_plan
 from pipeline.core import gpu_slots
-from pipeline.core.config import resolve_scene, shared_settings, simulation_settings
-from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, sequence_names, sequence_shards
+from pipeline.core.cli import exit_on_error
+from pipeline.core.config import shared_settings, simulation_settings
+from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, sequence_shards
 
-# Resolving every scene now turns a bad or missing key into one error before any job starts.
-SETTINGS = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
-# Each scene's sequences (train_000, ..., held_out_000, ...): the count is in SETTINGS, not in settings.json, so
-# raising it adds sequences without touching an input of those already made.
-# A library that cannot be listed (no folder, no manifest) is one error naming the scene, before any job starts.
-SEQUENCES = {scene: workflow_paths.sequences_or_error(scene, lambda: sequence_names(settings))
-             for scene, settings in SETTINGS.items()}
+# Every scene resolved, its sequences listed (the count is in SETTINGS, not in settings.json, so raising it adds
+# sequences without touching an input of those already made), its motion-capture files found and its cost
+# stated, before any job exists: a problem is one error line (pipeline.workflow_plan).
+SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config)
 # The interpreter running Snakemake (the project's venv): jobs run the stages as `{PY} -m pipeline.<stage>`,
 # which works from any working directory once the project is installed (`pip install -e .`).
 PY = sys.executable
@@ -30,11 +28,6 @@ os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))
 wildcard_constraints:
     scene=workflow_paths.one_of(SETTINGS),
     seq=NAME_PATTERN,
-
-# A motion-capture file a scene names must exist before any job starts.
-for _scene, _names in SEQUENCES.items():
-    workflow_paths.check_bvh_files(_scene, SETTINGS[_scene], _names)
-
 
 def log_of(rule_name, per_sequence=False):
     """Where a job's stderr (and stdout) is kept, next to the artifacts it explains."""
