@@ -195,8 +195,10 @@ def test_the_study_step_budget_is_its_own_or_the_scenes(tmp_path):
 
 
 def test_a_bvh_clip_is_an_input_of_its_sequence_and_a_missing_one_is_named(tmp_path):
-    bvh = tmp_path / "walk.bvh"
-    bvh.write_text("not parsed by a dry run")
+    bvh = tmp_path / "walk.bvh"     # read for its header only (its length, planned before any job runs)
+    bvh.write_text("HIERARCHY\nROOT hip\n{\n\tOFFSET 0 0 0\n\tCHANNELS 6 Xposition Yposition Zposition Zrotation "
+                   "Xrotation Yrotation\n\tEnd Site\n\t{\n\t\tOFFSET 0 1 0\n\t}\n}\nMOTION\nFrames: 2\n"
+                   "Frame Time: 0.5\n0 0 0 0 0 0\n0 0 0 0 0 0\n")
     config = tiny_pants(tmp_path, test_clips=[{"bvh": str(bvh), "start": 0.5}])
     run = snakemake(tmp_path, "-n", "-p", "results/pants/", "--configfile", str(config))
     assert run.returncode == 0, tail(run)
