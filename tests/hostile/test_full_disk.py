@@ -154,3 +154,23 @@ def test_an_input_that_is_no_regular_file_is_named_for_what_it_is(tmp_path, make
     run = subprocess.run([sys.executable, "-m", "pipeline.operators", tmp_path / "subdiv.h5", tmp_path / "o.h5",
                           "--quiet"], capture_output=True, text=True, cwd=REPO, timeout=120)
     assert_refused(Run(run.returncode, run.stderr), f"{tmp_path / 'subdiv.h5'}: input is {kind}, not a regular file")
+
+
+@needs_prlimit
+def test_an_evaluation_the_disk_cannot_hold_is_one_error_and_leaves_nothing(valid, tmp_path):
+    """Item 3: evaluate's renders ended in an OSError traceback. Its stills are larger than the limit here: one
+    error, nothing of the evaluation left (no report, no eval.h5, no staging folder)."""
+    model = tmp_path / "trained"
+    model.mkdir()
+    code, stderr = run_limited(10 ** 9, "train", valid / "dataset.h5", valid / "operators.h5", model / "model.pt",
+                               model / "train.h5", *ARCH, "--epochs", "1", "--quiet")
+    assert code == 0, stderr
+    out = tmp_path / "out"
+    out.mkdir()
+    code, stderr = run_limited(30000, "evaluate", valid / "dataset.h5", valid / "operators.h5", model / "model.pt",
+                               out / "eval.h5", out / "report.md", "--render-frames", "2", "--video-frames", "0",
+                               "--export-frames", "0", "--timing-frames", "1", "--quiet")
+    lines = stderr.splitlines()
+    assert code == 2 and len(lines) == 1, stderr[-3000:]
+    assert lines[0].startswith("error: ") and "cannot write the output (File too large)" in lines[0]
+    assert files_in(out) == set(), files_in(out)
