@@ -241,8 +241,8 @@ def _check_finite(history: History, epoch: int) -> None:
     losses = {"training": history.train["total"][-1], "test": history.test["total"][-1]}
     for split, loss in losses.items():
         if not math.isfinite(loss):
-            raise Diverged(f"the {split} loss of epoch {epoch + 1} is {loss}: the weights overflowed "
-                           f"; lower the learning rate")
+            raise Diverged(f"the {split} loss of epoch {epoch + 1} is {loss}: the weights overflowed; lower the "
+                           f"learning rate")
 
 
 def monitored_test_frames(test_ids: torch.Tensor) -> torch.Tensor:

@@ -448,8 +448,8 @@ def _training_option_rows(training: dict) -> list[list[str]]:
         subjects = sorted({str(s) for s in sequences.get("subjects", []) if s}, key=lambda s: (len(s), s))
         rows.append(["sequences trained on", f"{len(sequences['names'])}" + (
             f" ({len(subjects)} subject(s): {', '.join(subjects)})" if subjects else "")])
-    frames = training.get("train_frames")
-    if isinstance(frames, int) and not isinstance(frames, bool):
+    frames = recorded_train_frames(training)
+    if frames is not None:
         rows.append(["frames trained on", f"{frames:,}"])
     return rows
 
@@ -457,10 +457,16 @@ def _training_option_rows(training: dict) -> list[list[str]]:
 def trained_frame_count(training: dict, data: LearningData) -> int:
     """The frames the model trained on: as its model.pt records them, or (one that records none) the train split,
     with the held-out frames for an oracle."""
-    frames = training.get("train_frames")
-    if isinstance(frames, int) and not isinstance(frames, bool) and frames > 0:
+    frames = recorded_train_frames(training)
+    if frames is not None:
         return frames
     return len(data.train) + (len(data.held_out) if trained_on_held_out(training) else 0)
+
+
+def recorded_train_frames(training: dict) -> int | None:
+    """The frames a model.pt says it trained on (train's `train_frames`), or None where it records no count."""
+    frames = training.get("train_frames")
+    return frames if isinstance(frames, int) and not isinstance(frames, bool) and frames > 0 else None
 
 
 def trained_on_held_out(training: dict) -> bool:

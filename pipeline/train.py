@@ -44,9 +44,9 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from model.autoregressive import reads_previous_output
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
-from model.autoregressive import reads_previous_output
 from model.sampler import Sampler, SampleSettings
 from model.training import CheckpointError, Diverged, TrainSettings, fit, split_batch_size
 from model.training_step import LR_SCHEDULES
@@ -100,10 +100,9 @@ def sequences_within(data: LearningData, ids: np.ndarray, budget: int, seed: int
     (at least one sequence): less of the same motion, for the gain against training frames. Held-out frames among
     `ids` (an oracle's) are all kept."""
     held = np.isin(ids, data.held_out)
-    sequences = np.unique(data.sequence[ids[~held]])
-    order = np.random.default_rng(seed).permutation(sequences)
-    sizes = np.array([np.count_nonzero(data.sequence[ids[~held]] == k) for k in order])
-    kept = order[:max(1, int(np.searchsorted(np.cumsum(sizes), budget, side="right")))]
+    sequences, sizes = np.unique(data.sequence[ids[~held]], return_counts=True)
+    order = np.random.default_rng(seed).permutation(len(sequences))
+    kept = sequences[order[:max(1, int(np.searchsorted(np.cumsum(sizes[order]), budget, side="right")))]]
     return ids[held | np.isin(data.sequence[ids], kept)]
 
 
@@ -237,8 +236,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                   f"epochs at a sample share of {sampling.share:g}: the steps of every frame", file=sys.stderr)
     reader = FrameReader(args.dataset) if stream else None
     try:
-        frames = (task.streamed_frames(data, reader, split_batch_size(args.batch_size), device, args.sample_buffer) if stream
-                  else task.frames(data, device))
+        frames = (task.streamed_frames(data, reader, split_batch_size(args.batch_size), device, args.sample_buffer)
+                  if stream else task.frames(data, device))
         if stream and not args.quiet:
             print(f"train: {n_bytes / 2 ** 30:.2f} GiB of frames streamed from {args.dataset} (more than "
                   f"--device-cache-gb or half the free memory)", file=sys.stderr)

@@ -161,19 +161,19 @@ def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
 
 def read_trained_frames(path: str | os.PathLike) -> int:
     """The frames the evaluated network trained on (the attribute `trained_frames`)."""
-    with open_artifact(path) as f:
-        frames = f.attrs.get("trained_frames")
-    if not isinstance(frames, (int, np.integer)) or frames < 1:
-        raise PipelineError(f"{path}: attribute 'trained_frames' must be a positive integer: not an eval.h5 of "
-                            f"pipeline.evaluate (or one made before it recorded them: evaluate again)")
-    return int(frames)
+    return _count_attr(path, "trained_frames", 1, " (or one made before it recorded them: evaluate again)")
 
 
 def read_parameter_count(path: str | os.PathLike) -> int:
     """The evaluated network's parameter count (the attribute `parameter_count`)."""
+    return _count_attr(path, "parameter_count", 0)
+
+
+def _count_attr(path: str | os.PathLike, name: str, least: int, hint: str = "") -> int:
+    """An eval.h5's whole-number attribute `name`, at least `least`; one error naming it otherwise."""
     with open_artifact(path) as f:
-        count = f.attrs.get("parameter_count")
-    if not isinstance(count, (int, np.integer)) or count < 0:
-        raise PipelineError(f"{path}: attribute 'parameter_count' must be a non-negative integer: not an eval.h5 "
-                            f"of pipeline.evaluate")
-    return int(count)
+        value = f.attrs.get(name)
+    if not isinstance(value, (int, np.integer)) or value < least:
+        raise PipelineError(f"{path}: attribute '{name}' must be an integer >= {least}: not an eval.h5 of "
+                            f"pipeline.evaluate{hint}")
+    return int(value)
