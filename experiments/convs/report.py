@@ -150,7 +150,7 @@ def error_table(table_rows: list[Row], task: str, term: str) -> Table:
         best = {s: lowest(row, f"{term}_{s}")[0] for s in splits}
         body.append([f"{row.arch} x{row.width:g}", row.length, f"{row.params:,}",
                      *[_cell(row.values[f"{term}_{s}"][kind], kind == best[s]) for kind in row.kinds for s in splits]])
-    return Table(header, body)
+    return Table(header, body, caption=f"{term.upper()} x 1e-3 scene units")
 
 
 def win_table(table_rows: list[Row]) -> Table:

@@ -49,13 +49,16 @@ def read_training(seed: str, path: str, conv: str) -> tuple[dict, float]:
     convolution the run claims."""
     with open_artifact(path) as f:
         config, seconds = config_of(f), f.attrs.get("wall_seconds")
+    missing = [key for key in RECIPE if key not in config]
+    if missing:
+        raise PipelineError(f"{path}: its config has no '{missing[0]}': not a train.h5 of pipeline.train")
     if config.get("seed") != int(seed) or config.get("conv") != conv:
         raise PipelineError(f"{path}: trained with seed {config.get('seed')} and conv {config.get('conv')}, not "
                             f"the run's seed {seed} and {conv}: not this run's train.h5")
     if not isinstance(seconds, (float, int, np.floating, np.integer)) or not 0 <= seconds < np.inf:
         raise PipelineError(f"{path}: attribute 'wall_seconds' missing or not a time: not a train.h5 of "
                             f"pipeline.train")
-    return {key: config.get(key) for key in RECIPE}, float(seconds)
+    return {key: config[key] for key in RECIPE}, float(seconds)
 
 
 def read_run(task: str, seed: str, path: str, train_log: str) -> tuple[dict, dict]:
@@ -124,10 +127,10 @@ def recipe_words(recipes: dict[str, dict], seeds: list[int]) -> str:
     """How each task's runs were trained, from their train.h5 (they all agree), for the report."""
     lines = []
     for task, recipe in recipes.items():
-        loss = f"{recipe['loss_l1']:g} L1 + {recipe['loss_l2']:g} L2 + {recipe['loss_normal']:g} normal"
+        loss = f"{recipe['loss_l1']} L1 + {recipe['loss_l2']} L2 + {recipe['loss_normal']} normal"
         lines.append(f"- {task}: trained on `{recipe['dataset']}`, {recipe['epochs']} epochs of batch "
-                     f"{recipe['batch_size']} (share {recipe['sample_share']:g} of the frames an epoch), Adam at "
-                     f"{recipe['lr']:g} ({recipe['lr_schedule']}), loss {loss}, {recipe['pool']} pooling, inputs "
+                     f"{recipe['batch_size']} (share {recipe['sample_share']} of the frames an epoch), Adam at "
+                     f"{recipe['lr']} ({recipe['lr_schedule']}), loss {loss}, {recipe['pool']} pooling, inputs "
                      f"{recipe['inputs']} ({recipe['input_frame']} frame in, {recipe['output_frame']} out).")
     return ("Every run of a task: the same data, steps and recipe (checked from each run's train.h5); only the "
             f"operator, filter length, architecture and seed differ. Seeds: {', '.join(map(str, seeds))} (the "
