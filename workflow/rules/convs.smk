@@ -80,7 +80,7 @@ rule convs_train:
         "--threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# Errors and timing only: no renders, one exported frame, no predicted positions in eval.h5.
+# Errors and timing only (common.smk: ERRORS_ONLY_EVALUATE).
 rule convs_evaluate:
     input:
         settings=f"{CONVS}/{{task}}/settings.json", operators=f"{CONVS}/operators.h5",
@@ -91,10 +91,7 @@ rule convs_evaluate:
     benchmark: f"{CONVS_RUN}/benchmarks/evaluate.tsv"
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
-    shell:
-        "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
-        "{output.report:q} --export {output.export:q} --render-frames 0 --video-frames 0 "
-        "--export-frames 1 --no-predictions --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+    shell: ERRORS_ONLY_EVALUATE
 
 
 rule convs:
