@@ -94,19 +94,19 @@ def wins(table_rows: list[Row], term: str = "l1", task: str | None = None) -> Wi
 
 
 def margin(row: Row, column: str) -> float | None:
-    """How much lower the best of RC/EC is than the best of SP/SPD in `column` (their mean over seeds): best spiral
-    / best ours - 1 (above 0: ours lower); None unless the row has operators of both families."""
+    """The best of SP/SPD over the best of RC/EC in `column` (their means over the seeds): above 1, RC/EC lower;
+    None unless the row has operators of both families."""
     means = {kind: float(np.mean(row.values[column][kind])) for kind in row.kinds}
     ours = [v for kind, v in means.items() if kind in OURS]
     spiral = [v for kind, v in means.items() if kind not in OURS]
     if not ours or not spiral:
         return None
-    return min(spiral) / max(min(ours), 1e-30) - 1.0
+    return min(spiral) / max(min(ours), 1e-30)
 
 
 def verdict(table_rows: list[Row], term: str = "l1") -> list[str]:
     """The answer in sentences: per task, how often RC/EC and SP/SPD have the lowest error, how many of those wins
-    stand clear of the seeds' spread, and the median margin between the two families' best."""
+    stand clear of the seeds' spread, and the ratio of the two families' best (median and range over the cases)."""
     lines = []
     for task in dict.fromkeys(row.task for row in table_rows):
         count = wins(table_rows, term, task)
@@ -125,9 +125,8 @@ def verdict(table_rows: list[Row], term: str = "l1") -> list[str]:
         else:
             text += " One seed per run: no win can be told from the seeds' noise (the paper profile runs 3)."
         if margins:
-            text += (f" The best of RC/EC is {np.median(margins):+.1%} against the best of SP/SPD in the median case "
-                     f"(best SP/SPD / best RC/EC - 1: above 0, RC/EC lower; range {min(margins):+.1%} to "
-                     f"{max(margins):+.1%}).")
+            text += (f" Best SP/SPD over best RC/EC (above 1: RC/EC lower): {np.median(margins):.3f} in the median "
+                     f"case, {min(margins):.3f} to {max(margins):.3f}.")
         lines.append(text)
     return lines
 

@@ -24,7 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
-from experiments.convs.artifact import COLUMNS, TERMS, Convs, write_convs
+from experiments.convs.artifact import COLUMNS, KINDS, TERMS, Convs, write_convs
 from experiments.convs.grid import POSE, UPSAMPLING
 from experiments.convs.report import PAPER_UNIT, TASK_WORDS, rows, sections
 from model.architecture import ArchitectureError, parse_conv
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> None:
          href(Path(path).parent / "report.md")) for _, _, path, _ in args.run]
     pieces = sections(table, Path(args.chart), links,
                       recipe_words(recipes, sorted(set(table.columns["seed"].tolist()))))
-    title = "Operator comparison: RC, EC, SP and SPD side by side"
+    title = "Operator comparison: " + ", ".join(kind for kind in KINDS if kind in set(table.columns["kind"]))
     markdown, page = report_markdown(title, pieces, href), report_html(title, pieces)
     with atomic_write(args.report) as f:
         f.write(markdown.encode())

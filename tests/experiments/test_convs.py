@@ -40,11 +40,11 @@ def write_run(folder, kind, length, seed, l1, arch="D8 D16", task_splits=("train
     return str(evaluation), str(train_log)
 
 
-def grid_runs(tmp_path, l1, seeds=(0,), lengths=(9,), task="upsampling", **kwargs):
+def grid_runs(tmp_path, l1, seeds=(0,), lengths=(9,), task="upsampling", kinds=KINDS, **kwargs):
     """--run words for every operator x length x seed; l1(kind, length, seed) gives each run's error."""
     return [(task, str(seed), *write_run(tmp_path / task / f"{kind}{length}" / f"s{seed}", kind, length, seed,
                                           l1(kind, length, seed), **kwargs))
-            for length in lengths for kind in KINDS for seed in seeds]
+            for length in lengths for kind in kinds for seed in seeds]
 
 
 def test_the_table_has_a_row_per_run_with_its_evaluation_and_training(tmp_path):
@@ -103,10 +103,12 @@ def test_a_win_by_less_than_the_seeds_spread_is_not_clear_and_one_seed_is_never_
     assert lowest(row, "l1_test") == ("RC", False)
 
 
-def test_the_margin_is_the_best_spirals_over_the_best_of_ours(tmp_path):
+def test_the_margin_is_the_best_spiral_over_the_best_of_ours(tmp_path):
     errors = {"RC": 2.0, "EC": 1.6, "SP": 2.4, "SPD": 2.0}
     row = rows(gather(grid_runs(tmp_path, lambda k, n, s: errors[k]))[0])[0]
-    assert margin(row, "l1_test") == pytest.approx(2.0 / 1.6 - 1)
+    assert margin(row, "l1_test") == pytest.approx(2.0 / 1.6)
+    assert margin(rows(gather(grid_runs(tmp_path / "one", lambda k, n, s: 1.0, kinds=("RC", "EC")))[0])[0],
+                  "l1_test") is None                                   # no spiral operator to compare with
 
 
 def test_the_report_bolds_the_lowest_of_each_split_and_counts_the_wins(tmp_path):
@@ -128,6 +130,7 @@ def test_the_report_bolds_the_lowest_of_each_split_and_counts_the_wins(tmp_path)
     assert cells[0].strip() == "**1.001 ± 0.001**"                 # mean and sample sd of 1.000, 1.001, 1.002
     assert "RC/EC have the lowest L1 in 3 of 3 cases" in report and "RC/EC 3, SP/SPD 0" in report
     assert "| upsampling | RC | 3 of 3 | 3 | 3 of 3 | 3 |" in report
+    assert f"Best SP/SPD over best RC/EC (above 1: RC/EC lower): {1.501 / 1.001:.3f} in the median case" in report
     html = (out / "report.html").read_text()
     assert len(re.findall(r"<td><strong>1\.001 ± 0\.001</strong></td>", html)) == 3     # L1: train, test, held-out
     assert len(re.findall(r"<td><strong>2\.002 ± 0\.002</strong></td>", html)) == 3     # L2 = 2 L1 here
@@ -161,6 +164,16 @@ def test_a_run_unlike_the_others_is_refused(tmp_path, change, message):
     last = ("upsampling", "0", *write_run(tmp_path / "other", "SPD", 9, 0, 1.0, **change))
     with pytest.raises(PipelineError, match=re.escape(message)):
         gather([*runs[:-1], last])
+
+
+def test_a_file_that_is_no_evaluation_is_one_error_naming_it(tmp_path):
+    runs = grid_runs(tmp_path, lambda k, n, s: 1.0)
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(b"not HDF5 at all" * 10)
+    with pytest.raises(PipelineError, match=re.escape(str(garbage))):
+        gather([*runs[:-1], ("upsampling", "0", str(garbage), runs[-1][3])])
+    with pytest.raises(PipelineError, match=re.escape(str(garbage))):
+        gather([*runs[:-1], ("upsampling", "0", runs[-1][2], str(garbage))])
 
 
 def test_nothing_is_written_when_a_run_is_refused(tmp_path):
