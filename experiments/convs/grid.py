@@ -180,8 +180,14 @@ def task_settings(settings: Settings, task: str) -> Settings:
 
 
 def check(settings: Settings) -> None:
-    """Every architecture of the grid resolves (templates in x, parseable): one error line before any job."""
-    for task in tasks(settings):
-        for label in arch_labels(settings, task):
-            for conv in conv_names(settings):
-                architecture(settings, task, label, conv)
+    """Every upsampling architecture of the grid resolves (templates in x, parseable) and no two are one network at
+    a length once scaled to the width (the table would hold one run twice): one error line before any job."""
+    archs, width = settings["convs"]["archs"], settings["network"]["width"]
+    for conv in conv_names(settings):
+        built: dict[str, str] = {}
+        for entry, label in zip(archs, arch_labels(settings, UPSAMPLING)):
+            network = str(_parsed(architecture(settings, UPSAMPLING, label, conv), "convs.archs").scaled(width))
+            if network in built:
+                raise PipelineError(f"workflow config: convs.archs: '{built[network]}' and '{entry}' are the same "
+                                    f"network ({network}) at {conv}")
+            built[network] = entry

@@ -2,6 +2,7 @@
 the paper's Table 3), the x it solves for a template, the tasks, runs and settings of a scene's grid (the workflow's
 plan of them: test_workflow_convs.py)."""
 import copy
+import re
 
 import pytest
 import yaml
@@ -118,3 +119,12 @@ def test_the_schema_refuses_an_architecture_that_is_not_d_tokens_in_x(arch):
     config["defaults"]["convs"]["archs"] = ["scene", arch]
     with pytest.raises(PipelineError, match="convs.archs"):
         validate_config(config, "config")
+
+
+def test_two_architectures_that_are_one_network_are_refused_before_any_job():
+    """At the cpu profile's width 0.25 the template's x = 61 and the scene's 62 channels both round to 16."""
+    grid.check(settings("pants"))
+    same = settings("pants", archs=["scene", "Dx D2x D4x D D4x D_3 D4x"])
+    with pytest.raises(PipelineError, match=re.escape("convs.archs: 'scene' and 'Dx D2x D4x D D4x D_3 D4x' are the "
+                                                      "same network (D^16 D^32 D^62 D D^62 D D D D^62) at RC9")):
+        grid.check(same)
