@@ -51,6 +51,7 @@ def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir, t
     report = (out / "report.md").read_text()
     assert "## Errors" in report and "ms per frame" in report
     assert "](tradeoff/report.md)" in report and "](study/report.md)" in report     # the scene's other reports
+    assert "](convs/report.md)" in report
     assert list((out / "renders").glob("*.png")) and list((out / "export" / "predicted_obj").glob("*.obj"))
     assert not list(out.glob(".*.tmp.h5")) and not list(out.glob("*.ckpt"))
     mtimes = {name: (out / name).stat().st_mtime_ns for name in PRODUCTS}
@@ -252,7 +253,7 @@ def test_no_config_value_reaches_a_shell_command(tmp_path):
     assert set(shells) == STAGES - SETTINGS_RULES
     words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--videos", "--export",
              "--html", "--train-log", "--threads", "2", "--quiet", "--sequence", "--tradeoff-report",
-             "--study-report",
+             "--study-report", "--convs-report",
              "train_000"}     # the one sequence name of a grid scene
     for name, command in shells.items():
         python, *rest = shlex.split(command)

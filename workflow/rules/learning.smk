@@ -63,12 +63,12 @@ rule evaluate:
     resources: mem_mb=8000, gpu=gpus_on_device
     priority: 1     # as train's
     # The scene's other reports, made by their own targets (the links work once those are built).
-    params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md"
+    params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md", convs=f"{OUT}/convs/report.md"
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
         "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
-        "--tradeoff-report {params.tradeoff:q} --study-report {params.study:q} "
+        "--tradeoff-report {params.tradeoff:q} --study-report {params.study:q} --convs-report {params.convs:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
