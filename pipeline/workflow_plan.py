@@ -26,9 +26,10 @@ SCENE_JOBS = 9
 SETTLE_JOBS = 3                 # a motion library's settle sequence: its scene and its two runs
 
 
-def plan(config: dict) -> tuple[dict[str, dict], dict[str, list[str]]]:
-    """Every scene's resolved settings and its sequence names, checked and costed (module docstring); the cost
-    said in one line on stderr."""
+def plan(config: dict, announce: bool = True) -> tuple[dict[str, dict], dict[str, list[str]]]:
+    """Every scene's resolved settings and its sequence names, checked and costed (module docstring); with
+    `announce`, the cost said in one line on stderr (the Snakefile asks in its main process only: Snakemake parses
+    it again in each process it spawns for a job, and the line would repeat)."""
     settings = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
     if config["default_scene"] not in settings:
         raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "
@@ -40,7 +41,8 @@ def plan(config: dict) -> tuple[dict[str, dict], dict[str, list[str]]]:
         costs[scene] = scene_cost(scene, settings[scene], names)
         if not config.get("allow_large", False):
             check_cost(scene, *costs[scene])
-    print(_cost_line(costs), file=sys.stderr)
+    if announce:
+        print(_cost_line(costs), file=sys.stderr)
     return settings, sequences
 
 

@@ -91,3 +91,15 @@ def test_an_obj_error_never_quotes_the_line(tmp_path):
         load_mesh(tmp_path / "m.obj")
     assert "line 4" in str(refused.value) and "secret" not in str(refused.value)
 
+
+
+def test_the_plan_is_said_once_a_run(tmp_path):
+    """Snakemake parses the Snakefile again in each process it spawns for a job (rules with `run:`): the cost
+    line comes from the main process alone."""
+    command = [sys.executable, "-m", "snakemake", "--cores", "1", "-s", str(REPO / "Snakefile"),
+               "results/patch/simulation.json"]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [line for line in done.stderr.splitlines() if line.startswith("plan:")] == [
+        "plan: 7 scene(s); the largest, pants: 24 jobs, 1,050 frames simulated a level (limits 1,000 and "
+        "500,000 a scene)"]

@@ -13,7 +13,7 @@ from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, seque
 # Every scene resolved, its sequences listed (the count is in SETTINGS, not in settings.json, so raising it adds
 # sequences without touching an input of those already made), its motion-capture files found and its cost
 # stated, before any job exists: a problem is one error line (pipeline.workflow_plan).
-SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config)
+SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config, workflow.is_main_process)
 # The interpreter running Snakemake (the project's venv): jobs run the stages as `{PY} -m pipeline.<stage>`,
 # which works from any working directory once the project is installed (`pip install -e .`).
 PY = sys.executable
