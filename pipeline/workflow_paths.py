@@ -54,6 +54,11 @@ def scene_products(scene: str, sequences: list[str]) -> list[str]:
             + [f"results/{scene}/{name}" for name in SCENE_PRODUCTS])
 
 
+def subdiv_file(scene: str) -> str:
+    """The scene's subdiv.h5: its low- and high-res vertex counts say what a frame weighs on disk."""
+    return f"results/{scene}/subdiv.h5"
+
+
 def settle_folder(scene: str) -> str:
     """Where a scene with a motion library keeps its settle sequence (scenes.sequences.SETTLE): scene.h5 and its
     runs, apart from the sequences the dataset gathers."""

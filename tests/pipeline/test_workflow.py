@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
+from pipeline import workflow_plan
 from workflow_runs import REPO, TINY_FRAMES, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 CONFIG = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
@@ -145,6 +146,33 @@ def test_a_high_res_batch_job_takes_a_thread_a_sequence_on_a_gpu(tmp_path, devic
     assert run.returncode == 0, tail(run)
     job = planned_jobs(run)["simulate_high_batch_pants_000"]
     assert job.get("threads", "1") == str(threads) and f" --threads {threads} " in job["shell"]   # 1: not printed
+
+
+def test_the_plan_states_what_the_runs_and_the_dataset_weigh(tiny_pants_build):
+    """Once the mesh is made, the plan's second line says the disk: the runs' positions byte for byte (as the
+    files hold them) and a bound on the dataset's frames."""
+    workdir = tiny_pants_build.workdir
+    assert tiny_pants_build.run.returncode == 0, tail(tiny_pants_build.run)
+    run = snakemake(workdir, "-n", "--configfile", str(tiny_pants_build.config), "--", "results/pants/")
+    disk = [line for line in run.stderr.splitlines() if line.startswith("disk:")]
+    out = workdir / "results" / "pants"
+    runs, counts = 0, {}
+    for level in ("low", "high"):
+        for path in sorted(out.glob(f"sequences/*/sim_{level}.h5")):
+            with h5py.File(path) as f:
+                runs += f["positions"].nbytes
+                counts[level] = f["positions"].shape[1]
+    frame = 12 * (counts["low"] + counts["high"])    # float32 positions of both levels
+    assert runs % frame == 0
+    assert len(disk) == 1 and disk[0].startswith(
+        f"disk: pants, {counts['low']:,} -> {counts['high']:,} vertices: {workflow_plan._size(runs)} of runs "
+        f"({workflow_plan._size(frame)} a frame of both levels), at most "), run.stderr
+    with h5py.File(out / "dataset.h5") as f:
+        frames = len(f["sequence"])
+        per_frame = []
+        f.visititems(lambda name, obj: per_frame.append(obj.nbytes) if isinstance(obj, h5py.Dataset)
+                     and obj.shape[:1] == (frames,) else None)
+    assert sum(per_frame) / frames <= 12 * sum(counts.values()) + workflow_plan.DATASET_FRAME_EXTRA
 
 
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],

@@ -12,8 +12,10 @@ from scenes.sequences import NAME_PATTERN, library_of, sequence_bvh_files, seque
 
 # Every scene resolved, its sequences listed (the count is in SETTINGS, not in settings.json, so raising it adds
 # sequences without touching an input of those already made), its motion-capture files found and its cost
-# stated, before any job exists: a problem is one error line (pipeline.workflow_plan).
-SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config, workflow.is_main_process)
+# stated (and the disk of the scenes the targets name), before any job exists: a problem is one error line
+# (pipeline.workflow_plan).
+SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config, workflow.is_main_process,
+                                    workflow.dag_settings.targets if workflow.dag_settings else ())
 # The interpreter running Snakemake (the project's venv): jobs run the stages as `{PY} -m pipeline.<stage>`,
 # which works from any working directory once the project is installed (`pip install -e .`).
 PY = sys.executable
