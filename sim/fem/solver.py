@@ -13,7 +13,8 @@ takes the step or a halving of it. A frame starts where the last one ended (warm
 applied in `load_steps` increments, each minimised. A world has converged when its residual (the largest force
 on a free node over mu h^2, FemSettings) is within tolerance; `solver.last_report` says per world how far each
 frame got, and a frame that does not converge within `newton_iterations` is reported, not an error (the next
-frame goes on from it). A non-finite energy is UnstableSimulation.
+frame goes on from it). A non-finite energy is UnstableSimulation. A guess of the nodes' motion over the frame
+(FemInputs.node_motion) moves the warm start along with the bones.
 
 `worlds` copies of the model are stepped together, each with its own targets: one block-diagonal system, one CG
 (its residual the worst world's, so a batch costs one solve's launches), a step length per world.
@@ -57,8 +58,13 @@ class FemState:
 @dataclass(frozen=True)
 class FemInputs:
     """The targets of the driven nodes at the end of the frame, (B, D, 3) (or (D, 3) with one world), in the
-    order of FemModel.driven."""
+    order of FemModel.driven; optionally a guess of every node's motion over the frame, (B, N, 3) (or (N, 3)),
+    such as the nodes' linear blend skinning at the frame's end minus at its start: added to where the last frame
+    left the free nodes, it starts the minimisation near its answer when the bones move far in a frame (from the
+    last frame alone, the flesh next to a bone that turned 20 degrees starts inverted, and Newton's method can
+    stall in an inverted local minimum)."""
     driven_targets: np.ndarray
+    node_motion: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -106,6 +112,12 @@ def _place_driven(x: wp.array(dtype=wp.vec3d), driven: wp.array(dtype=wp.int32),
     tid = wp.tid()
     world = tid // n_driven
     x[world * n_nodes + driven[tid - world * n_driven]] = start[tid] + f * (end[tid] - start[tid])
+
+
+@wp.kernel
+def _add(x: wp.array(dtype=wp.vec3d), dx: wp.array(dtype=wp.vec3d)):
+    tid = wp.tid()
+    x[tid] = x[tid] + dx[tid]
 
 
 @wp.kernel
@@ -158,7 +170,7 @@ class FemSolver(Solver[FemModel, FemState, FemInputs]):
         self._targets = array(x0[:, model.driven].reshape(-1, 3))        # where the driven nodes are now
         self._next_targets = zeros(worlds * len(model.driven))
         self._gradient, self._rhs, self._step = zeros(worlds * n), zeros(worlds * n), zeros(worlds * n)
-        self._trial = zeros(worlds * n)
+        self._trial, self._motion = zeros(worlds * n), zeros(worlds * n)
         self._per_world = {name: zeros(worlds, wp.float64) for name in ("energy", "trial", "slope", "residual",
                                                                            "length")}
         rest, tets = model.rest_vertices, model.tets
@@ -176,10 +188,20 @@ class FemSolver(Solver[FemModel, FemState, FemInputs]):
             raise ValueError(f"driven_targets must be finite, shape {(self.worlds, d, 3)}; got {targets.shape}")
         self._next_targets.assign(targets.reshape(-1, 3))
         s = self.model.settings
+        motion = None
+        if inputs.node_motion is not None:
+            motion = np.asarray(inputs.node_motion, dtype=np.float64)
+            n = len(self.model.rest_vertices)
+            motion = motion[None] if motion.shape == (n, 3) and self.worlds == 1 else motion
+            if motion.shape != (self.worlds, n, 3) or not np.isfinite(motion).all():
+                raise ValueError(f"node_motion must be finite, shape {(self.worlds, n, 3)}; got {motion.shape}")
+            self._motion.assign(motion.reshape(-1, 3) / s.load_steps)
         newton = np.zeros(self.worlds, dtype=np.int64)
         converged = np.ones(self.worlds, dtype=bool)
         cg_total = 0
         for load in range(1, s.load_steps + 1):
+            if motion is not None:
+                wp.launch(_add, dim=len(state.positions), inputs=[state.positions, self._motion], device=self.device)
             wp.launch(_place_driven, dim=self.worlds * d,
                       inputs=[state.positions, self._driven, self._targets, self._next_targets,
                               wp.float64(load / s.load_steps), d, len(self.model.rest_vertices)],
