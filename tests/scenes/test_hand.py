@@ -100,7 +100,8 @@ def test_neighbouring_fingers_are_not_glued_by_the_grid(hand):
     solver = solve(hand, [angles / 2, angles])
     skin = solver.state.read_world_positions()[0]
     skel = hand.skeleton
-    on_middle = np.isin(hand.skin_influences, [skel.index(f"middle_{k}") for k in (2, 3)])
-    middle = (hand.skin_weights * on_middle).sum(axis=1) > 0.99            # the middle finger's last two phalanges
-    assert middle.sum() > 100
+    on_middle = np.isin(hand.skin_influences, [skel.index(f"middle_{k}") for k in (1, 2, 3)])
+    middle = (hand.skin_weights * on_middle).sum(axis=1) > 0.99            # the middle finger's skin
+    assert middle.sum() > 150
+    # Glued at the nodes the grid's tets share between the fingers, it would follow the index by ~13 mm.
     assert np.linalg.norm(skin[middle] - hand.skin_vertices[middle], axis=1).max() < 0.002
