@@ -10,7 +10,9 @@ The 18 angles (`ANGLE_NAMES`): wrist flexion and deviation; for each finger the 
 flexion and abduction and the proximal interphalangeal (PIP) flexion, the distal (DIP) following as 2/3 of the
 PIP (the tendon coupling of Rijpkema and Girard 1991, which no one can bend apart at will); for the thumb its base
 joint (carpometacarpal, CMC) flexion and abduction, MCP and interphalangeal (IP) flexion. Limits after Hume et al.
-1990 and Kapandji, narrowed where a procedural hand's fingers would pass through each other.
+1990 and Kapandji, narrowed where this hand's flesh, which has no self-contact, would be crushed flat between two
+bones and invert its tets: PIP flexion to 90 degrees (anatomically ~105; at 100 the palmar flesh of a 6 mm mesh
+inverts), the thumb's CMC extension and adduction to 5 degrees (beyond, its metacarpal presses into the index's).
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ _THUMB = ((0.020, 0.012, 0.010), -40.0, 70.0, (0.044, 0.032, 0.027), (0.0135, 0.
 _ANGLES = [("wrist_flexion", "palm", 0, -60.0, 70.0), ("wrist_deviation", "palm", 2, -25.0, 15.0)]
 for _f in FINGERS:
     _ANGLES += [(f"{_f}_mcp_flexion", f"{_f}_1", 0, -20.0, 90.0), (f"{_f}_mcp_abduction", f"{_f}_1", 2, -10.0, 10.0),
-                (f"{_f}_pip_flexion", f"{_f}_2", 0, 0.0, 100.0)]
+                (f"{_f}_pip_flexion", f"{_f}_2", 0, 0.0, 90.0)]
 _ANGLES += [("thumb_cmc_flexion", "thumb_0", 0, -5.0, 45.0), ("thumb_cmc_abduction", "thumb_0", 2, -5.0, 25.0),
             ("thumb_mcp_flexion", "thumb_1", 0, -10.0, 60.0), ("thumb_ip_flexion", "thumb_2", 0, -10.0, 80.0)]
 ANGLE_NAMES = tuple(a[0] for a in _ANGLES)
