@@ -123,7 +123,10 @@ def _add(x: wp.array(dtype=wp.vec3d), dx: wp.array(dtype=wp.vec3d)):
 @wp.kernel
 def _residual(g: wp.array(dtype=wp.vec3d), n_nodes: int, scale: wp.float64, out: wp.array(dtype=wp.float64)):
     tid = wp.tid()
-    wp.atomic_max(out, tid // n_nodes, wp.length(g[tid]) * scale)
+    r = wp.length(g[tid]) * scale
+    if wp.isnan(r):
+        r = wp.float64(wp.inf)      # a maximum would pass over NaN: make it the largest value instead
+    wp.atomic_max(out, tid // n_nodes, r)
 
 
 @wp.kernel

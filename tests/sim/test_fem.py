@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from geometry.tets import kuhn_grid, tet_volumes
 from sim.fem import ElasticEnergy, FemInputs, FemModel, FemSettings, FemSolver
+from sim.solver import UnstableSimulation
 from sim.fem.neohookean import mat99d, stress_derivative
 from tests.sim import fem_reference as ref
 
@@ -247,3 +248,54 @@ def test_cpu_and_cuda_agree():
         assert solver.last_report.converged.all()
         results.append(solver.state.read_nodes()[0])
     np.testing.assert_allclose(results[0], results[1], atol=1e-6)
+
+
+def test_load_steps_reach_the_same_minimum_as_one_step():
+    nodes, tets, driven, far = beam((4, 1, 1))
+    targets = nodes[driven].copy()
+    targets[far] = rotated_about(targets[far], 50.0, "x", np.array([4.0, 0.5, 0.5]))
+    results = []
+    for load_steps in (1, 3):
+        solver = FemSolver(FemModel(nodes, tets, FemSettings(load_steps=load_steps, residual_tolerance=1e-9), driven),
+                           "cpu")
+        solver.step(solver.state, FemInputs(targets))
+        assert solver.last_report.converged.all()
+        results.append(solver.state.read_nodes()[0])
+    np.testing.assert_allclose(results[0], results[1], atol=1e-7)
+
+
+def test_a_motion_guess_changes_where_newton_starts_not_where_it_ends():
+    nodes, tets, driven, far = beam((4, 1, 1))
+    model = FemModel(nodes, tets, FemSettings(residual_tolerance=1e-9), driven)
+    targets = nodes[driven].copy()
+    targets[far] += np.array([0.0, 1.0, 0.0])
+    guess = np.outer(nodes[:, 0] / 4.0, [0.0, 1.0, 0.0])         # the beam sheared along with its end
+    ends = []
+    for motion in (None, guess):
+        solver = FemSolver(model, "cpu")
+        solver.step(solver.state, FemInputs(targets, motion))
+        assert solver.last_report.converged.all()
+        ends.append(solver.state.read_nodes()[0])
+    np.testing.assert_allclose(ends[0], ends[1], atol=1e-7)
+
+
+@pytest.mark.parametrize("inputs, message", [
+    (lambda d: FemInputs(np.zeros((d + 1, 3))), "driven_targets must be"),
+    (lambda d: FemInputs(np.full((d, 3), np.nan)), "driven_targets must be"),
+    (lambda d: FemInputs(np.zeros((d, 3)), np.zeros((3, 3))), "node_motion must be"),
+], ids=["shape", "nan", "motion"])
+def test_inputs_that_do_not_fit_are_refused(inputs, message):
+    nodes, tets, driven, _ = beam((2, 1, 1))
+    solver = FemSolver(FemModel(nodes, tets, FemSettings(), driven), "cpu")
+    with pytest.raises(ValueError, match=message):
+        solver.step(solver.state, inputs(len(driven)))
+
+
+def test_forces_that_overflow_are_an_unstable_simulation_naming_the_world():
+    nodes, tets, driven, far = beam((2, 1, 1))
+    solver = FemSolver(FemModel(nodes, tets, FemSettings(), driven), "cpu", worlds=2)
+    targets = np.stack([nodes[driven], nodes[driven]])
+    targets[1][far] *= 1e200
+    with pytest.raises(UnstableSimulation) as caught:
+        solver.step(solver.state, FemInputs(targets))
+    assert caught.value.world == 1
