@@ -73,7 +73,8 @@ def hand_skeleton() -> Skeleton:
     _part(fields, "palm", "forearm", (0.0, 0.0, 0.0), identity, 0.090, 0.016, 0.014)
     fields["a"][-1] = np.array([0.0, 0.010, 0.0])
     (cmc, turn, twist, lengths, radii) = _THUMB
-    frame = quat_multiply(quat_from_axis_angle(UNIT_Z, np.radians(turn)), quat_from_axis_angle(UNIT_Y, np.radians(twist)))
+    frame = quat_multiply(quat_from_axis_angle(UNIT_Z, np.radians(turn)),
+                          quat_from_axis_angle(UNIT_Y, np.radians(twist)))
     _part(fields, "thumb_0", "palm", cmc, frame, lengths[0], radii[0], radii[1])
     _part(fields, "thumb_1", "thumb_0", (0.0, lengths[0], 0.0), identity, lengths[1], radii[2], radii[3])
     _part(fields, "thumb_2", "thumb_1", (0.0, lengths[1], 0.0), identity, lengths[2], radii[3], radii[4])
@@ -131,5 +132,6 @@ def fist_angles(closure: float = 1.0) -> np.ndarray:
     for k, name in enumerate(ANGLE_NAMES):
         if name.endswith("flexion") and not name.startswith("wrist"):
             angles[k] = closure * ANGLE_LIMITS[k, 1]
-    angles[ANGLE_NAMES.index("thumb_cmc_abduction")] = closure * ANGLE_LIMITS[ANGLE_NAMES.index("thumb_cmc_abduction"), 1]
+    abduction = ANGLE_NAMES.index("thumb_cmc_abduction")
+    angles[abduction] = closure * ANGLE_LIMITS[abduction, 1]
     return angles

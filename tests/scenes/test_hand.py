@@ -9,7 +9,6 @@ from geometry.mesh import validate_mesh
 from geometry.tets import dihedral_angles, radius_ratios, tet_volumes
 from scenes.hand_shape import RestShapes, hand_sdf, procedural_hand
 from scenes.hand_skeleton import ANGLE_LIMITS, ANGLE_NAMES, fist_angles, hand_transforms, part_angles
-from scenes.kinematics import rest_transforms
 from sim.fem import FemInputs, FemModel, FemSettings, FemSolver
 
 SPACING = 0.008     # the CI size: ~3.5k skin vertices, ~8k tets

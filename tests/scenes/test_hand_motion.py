@@ -33,8 +33,8 @@ def test_the_fist_closes_finger_by_finger_holds_and_opens():
     hand_transforms(hand_skeleton(), a)
 
 
-@pytest.mark.parametrize("call", [lambda: random_trajectory(0, 30.0, 1), lambda: random_trajectory(10, 30.0, 1, 1.0, 0.5),
-                                  lambda: fist_trajectory(5)])
+@pytest.mark.parametrize("call", [lambda: random_trajectory(0, 30.0, 1),
+                                  lambda: random_trajectory(10, 30.0, 1, 1.0, 0.5), lambda: fist_trajectory(5)])
 def test_impossible_requests_are_refused(call):
     with pytest.raises(ValueError):
         call()
