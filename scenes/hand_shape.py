@@ -47,7 +47,8 @@ THUMB_BASE_GAP = 1.5      # the thumb's metacarpal bone starts well clear of its
                           # beside the index metacarpal, and the flesh between them is the thenar web
 TIP_PAD = 0.9             # and this share short of a fingertip's capsule end (the pad is flesh)
 MIN_GRIP = 6              # a bone drives at least this many nodes (not all in one plane)
-SKIN_BLEND_WIDTH = 0.012  # linear blend skinning weights diffuse over about this length (m)
+SKIN_BLEND_WIDTH = 0.012
+SPACING_RANGE = (0.0015, 0.012)   # metres: a fingertip is 13 mm across; a 1.5 mm grid of the hand's box is ~3M tets  # linear blend skinning weights diffuse over about this length (m)
 
 
 def _smooth_min(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
@@ -269,7 +270,11 @@ class Hand:
 
 def procedural_hand(skin_spacing: float, tet_spacing: float, relax_iterations: int = 10) -> Hand:
     """The hand with its skin meshed at `skin_spacing` and its volume at `tet_spacing` (metres): about 3.5k skin
-    vertices and 8k tets at 0.008, 29k and 34k at 0.003 and 0.005."""
+    vertices and 8k tets at 0.008, 26k and 30k at 0.003 and 0.005. Spacings outside SPACING_RANGE are refused
+    (ValueError): coarser, a grid cell outgrows a fingertip; finer, the grids no longer fit in memory."""
+    for name, spacing in (("skin spacing", skin_spacing), ("tet spacing", tet_spacing)):
+        if not SPACING_RANGE[0] <= spacing <= SPACING_RANGE[1]:
+            raise ValueError(f"{name} {spacing} m is outside [{SPACING_RANGE[0]}, {SPACING_RANGE[1]}] m")
     skel = hand_skeleton()
     shapes = RestShapes.of(skel)
     vertices, faces = skin_mesh(skel, shapes, skin_spacing, relax_iterations)

@@ -108,3 +108,9 @@ def test_neighbouring_fingers_are_not_glued_by_the_grid(hand):
     assert middle.sum() > 150
     # Glued at the nodes the grid's tets share between the fingers, it would follow the index by ~13 mm.
     assert np.linalg.norm(skin[middle] - hand.skin_vertices[middle], axis=1).max() < 0.002
+
+
+@pytest.mark.parametrize("spacings", [(0.0, 0.008), (0.008, 0.03), (float("nan"), 0.008), (0.008, 0.001)])
+def test_spacings_a_hand_cannot_be_meshed_at_are_refused(spacings):
+    with pytest.raises(ValueError, match="spacing .* is outside"):
+        procedural_hand(*spacings)
