@@ -41,14 +41,6 @@ def kuhn_grid(cells: tuple[int, int, int], origin: np.ndarray, spacing: float) -
     return nodes, tets
 
 
-def compact(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The nodes the tets use, the tets renumbered to them, and each kept node's old index."""
-    used = np.unique(tets)
-    renumber = np.full(len(nodes), -1, dtype=np.int64)
-    renumber[used] = np.arange(len(used))
-    return nodes[used], renumber[tets], used
-
-
 def dihedral_angles(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(T, 6) interior dihedral angles in degrees, one at each edge."""
     x = np.asarray(vertices, dtype=np.float64)[tets]

@@ -27,7 +27,7 @@ import numpy as np
 
 from geometry.isosurface import marching_tetrahedra, relax_on_surface
 from geometry.mesh import validate_mesh
-from geometry.tets import compact, dihedral_angles, kuhn_grid, radius_ratios
+from geometry.tets import dihedral_angles, kuhn_grid, radius_ratios
 from scenes.capsules import capsule_signed_distance, capsules_world
 from scenes.hand_skeleton import FINGERS, hand_skeleton
 from scenes.kinematics import rest_transforms
@@ -159,17 +159,15 @@ def hand_volume(skel: Skeleton, shapes: RestShapes, skin: np.ndarray, spacing: f
     renumber[kept] = np.arange(len(kept))
     tets = tets[kept]
     chains = chain_of_parts(skel)[shapes.part[shapes.distances(nodes[tets].mean(axis=1)).argmin(axis=1)]]
-    tets, split = _split_chains(tets, chains)
-    old_nodes = nodes
-    nodes, tets, used = compact(np.zeros((tets.max() + 1, 3)), tets)
-    nodes = old_nodes[split[used]]
+    tets, copied = _split_chains(tets, chains)          # numbers only the nodes the kept tets use
+    nodes = nodes[copied]
     driven, driven_part = _driven_nodes(skel, nodes, spacing)
     tet_faces = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
     node_influences, node_weights = diffused_weights(shapes.part[shapes.distances(nodes).argmin(axis=1)],
                                                      skel.n_parts, nodes, tet_faces, SKIN_BLEND_WIDTH)
     return HandVolume(nodes, tets, driven, driven_part, (renumber[holder], weights), node_influences, node_weights,
                       float(dihedral_angles(nodes, tets).min()), float(radius_ratios(nodes, tets).min()),
-                      int(len(nodes) - len(np.unique(split[used]))))
+                      int(len(copied) - len(np.unique(copied))))
 
 
 def _grid_tet_of(points, origin, spacing, cells, nodes, tets) -> tuple[np.ndarray, np.ndarray]:
@@ -188,8 +186,8 @@ def _grid_tet_of(points, origin, spacing, cells, nodes, tets) -> tuple[np.ndarra
 
 
 def _split_chains(tets: np.ndarray, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tets renumbered so that no node is shared by two different chains other than the palm group (0), and for
-    each new node the old node it copies."""
+    """Tets renumbered 0..K-1 over the nodes they use, so that no node is shared by two different chains other
+    than the palm group (0), and for each new node the old node it copies."""
     corner_chain = np.repeat(chains, 4)
     node = tets.ravel()
     finger = corner_chain > 0

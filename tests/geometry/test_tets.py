@@ -4,7 +4,7 @@ import pytest
 
 from geometry.isosurface import marching_tetrahedra, relax_on_surface, triangle_angles
 from geometry.mesh import validate_mesh
-from geometry.tets import compact, dihedral_angles, kuhn_grid, radius_ratios, tet_volumes
+from geometry.tets import dihedral_angles, kuhn_grid, radius_ratios, tet_volumes
 
 REGULAR = np.array([[1, 1, 1], [-1, 1, -1], [1, -1, -1], [-1, -1, 1]], dtype=float)   # positively oriented
 
@@ -34,8 +34,6 @@ def test_a_kuhn_grid_fills_its_box_with_positive_tets_whose_faces_match():
     assert counts.max() == 2                       # conforming: an inner face is two tets', a boundary face one's
     boundary_faces = (counts == 1).sum()
     assert boundary_faces == 2 * 2 * (3 * 2 + 2 * 4 + 3 * 4)   # two triangles per boundary square
-    kept, renumbered, used = compact(nodes, tets[:7])
-    np.testing.assert_array_equal(kept[renumbered], nodes[tets[:7]])
 
 
 def test_marching_tetrahedra_of_a_sphere_is_a_closed_sphere_and_relaxing_evens_it():
