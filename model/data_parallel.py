@@ -160,7 +160,7 @@ def distributed(model: nn.Module, ranks: Ranks) -> Iterator[None]:
     side = torch.cuda.Stream(device) if device.type == "cuda" else None
     with torch.cuda.stream(side) if side is not None else contextlib.nullcontext():
         wrapped = nn.parallel.DistributedDataParallel(net, device_ids=[device] if side is not None else None,
-                                                      broadcast_buffers=False)
+                                                      forward_sync_buffers=False)
     if side is not None:
         torch.cuda.current_stream(device).wait_stream(side)
     model.__dict__["net"] = wrapped
