@@ -60,11 +60,6 @@ class Ranks:
             raise ValueError(f"RANK {rank} of WORLD_SIZE {size}: a rank must lie in 0 .. WORLD_SIZE - 1")
         return cls(rank, size, local)
 
-    def device(self, device: str) -> str:
-        """The device of this rank for the configured `device`: on CUDA its own GPU (cuda:LOCAL_RANK, whatever
-        index the configuration names), else the same."""
-        return f"cuda:{self.local}" if self.parallel and device.startswith("cuda") else device
-
 
 SINGLE = Ranks()
 

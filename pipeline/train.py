@@ -139,6 +139,16 @@ def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -
     return n_bytes <= budget_gb * 2 ** 30
 
 
+def rank_device(ranks: Ranks, device: str) -> str:
+    """The device of this process: `device` itself for one process or the CPU; of several ranks on CUDA, a GPU
+    each: a free one of the workflow's shared pool (pipeline.core.gpu_slots; the job asked for one a rank),
+    which the rank sees as cuda:0, or else the launcher's GPUs (torchrun's, a Slurm job's), one a local rank,
+    whatever index `device` names."""
+    if not (ranks.parallel and device.startswith("cuda")):
+        return device
+    return "cuda:0" if gpu_slots.claim_gpu() is not None else f"cuda:{ranks.local}"
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.train", description=__doc__.splitlines()[0])
     parser.add_argument("dataset"), parser.add_argument("operators")
@@ -215,10 +225,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         ranks = Ranks.from_environment()
     except ValueError as err:
         raise PipelineError(f"torchrun's environment: {err}") from None
-    if ranks.parallel and args.device != "cpu":
-        # The launcher (torchrun, a Slurm job) gave this training its GPUs: no slot of a shared pool to claim.
-        os.environ[gpu_slots.GPUS_VARIABLE] = "1"
-    device = configure_torch(ranks.device(args.device), args.seed, args.threads, deterministic=args.deterministic,
+    device = configure_torch(rank_device(ranks, args.device), args.seed, args.threads, deterministic=args.deterministic,
                              tf32=args.tf32, cuda_graph=args.cuda_graph)
     with data_parallel.process_group(ranks, device):
         train(args, sampling, checkpoint, device, ranks)

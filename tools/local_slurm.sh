@@ -9,9 +9,11 @@
 #
 # Needs Debian's (or Ubuntu's) slurm-wlm, slurmdbd, munge and mariadb-server packages
 # (`apt-get install slurm-wlm slurmdbd munge mariadb-server`) and root, as the daemons run as root here.
-# Everything lives under $LOCAL_SLURM_DIR (default /tmp/local-slurm): its own slurm.conf (the system's
-# /etc/slurm is not touched; clients find it through SLURM_CONF), spool and state folders, logs, and a MariaDB
-# data directory listening on 127.0.0.1 only. The node declares the machine's cores and most of its memory; with
+# Everything lives under $LOCAL_SLURM_DIR (default /tmp/local-slurm): its own slurm.conf, spool and state
+# folders, logs, and a MariaDB data directory listening on 127.0.0.1 only. Clients find the config through
+# SLURM_CONF, but inside a job the executor plugin's jobstep clears every SLURM_* variable before it calls
+# srun, which then reads the default path: so /etc/slurm/slurm.conf is made a link to this one where no such
+# file exists (`up` refuses to replace another), and `down` removes the link. The node declares the machine's cores and most of its memory; with
 # LOCAL_SLURM_CPUS / LOCAL_SLURM_MEM_MB it declares more (`SlurmdParameters=config_overrides`), so that jobs
 # asking for a real cluster's sizes are scheduled on a small machine too: a test cluster, not a production one.
 set -euo pipefail
@@ -42,6 +44,14 @@ wait_for() {
     return 1
 }
 
+SYSTEM_CONF=/etc/slurm/slurm.conf
+
+link_system_conf() {
+    if [ -L "$SYSTEM_CONF" ] && [ "$(readlink "$SYSTEM_CONF")" = "$STATE/slurm.conf" ]; then return 0; fi
+    [ -e "$SYSTEM_CONF" ] && die "$SYSTEM_CONF exists: this machine has a Slurm configuration; not replacing it"
+    mkdir -p "$(dirname "$SYSTEM_CONF")" && ln -s "$STATE/slurm.conf" "$SYSTEM_CONF"
+}
+
 write_configs() {
     local cpus mem
     cpus=${LOCAL_SLURM_CPUS:-$(nproc)}
@@ -69,6 +79,8 @@ AccountingStorageType=accounting_storage/slurmdbd
 AccountingStorageHost=localhost
 AccountingStoragePort=$((CTLD_PORT + 2))
 JobCompType=jobcomp/none
+# The executor plugin names each job's rule in its comment: kept in the accounting, so sacct shows it.
+AccountingStoreFlags=job_comment
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core_Memory
 SlurmdParameters=config_overrides
@@ -129,6 +141,7 @@ up() {
     need_tools
     status >/dev/null 2>&1 && { echo "export SLURM_CONF=$STATE/slurm.conf"; return 0; }
     write_configs
+    link_system_conf
     export SLURM_CONF=$STATE/slurm.conf
     start_munge
     start_mariadb
@@ -171,6 +184,7 @@ down() {
     done
     stop_pidfile "$STATE/mysql/mariadb.pid"      # in its data folder: MariaDB runs as mysql
     [ -f "$STATE/run/munged.ours" ] && stop_pidfile /run/munge/munged.pid
+    if [ -L "$SYSTEM_CONF" ] && [ "$(readlink "$SYSTEM_CONF")" = "$STATE/slurm.conf" ]; then rm "$SYSTEM_CONF"; fi
     rm -rf "$STATE"
 }
 

@@ -1,6 +1,6 @@
 """The train stage under `torchrun --nproc_per_node=2` on the CPU (gloo): two ranks at a batch of B train the model
 one process trains at 2 x B, rank 0 alone writes the checkpoint and the outputs, and a run killed mid-training
-resumes to the weights of an uninterrupted one."""
+resumes to the weights of an uninterrupted one; on CUDA each rank's GPU is its own."""
 from __future__ import annotations
 
 import os
@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from pipeline import dataset, operators, train
+from pipeline.core.gpu_slots import GPUS_VARIABLE, LOCKS_VARIABLE
 from pipeline.core.h5 import config_of
 from stage_inputs import stage, write_waving_sheet
 
@@ -114,3 +115,28 @@ def test_a_killed_two_rank_run_resumes_to_the_uninterrupted_weights(work, tmp_pa
     resumed, uninterrupted = weights(out), weights(uninterrupted_run)
     for name in uninterrupted:
         torch.testing.assert_close(resumed[name], uninterrupted[name], rtol=1e-6, atol=1e-7)
+
+
+# A rank choosing its device, then living until stdin closes (holding any GPU slot it took).
+RANK_DEVICE = ("import os, sys; from model.data_parallel import Ranks; from pipeline.train import rank_device; "
+               "rank = int(sys.argv[1]); print(rank_device(Ranks(rank, 2, rank), 'cuda:0'), "
+               "os.environ.get('CUDA_VISIBLE_DEVICES'), flush=True); sys.stdin.read()")
+
+
+@pytest.mark.parametrize("pool", [None, "2"])
+def test_each_rank_on_cuda_takes_a_gpu_of_its_own(tmp_path, pool):
+    """Under torchrun or Slurm (no pool) rank r is cuda:LOCAL_RANK of the launcher's GPUs; in the workflow's
+    shared pool (`gpus: N`, pipeline.core.gpu_slots) each rank locks a free GPU and sees it alone as cuda:0."""
+    env = {key: value for key, value in os.environ.items() if key not in ("CUDA_VISIBLE_DEVICES", GPUS_VARIABLE)}
+    env[LOCKS_VARIABLE] = str(tmp_path / "locks")
+    if pool is not None:
+        env[GPUS_VARIABLE] = pool
+    ranks = [subprocess.Popen([sys.executable, "-c", RANK_DEVICE, str(rank)], cwd=REPO, env=env, text=True,
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE) for rank in (0, 1)]
+    seen = [rank.stdout.readline().split() for rank in ranks]
+    for rank in ranks:
+        rank.communicate("")
+    if pool is None:
+        assert seen == [["cuda:0", "None"], ["cuda:1", "None"]]
+    else:
+        assert [device for device, _ in seen] == ["cuda:0", "cuda:0"] and sorted(g for _, g in seen) == ["0", "1"]

@@ -1,0 +1,105 @@
+"""The workflow through the Slurm profile (profiles/slurm) on a real Slurm: every job that is no local rule goes
+through sbatch with its threads, memory, runtime and GPUs, shows in the accounting (`sacct`), and the artifacts
+equal those of a local run, bit for bit (tools/compare_results.py).
+
+Needs a Slurm whose controller answers, its accounting included, and the executor plugin
+(requirements-cluster.txt): `make test-cluster` brings one up on this machine (tools/local_slurm.sh), runs this
+and tears it down. Elsewhere the test is skipped, unless LEARNED_CLOTH_SLURM=required makes a missing Slurm a
+failure (as `make test-cluster` does).
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+import yaml
+from workflow_runs import REPO, snakemake, tail
+
+PROFILE = REPO / "profiles" / "slurm"
+# The jobs of the patch scene that run as Slurm jobs (one each: a grid scene has one sequence), and the rules
+# that run inside Snakemake (`localrule: True`).
+CLUSTER_JOBS = {"scene", "sequence", "subdivide", "simulate_low", "simulate_high", "operators", "dataset", "train",
+                "evaluate"}
+LOCAL_RULES = {"settings", "simulation_settings"}
+
+
+def slurm_missing() -> str | None:
+    """Why this machine cannot run the test, or None."""
+    if shutil.which("sbatch") is None or shutil.which("sacct") is None:
+        return "no Slurm client (sbatch, sacct)"
+    if importlib.util.find_spec("snakemake_executor_plugin_slurm") is None:
+        return "no Snakemake Slurm executor plugin (pip install -r requirements-cluster.txt)"
+    if subprocess.run(["scontrol", "ping"], capture_output=True).returncode != 0:
+        return "no Slurm controller answers (tools/local_slurm.sh up)"
+    if subprocess.run(["sacct", "-n", "-X", "-S", "now"], capture_output=True).returncode != 0:
+        return "Slurm has no accounting (sacct fails)"
+    return None
+
+
+@pytest.fixture(scope="module", autouse=True)
+def slurm():
+    reason = slurm_missing()
+    if reason is not None:
+        if os.environ.get("LEARNED_CLOTH_SLURM") == "required":
+            pytest.fail(f"LEARNED_CLOTH_SLURM=required: {reason}")
+        pytest.skip(reason)
+
+
+def accounted_jobs(job_ids: list[str]) -> dict[str, dict[str, str]]:
+    """sacct's record of each job (its allocation, not its steps): rule (the plugin's comment), state, CPUs,
+    memory asked for, time limit."""
+    fields = ("JobID", "Comment", "State", "ReqCPUS", "ReqMem", "Timelimit")
+    run = subprocess.run(["sacct", "-n", "-X", "-P", "-j", ",".join(job_ids), "-o", ",".join(fields)],
+                         capture_output=True, text=True, check=True)
+    jobs = {}
+    for line in run.stdout.splitlines():
+        record = dict(zip(fields, line.split("|")))
+        jobs[record["JobID"]] = record
+    return jobs
+
+
+def test_the_patch_workflow_on_slurm_equals_a_local_run(tmp_path):
+    local, cluster = tmp_path / "local", tmp_path / "cluster"
+    run = snakemake(local, "results/patch/")
+    assert run.returncode == 0, tail(run)
+    # The profile as a user runs it; --cores 2 only so that each job's threads (`workflow.cores`) are the local
+    # run's: torch's sums, hence the bits, depend on the thread count.
+    submitted = snakemake(cluster, "--profile", str(PROFILE), "--slurm-init-seconds-before-status-checks", "1",
+                          "results/patch/")
+    assert submitted.returncode == 0, tail(submitted)
+    log = submitted.stdout + submitted.stderr
+    job_ids = re.findall(r"submitted with SLURM jobid (\d+)", log)
+    assert len(job_ids) == len(CLUSTER_JOBS), log[-3000:]
+    jobs = accounted_jobs(job_ids)
+    assert set(jobs) == set(job_ids), "every submitted job is in the accounting"
+    rules = {record["Comment"].removeprefix("rule_").split("_wildcards_")[0]: record for record in jobs.values()}
+    assert set(rules) == CLUSTER_JOBS and not LOCAL_RULES & set(rules)
+    assert {record["State"] for record in rules.values()} == {"COMPLETED"}
+
+    # Each job asked for what its rule declares (threads, mem_mb) and the profile's runtime (minutes).
+    profile = yaml.safe_load((PROFILE / "config.yaml").read_text())
+    plan = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"), "--directory",
+                           str(tmp_path / "plan"), "--cores", "2", "-n", "-F", "results/patch/"],
+                          capture_output=True, text=True)
+    assert plan.returncode == 0, tail(plan)
+    for rule, record in rules.items():
+        declared = re.search(rf"rule {rule}:\n(?:    .*\n)*?    threads: (\d+)", plan.stdout)
+        threads = int(declared[1]) if declared else 1
+        mem = re.search(rf"rule {rule}:\n(?:    .*\n)*?    resources: .*\bmem_mb=(\d+)", plan.stdout)
+        runtime = profile["set-resources"].get(rule, {}).get("runtime", profile["default-resources"]["runtime"])
+        assert int(record["ReqCPUS"]) == threads, (rule, record)
+        assert record["ReqMem"] == f"{mem[1]}M", (rule, record)
+        hours, minutes = divmod(runtime, 60)
+        assert record["Timelimit"] == f"{hours:02d}:{minutes:02d}:00", (rule, record)
+
+    compare = subprocess.run([sys.executable, str(REPO / "tools" / "compare_results.py"),
+                              str(local / "results" / "patch"), str(cluster / "results" / "patch")],
+                             capture_output=True, text=True)
+    assert compare.returncode == 0, compare.stdout[-3000:] + compare.stderr[-2000:]
+    compared = int(re.search(r"(\d+) files compared, 0 differences", compare.stdout)[1])
+    assert compared >= 12, compare.stdout        # settings ... eval.h5, report, renders, videos, export
