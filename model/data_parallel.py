@@ -65,13 +65,17 @@ SINGLE = Ranks()
 
 
 @contextlib.contextmanager
-def process_group(ranks: Ranks, device: torch.device) -> Iterator[None]:
+def process_group(ranks: Ranks, device: torch.device, graphed: bool = False) -> Iterator[None]:
     """Within: this process in the training's process group (MASTER_ADDR/MASTER_PORT from the launcher), NCCL
-    on CUDA, gloo on the CPU; nothing for one process."""
+    on CUDA, gloo on the CPU; nothing for one process. `graphed`: steps replayed as CUDA graphs, whose capture
+    NCCL's asynchronous error handling (a watchdog querying the stream's events) would break, as torch's CUDA
+    graph notes say: it is turned off for this process before the group starts."""
     if not ranks.parallel:
         yield
         return
     if device.type == "cuda":
+        if graphed:
+            os.environ["TORCH_NCCL_ASYNC_ERROR_HANDLING"] = "0"
         torch.cuda.set_device(device)
     dist.init_process_group("nccl" if device.type == "cuda" else "gloo", rank=ranks.rank, world_size=ranks.size,
                             device_id=device if device.type == "cuda" else None)
@@ -123,13 +127,15 @@ def gather_over_ranks(value: torch.Tensor, ranks: Ranks) -> torch.Tensor:
     return torch.stack(parts)
 
 
-def combined_errors(errors: Mapping[str, float] | None, count: int, ranks: Ranks,
-                    weights) -> dict[str, float]:
+def combined_errors(errors: Mapping[str, float] | None, count: int, ranks: Ranks, weights,
+                    device: torch.device) -> dict[str, float]:
     """A split's errors over every rank's part (model.training.split_errors of `count` frames each, None for a
     rank without a frame): L1 and normal are means, combined weighted by the parts' frames; L2 is a root mean
-    square, combined as one; the total again weights the terms (model.losses)."""
+    square, combined as one; the total again weights the terms (model.losses). Reduced on `device`, the
+    training's (NCCL reduces CUDA tensors only)."""
     own = [0.0, 0.0, 0.0] if errors is None else [errors["l1"], errors["l2"] ** 2, errors["normal"]]
-    sums = sum_over_ranks(torch.tensor([*(count * value for value in own), count], dtype=torch.float64), ranks)
+    sums = sum_over_ranks(torch.tensor([*(count * value for value in own), count], dtype=torch.float64,
+                                       device=device), ranks)
     l1, l2sq, normal = (sums[:3] / sums[3]).tolist()
     combined = {"l1": l1, "l2": l2sq ** 0.5, "normal": normal}
     combined["total"] = weights.l1 * combined["l1"] + weights.l2 * combined["l2"] + weights.normal * combined["normal"]

@@ -243,7 +243,8 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
             test = frames.errors(model, mesh, monitored, split_batch_size(settings.batch_size), settings.weights) \
                 if len(monitored) or not ranks.parallel else None
             if ranks.parallel:
-                test = data_parallel.combined_errors(test, len(monitored), ranks, settings.weights)
+                test = data_parallel.combined_errors(test, len(monitored), ranks, settings.weights,
+                                                     train_ids.device)
             for name in TERMS:
                 history.test[name].append(test[name])
             history.epoch_seconds.append(time.perf_counter() - start)

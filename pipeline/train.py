@@ -227,7 +227,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError(f"torchrun's environment: {err}") from None
     device = configure_torch(rank_device(ranks, args.device), args.seed, args.threads, deterministic=args.deterministic,
                              tf32=args.tf32, cuda_graph=args.cuda_graph)
-    with data_parallel.process_group(ranks, device):
+    with data_parallel.process_group(ranks, device, graphed=args.cuda_graph):
         train(args, sampling, checkpoint, device, ranks)
 
 
