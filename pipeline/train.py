@@ -9,6 +9,8 @@
         [--sample-share 1] [--sample-block 1] [--sample-buffer 4096] [--device-cache-gb GB]
         [--train-on train[,held_out]] [--threads N] [--quiet]
 
+    torchrun --nproc_per_node=N -m pipeline.train ...   (the same flags: N ranks, --batch-size frames each)
+
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
 are complete. A file at the checkpoint path that is not a checkpoint is refused, not overwritten, and so is a
@@ -29,6 +31,12 @@ frames too: an oracle whose held-out error is what the architecture can reach on
 the evaluation's report say. With --settings (a
 scene's resolved settings.json), `network.*`, `training.*` (loss weights from `training.loss`) and `device` are
 the defaults of the flags of the same names, --arch included.
+
+Under torchrun (or any launcher that sets WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR and MASTER_PORT) the ranks
+train together with DistributedDataParallel (model.data_parallel): NCCL on CUDA, one GPU a rank (cuda:LOCAL_RANK,
+or a free one of the workflow's shared pool), gloo on the CPU. Every step takes --batch-size frames of each rank,
+so N ranks train the model one process trains at N x --batch-size, up to rounding; rank 0 alone shows progress
+and writes the checkpoint, model.pt and train.h5, and a rerun resumes from the checkpoint with the same N.
 """
 from __future__ import annotations
 
