@@ -233,8 +233,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         ranks = Ranks.from_environment()
     except ValueError as err:
         raise PipelineError(f"torchrun's environment: {err}") from None
-    device = configure_torch(rank_device(ranks, args.device), args.seed, args.threads, deterministic=args.deterministic,
-                             tf32=args.tf32, cuda_graph=args.cuda_graph)
+    device = configure_torch(rank_device(ranks, args.device), args.seed, args.threads,
+                             deterministic=args.deterministic, tf32=args.tf32, cuda_graph=args.cuda_graph)
     with data_parallel.process_group(ranks, device, graphed=args.cuda_graph):
         train(args, sampling, checkpoint, device, ranks)
 
@@ -292,7 +292,8 @@ def train(args: argparse.Namespace, sampling: SampleSettings, checkpoint: Path, 
             try:
                 history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
                               settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
-                              on_batch, lambda notice: not ranks.main or bar.write(f"{checkpoint}: {notice}"), ranks)
+                              on_batch, lambda notice: not ranks.main or bar.write(f"{checkpoint}: {notice}"),
+                              ranks)
             except CheckpointError as err:
                 raise PipelineError(f"{checkpoint}: {err}") from None
             except Diverged as err:
@@ -304,7 +305,8 @@ def train(args: argparse.Namespace, sampling: SampleSettings, checkpoint: Path, 
     if not ranks.main:
         return      # rank 0 writes what every rank trained
     config = {**vars(args), "parameter_count": parameter_count}
-    training = {"epochs": args.epochs, "batch_size": args.batch_size, "ranks": ranks.size, "lr": args.lr, "lr_schedule": args.lr_schedule,
+    training = {"epochs": args.epochs, "batch_size": args.batch_size, "ranks": ranks.size, "lr": args.lr,
+                "lr_schedule": args.lr_schedule,
                 "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
                 "input_noise": args.input_noise, "sampling": dataclasses.asdict(sampling),
                 "streamed": stream, "train_on": args.train_on, "train_frames": len(trained),

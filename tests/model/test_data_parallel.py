@@ -1,6 +1,7 @@
 """model.data_parallel's arithmetic, one process standing in for each rank: every step's frames shared out
 exactly once, the weights that make the ranks' averaged loss the mean over the step's frames, the ranks read
-from torchrun's environment. The ranks training together (gloo, two processes): tests/pipeline/test_train_torchrun.py."""
+from torchrun's environment. The ranks training together (gloo, two processes):
+tests/pipeline/test_train_torchrun.py."""
 from __future__ import annotations
 
 import pytest

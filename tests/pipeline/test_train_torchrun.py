@@ -71,11 +71,12 @@ def weights(path: Path) -> dict[str, torch.Tensor]:
 
 
 # Batch 2: each epoch's 11 frames are two full steps of 4 and a last one of 3 (2 + 1). Batch 5: a full step of
-# 10, then 1 frame, so rank 1 runs a frame of weight 0. Rank 1 has no test frame to score either way.
-@pytest.mark.parametrize("batch", [2, 5])
-def test_two_ranks_train_the_model_of_one_process_at_twice_the_batch(work, tmp_path, batch):
+# 10, then 1 frame, so rank 1 runs a frame of weight 0; and the ranks stream their frames from disk (each reads
+# only its own). Rank 1 has no test frame to score either way.
+@pytest.mark.parametrize("batch, streamed", [(2, False), (5, True)])
+def test_two_ranks_train_the_model_of_one_process_at_twice_the_batch(work, tmp_path, batch, streamed):
     ranked, single = tmp_path / "ranks.pt", tmp_path / "single.pt"
-    torchrun(work, ranked, *EQUAL_EPOCHS, "--batch-size", str(batch))
+    torchrun(work, ranked, *EQUAL_EPOCHS, "--batch-size", str(batch), *(["--device-cache-gb", "0"] * streamed))
     stage(train.main, work / "dataset.h5", work / "operators.h5", single, single.with_suffix(".h5"), *ARCH, *FLAGS,
           *EQUAL_EPOCHS, "--batch-size", str(2 * batch))
     one, two = weights(single), weights(ranked)
@@ -91,6 +92,7 @@ def test_two_ranks_train_the_model_of_one_process_at_twice_the_batch(work, tmp_p
         assert config_of(b)["batch_size"] == batch
     model = torch.load(ranked, weights_only=True)
     assert model["training"]["ranks"] == 2 and model["training"]["batch_size"] == batch
+    assert model["training"]["streamed"] == streamed
     assert not list(ranked.parent.glob("*.ckpt")) and not list(ranked.parent.glob(".*tmp*"))
 
 
