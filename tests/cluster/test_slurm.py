@@ -1,6 +1,7 @@
 """The workflow through the Slurm profile (profiles/slurm) on a real Slurm: every job that is no local rule goes
 through sbatch with its threads, memory, runtime and GPUs, shows in the accounting (`sacct`), and the artifacts
-equal those of a local run, bit for bit (tools/compare_results.py).
+equal those of a local run, bit for bit (tools/compare_results.py). The training runs as two ranks under torchrun
+inside its Slurm job (`training.ranks: 2`; gloo, as the machine has no GPU), as a job asking for two GPUs would.
 
 Needs a Slurm whose controller answers, its accounting included, and the executor plugin
 (requirements-cluster.txt): `make test-cluster` brings one up on this machine (tools/local_slurm.sh), runs this
@@ -17,6 +18,7 @@ import subprocess
 import sys
 
 import pytest
+import torch
 import yaml
 from workflow_runs import REPO, snakemake, tail
 
@@ -73,12 +75,15 @@ def accounted_jobs(job_ids: list[str]) -> dict[str, dict[str, str]]:
 
 def test_the_patch_workflow_on_slurm_equals_a_local_run(tmp_path):
     local, cluster = tmp_path / "local", tmp_path / "cluster"
-    run = snakemake(local, "results/patch/")
+    overlay = tmp_path / "ranks.yaml"
+    overlay.write_text(yaml.safe_dump({"profiles": {"cpu": {"scenes": {"patch": {"training": {"ranks": 2}}}}}}))
+    config = ["--configfile", str(REPO / "workflow_config.yaml"), str(overlay), "--"]
+    run = snakemake(local, *config, "results/patch/")
     assert run.returncode == 0, tail(run)
     # The profile as a user runs it; --cores 2 only so that each job's threads (`workflow.cores`) are the local
     # run's: torch's sums, hence the bits, depend on the thread count.
     submitted = snakemake(cluster, "--profile", str(PROFILE), "--slurm-init-seconds-before-status-checks", "1",
-                          "results/patch/")
+                          *config, "results/patch/")
     assert submitted.returncode == 0, tail(submitted)
     log = submitted.stdout + submitted.stderr
     job_ids = re.findall(r"submitted with SLURM jobid (\d+)", log)
@@ -92,7 +97,7 @@ def test_the_patch_workflow_on_slurm_equals_a_local_run(tmp_path):
     # Each job asked for what its rule declares (threads, mem_mb) and the profile's runtime (minutes).
     profile = yaml.safe_load((PROFILE / "config.yaml").read_text())
     plan = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"), "--directory",
-                           str(tmp_path / "plan"), "--cores", "2", "-n", "-F", "results/patch/"],
+                           str(tmp_path / "plan"), "--cores", "2", "-n", "-F", *config, "results/patch/"],
                           capture_output=True, text=True)
     assert plan.returncode == 0, tail(plan)
     for rule, record in rules.items():
@@ -111,3 +116,6 @@ def test_the_patch_workflow_on_slurm_equals_a_local_run(tmp_path):
     assert compare.returncode == 0, compare.stdout[-3000:] + compare.stderr[-2000:]
     compared = int(re.search(r"(\d+) files compared, 0 differences", compare.stdout)[1])
     assert compared >= 12, compare.stdout        # settings ... eval.h5, report, renders, videos, export
+    trained = torch.load(cluster / "results" / "patch" / "model.pt", weights_only=True)["training"]
+    assert trained["ranks"] == 2
+    assert "-m torch.distributed.run --standalone --nproc_per_node=2 -m pipeline.train" in log
