@@ -327,7 +327,7 @@ def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model:
         sampler.restore(state["sampler"])
         if "noise" in state:       # checkpoints written before input noise existed have none
             _restore_noise_state(state["noise"], device, ranks)
-    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as err:
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError, RuntimeError) as err:
         # The message of a failed load_state_dict spans lines; the type is enough to say it is damaged.
         raise CheckpointError(f"checkpoint contents cannot be restored ({type(err).__name__})") from None
     history.resumed_from_epoch = history.epochs_done
