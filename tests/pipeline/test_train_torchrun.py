@@ -142,3 +142,12 @@ def test_each_rank_on_cuda_takes_a_gpu_of_its_own(tmp_path, pool):
         assert seen == [["cuda:0", "None"], ["cuda:1", "None"]]
     else:
         assert [device for device, _ in seen] == ["cuda:0", "cuda:0"] and sorted(g for _, g in seen) == ["0", "1"]
+
+
+def test_a_bad_launcher_environment_is_one_error(tmp_path):
+    env = {**os.environ, "WORLD_SIZE": "2", "RANK": "2", "LOCAL_RANK": "0"}
+    run = subprocess.run([sys.executable, *train_command(tmp_path, tmp_path / "model.pt")], cwd=REPO, env=env,
+                         capture_output=True, text=True)
+    assert run.returncode == 2 and run.stderr.strip().splitlines() == [
+        "error: torchrun's environment: RANK 2 of WORLD_SIZE 2: a rank must lie in 0 .. WORLD_SIZE - 1"]
+    assert not list(tmp_path.iterdir())
