@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import os
 from typing import Iterator, Mapping
 
@@ -63,6 +64,11 @@ class Ranks:
 
 
 SINGLE = Ranks()
+# Buffers never synchronised at a forward (DistributedDataParallel's keyword: `forward_sync_buffers` since torch 2.13,
+# which deprecates `broadcast_buffers`; the CUDA builds of torch 2.11 know only the latter).
+NO_BUFFER_SYNC = ({"forward_sync_buffers": False}
+                  if "forward_sync_buffers" in inspect.signature(nn.parallel.DistributedDataParallel).parameters
+                  else {"broadcast_buffers": False})
 
 
 @contextlib.contextmanager
@@ -162,7 +168,7 @@ def distributed(model: nn.Module, ranks: Ranks) -> Iterator[None]:
     side = torch.cuda.Stream(device) if device.type == "cuda" else None
     with torch.cuda.stream(side) if side is not None else contextlib.nullcontext():
         wrapped = nn.parallel.DistributedDataParallel(net, device_ids=[device] if side is not None else None,
-                                                      forward_sync_buffers=False)
+                                                      **NO_BUFFER_SYNC)
     if side is not None:
         torch.cuda.current_stream(device).wait_stream(side)
     model.__dict__["net"] = wrapped
