@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import atomic_h5, open_artifact, read, read_or_nan, read_strings
+from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
 
 STAGE = "convs"
 SPLITS = ("train", "test", "heldout")       # column suffixes; eval.h5 calls the last one held_out
@@ -23,6 +23,7 @@ LOOP_COLUMNS = tuple(f"loop_{name}" for name in ERROR_COLUMNS)
 FLOAT_COLUMNS = ("width", *ERROR_COLUMNS, *LOOP_COLUMNS, "ms_inference", "train_seconds")
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
 NAN_WHEN_ABSENT = tuple(name for name in FLOAT_COLUMNS if name.endswith("_heldout"))   # no held-out motion
+TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,25 +39,14 @@ class Convs:
 
 def write_convs(path: str | os.PathLike, config: Mapping[str, Any], table: Convs) -> None:
     with atomic_h5(path, STAGE, config) as f:
-        for name in STRING_COLUMNS:
-            f.create_dataset(name, data=np.array(table.columns[name], dtype="S"))
-        for name in INT_COLUMNS:
-            f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.int64))
-        for name in FLOAT_COLUMNS:
-            f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.float64))
+        TABLE.write(f, table.columns)
         f.attrs.update(device=table.device, error_unit="scene units (~m); the report shows x 1e-3",
                        time_unit="ms per frame (median over the evaluation's timed frames)")
 
 
 def read_convs(path: str | os.PathLike) -> Convs:
     with open_artifact(path) as f:
-        columns = {name: read_strings(f, name) for name in STRING_COLUMNS}
-        columns.update({name: read(f, name, np.int64) for name in INT_COLUMNS})
-        columns.update({name: read_or_nan(f, name) if name in NAN_WHEN_ABSENT else read(f, name, np.float64)
-                        for name in FLOAT_COLUMNS})
-        n_rows = len(columns["task"])
-        if any(values.shape != (n_rows,) for values in columns.values()):
-            raise PipelineError(f"{path}: its columns do not all have one value per row ({n_rows})")
+        columns = TABLE.read(f)
         unknown = sorted(set(columns["kind"]) - set(KINDS))
         if unknown:
             raise PipelineError(f"{path}: 'kind' holds '{unknown[0]}', not one of {', '.join(KINDS)}")

@@ -7,11 +7,10 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
-import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import atomic_h5, open_artifact, read, read_or_nan, read_strings
+from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
 
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
@@ -21,6 +20,7 @@ FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low",
                  "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup")
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
 NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout")     # NaN: the scene has no held-out motion
+TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 # `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
 # alone, or a high-res run of another budget or harmonic schedule than the scene's.
 LEARNED, LOOP, HIGH_RES = "learned", "loop", "high_res"
@@ -52,12 +52,7 @@ class Tradeoff:
 
 def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tradeoff) -> None:
     with atomic_h5(path, STAGE, config) as f:
-        for name in STRING_COLUMNS:
-            f.create_dataset(name, data=np.array(table.columns[name], dtype="S"))
-        for name in INT_COLUMNS:
-            f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.int64))
-        for name in FLOAT_COLUMNS:
-            f.create_dataset(name, data=np.asarray(table.columns[name], dtype=np.float64))
+        TABLE.write(f, table.columns)
         ref = table.reference
         f.attrs.update(device=table.device, threads=table.threads, sim_high_batch=table.sim_high_batch,
                        reference_substeps=ref.substeps, reference_iterations=ref.iterations,
@@ -67,12 +62,7 @@ def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tr
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
     with open_artifact(path) as f:
-        columns = {name: read_strings(f, name) for name in STRING_COLUMNS}
-        columns.update({name: read(f, name, np.int64) for name in INT_COLUMNS})
-        columns.update({name: _read_float_column(f, name) for name in FLOAT_COLUMNS})
-        n_rows = len(columns["method"])
-        if any(values.shape != (n_rows,) for values in columns.values()):
-            raise PipelineError(f"{path}: its columns do not all have one value per row ({n_rows})")
+        columns = TABLE.read(f)
         unknown = sorted(set(columns["method"]) - set(METHODS))
         if unknown:
             raise PipelineError(f"{path}: 'method' holds '{unknown[0]}', not one of {', '.join(METHODS)}")
@@ -81,8 +71,3 @@ def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
                               str(attrs["reference_harmonic_every"]))
         return Tradeoff(columns, str(attrs["device"]), int(attrs["threads"]), int(attrs["sim_high_batch"]),
                         reference)
-
-
-def _read_float_column(f: h5py.File, name: str) -> np.ndarray:
-    """A float column; NaN only in the columns of NAN_WHEN_ABSENT (read() refuses NaN anywhere)."""
-    return read_or_nan(f, name) if name in NAN_WHEN_ABSENT else read(f, name, np.float64)

@@ -18,6 +18,7 @@ disk) is one error naming the output, whichever library wrote (`_TempFile`).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import functools
 import hashlib
@@ -363,6 +364,35 @@ def read_or_nan(f: h5py.File, name: str) -> np.ndarray:
         if not np.all(np.isnan(data) | (np.abs(data) <= FLOAT32_MAX)):
             raise PipelineError(f"{f.filename}: dataset '{name}' contains inf or values beyond float32's range")
     return data
+
+
+@dataclasses.dataclass(frozen=True)
+class ColumnTable:
+    """The columns of a one-row-per-run table artifact (tradeoff.h5, convs.h5) by type; floats in `nan_allowed`
+    may hold NaN ("not measured")."""
+    strings: tuple[str, ...]
+    ints: tuple[str, ...]
+    floats: tuple[str, ...]
+    nan_allowed: tuple[str, ...] = ()
+
+    def write(self, f: h5py.File, columns: Mapping[str, np.ndarray]) -> None:
+        for name in self.strings:
+            f.create_dataset(name, data=np.array(columns[name], dtype="S"))
+        for name in self.ints:
+            f.create_dataset(name, data=np.asarray(columns[name], dtype=np.int64))
+        for name in self.floats:
+            f.create_dataset(name, data=np.asarray(columns[name], dtype=np.float64))
+
+    def read(self, f: h5py.File) -> dict[str, np.ndarray]:
+        """Every column, checked, each with one value per row."""
+        columns = {name: read_strings(f, name) for name in self.strings}
+        columns.update({name: read(f, name, np.int64) for name in self.ints})
+        columns.update({name: read_or_nan(f, name) if name in self.nan_allowed else read(f, name, np.float64)
+                        for name in self.floats})
+        n_rows = len(columns[self.strings[0]])
+        if any(values.shape != (n_rows,) for values in columns.values()):
+            raise PipelineError(f"{f.filename}: its columns do not all have one value per row ({n_rows})")
+        return columns
 
 
 def config_of(f: h5py.File) -> dict[str, Any]:

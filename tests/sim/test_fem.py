@@ -16,6 +16,14 @@ from tests.sim import fem_reference as ref
 CPU = wp.get_device("cpu")
 
 
+def solved_nodes(model: FemModel, inputs: FemInputs, device: str = "cpu") -> np.ndarray:
+    """One frame of `model` from rest on `device`, checked converged: its nodes."""
+    solver = FemSolver(model, device)
+    solver.step(solver.state, inputs)
+    assert solver.last_report.converged.all()
+    return solver.state.read_nodes()[0]
+
+
 def beam(cells=(8, 2, 2), length=4.0):
     """A beam along x, 1 unit square section, its two end faces driven: nodes, tets, driven ids, which are at the
     far end."""
@@ -241,12 +249,7 @@ def test_cpu_and_cuda_agree():
     model = FemModel(nodes, tets, FemSettings(residual_tolerance=1e-8), driven)
     targets = nodes[driven].copy()
     targets[far] = rotated_about(targets[far], 60.0, "x", np.array([4.0, 0.5, 0.5]))
-    results = []
-    for device in ("cpu", "cuda:0"):
-        solver = FemSolver(model, device)
-        solver.step(solver.state, FemInputs(targets))
-        assert solver.last_report.converged.all()
-        results.append(solver.state.read_nodes()[0])
+    results = [solved_nodes(model, FemInputs(targets), device) for device in ("cpu", "cuda:0")]
     np.testing.assert_allclose(results[0], results[1], atol=1e-6)
 
 
@@ -254,13 +257,8 @@ def test_load_steps_reach_the_same_minimum_as_one_step():
     nodes, tets, driven, far = beam((4, 1, 1))
     targets = nodes[driven].copy()
     targets[far] = rotated_about(targets[far], 50.0, "x", np.array([4.0, 0.5, 0.5]))
-    results = []
-    for load_steps in (1, 3):
-        solver = FemSolver(FemModel(nodes, tets, FemSettings(load_steps=load_steps, residual_tolerance=1e-9), driven),
-                           "cpu")
-        solver.step(solver.state, FemInputs(targets))
-        assert solver.last_report.converged.all()
-        results.append(solver.state.read_nodes()[0])
+    results = [solved_nodes(FemModel(nodes, tets, FemSettings(load_steps=load_steps, residual_tolerance=1e-9), driven),
+                            FemInputs(targets)) for load_steps in (1, 3)]
     np.testing.assert_allclose(results[0], results[1], atol=1e-7)
 
 
@@ -270,12 +268,7 @@ def test_a_motion_guess_changes_where_newton_starts_not_where_it_ends():
     targets = nodes[driven].copy()
     targets[far] += np.array([0.0, 1.0, 0.0])
     guess = np.outer(nodes[:, 0] / 4.0, [0.0, 1.0, 0.0])         # the beam sheared along with its end
-    ends = []
-    for motion in (None, guess):
-        solver = FemSolver(model, "cpu")
-        solver.step(solver.state, FemInputs(targets, motion))
-        assert solver.last_report.converged.all()
-        ends.append(solver.state.read_nodes()[0])
+    ends = [solved_nodes(model, FemInputs(targets, motion)) for motion in (None, guess)]
     np.testing.assert_allclose(ends[0], ends[1], atol=1e-7)
 
 
