@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable
 
 from pipeline.core.config import application_settings
 from pipeline.core.errors import PipelineError
-from scenes.sequences import is_window_name, sequence_bvh_files
+from scenes.sequences import is_window_name, sequence_bvh_files, wears_garment
 
 Settings = dict[str, Any]
 
@@ -58,6 +58,22 @@ def settle_folder(scene: str) -> str:
     """Where a scene with a motion library keeps its settle sequence (scenes.sequences.SETTLE): scene.h5 and its
     runs, apart from the sequences the dataset gathers."""
     return f"results/{scene}/settle"
+
+
+def dressed_garment(scene: str, settings: Settings) -> list[str]:
+    """The dressed garment (the dress stage's dressed.h5) a garment_file scene's scene files are made from; none
+    for the other generators."""
+    return [f"results/{scene}/dressed.h5"] if settings["mesh"]["generator"] == "garment_file" else []
+
+
+def dressed_flag(scene: str, settings: Settings) -> list[str]:
+    """The scene stage's `--dressed DRESSED` for dressed_garment, or nothing."""
+    return [flag for path in dressed_garment(scene, settings) for flag in ("--dressed", path)]
+
+
+def garment_files(settings: Settings) -> list[str]:
+    """The user's garment file a garment_file scene is dressed from: editing it dresses the garment again."""
+    return [settings["mesh"]["file"]] if settings["mesh"]["generator"] == "garment_file" else []
 
 
 def settled_runs(scene: str, sequences: Iterable[str], level: str) -> list[str]:
@@ -116,9 +132,9 @@ def pca_summary_arguments(scene: str, settings: Settings) -> list[str]:
 def application_products(scene: str, settings: Settings, application: str) -> list[str]:
     """What `results/<scene>/<application>/` stands for; a scene without a mannequin has no pose input, said in
     one line before any job runs."""
-    if application == "pose" and settings["mesh"]["generator"] != "garment":
+    if application == "pose" and not wears_garment(settings):
         raise PipelineError(f"results/{scene}/pose/: scene '{scene}' has no mannequin, so no pose input (pose to "
-                            f"cloth needs a garment scene, mesh.generator 'garment')")
+                            f"cloth needs a garment scene, mesh.generator 'garment' or 'garment_file')")
     folders = ["pose"] if application == "pose" else pca_model_dirs(settings)
     summary = [f"results/{scene}/pca/report.md"] if application == "pca" else []
     return [f"results/{scene}/{folder}/{name}" for folder in folders for name in APPLICATION_PRODUCTS] + summary

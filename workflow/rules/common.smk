@@ -21,6 +21,8 @@ OUT = "results/{scene}"
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
 # The scenes with a motion library, whose windows start from their settle sequence's runs (results/<scene>/settle/)
 LIBRARY_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if library_of(settings) is not None)
+# The scenes of a garment from a file, dressed on the mannequin first (results/<scene>/dressed.h5).
+FILE_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if workflow_paths.garment_files(settings))
 
 # Several GPUs: each CUDA job takes a free one (pipeline.core.gpu_slots), told how many through its environment.
 os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))
@@ -58,6 +60,15 @@ def high_batch_threads(scene, sequences):
 def bvh_files(wildcards):
     """The motion-capture files a sequence reads: editing one remakes the sequences that play it."""
     return sequence_bvh_files(SETTINGS[wildcards.scene], wildcards.seq)
+
+
+def dressed_garment(wildcards):
+    """A garment_file scene's dressed.h5, which its scene files are made from (none for other scenes)."""
+    return workflow_paths.dressed_garment(wildcards.scene, SETTINGS[wildcards.scene])
+
+
+def dressed_flag(wildcards):
+    return workflow_paths.dressed_flag(wildcards.scene, SETTINGS[wildcards.scene])
 
 
 def sequence_files(name):

@@ -36,39 +36,55 @@ rule simulation_settings:
             print(f"{output[0]}: profile {params.settings['profile']}, device {params.settings['device']}", file=f)
 
 
+# A garment from the user's file: dressed on the mannequin and settled clear of it (pipeline/dress.py), the rest
+# mesh and pins of its scene files.
+rule dress:
+    input: settings=f"{OUT}/simulation.json", garment=lambda w: workflow_paths.garment_files(SETTINGS[w.scene])
+    output: f"{OUT}/dressed.h5"
+    wildcard_constraints: scene=FILE_SCENES
+    log: log_of("dress")
+    benchmark: benchmark_of("dress")
+    threads: 1
+    resources: mem_mb=4000
+    shell: "{PY:q} -m pipeline.dress {input.settings:q} {output:q} 2>&1 | tee {log:q}"
+
+
 rule scene:
-    input: settings=f"{OUT}/simulation.json"
+    input: settings=f"{OUT}/simulation.json", dressed=dressed_garment
     output: f"{OUT}/scene.h5"
+    params: dressed=dressed_flag
     log: log_of("scene")
     benchmark: benchmark_of("scene")
     threads: 1
     resources: mem_mb=2000
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} 2>&1 | tee {log:q}"
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} {params.dressed:q} 2>&1 | tee {log:q}"
 
 
 rule sequence:
-    input: settings=f"{OUT}/simulation.json", bvh=bvh_files
+    input: settings=f"{OUT}/simulation.json", bvh=bvh_files, dressed=dressed_garment
     output: f"{SEQ}/scene.h5"
+    params: dressed=dressed_flag
     log: log_of("sequence", per_sequence=True)
     benchmark: benchmark_of("sequence", per_sequence=True)
     threads: 1
     resources: mem_mb=2000
     priority: 10        # the low-res shards wait on them (simulate.smk: the order of the GPU's jobs)
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} 2>&1 | tee {log:q}"
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} {params.dressed:q} 2>&1 | tee {log:q}"
 
 
 # A scene with a motion library: the body at rest for settle_frames, whose cloth every window starts from once its
 # runs settle it (simulate.smk).
 rule settle_scene:
-    input: settings=f"{OUT}/simulation.json"
+    input: settings=f"{OUT}/simulation.json", dressed=dressed_garment
     output: f"{OUT}/settle/scene.h5"
+    params: dressed=dressed_flag
     wildcard_constraints: scene=LIBRARY_SCENES
     log: log_of("settle_scene")
     benchmark: benchmark_of("settle_scene")
     threads: 1
     resources: mem_mb=2000
     priority: 10
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle 2>&1 | tee {log:q}"
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle {params.dressed:q} 2>&1 | tee {log:q}"
 
 
 rule subdivide:
