@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.csgraph as csgraph
 
 from geometry.mesh import unique_edges, validate_mesh, weld_vertices
 
@@ -87,6 +89,13 @@ def garment_from_file(vertices: np.ndarray, faces: np.ndarray, units: str, up: s
     except ValueError as err:
         hint = "" if weld > 0 else " (panels with duplicated seam vertices need mesh.weld > 0)"
         raise ValueError(f"not a mesh the cloth solver can take once welded: {err}{hint}") from None
+    edges = unique_edges(faces)
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(welded),) * 2)
+    pieces = csgraph.connected_components(graph, directed=False)[0]
+    if pieces > 1:
+        raise ValueError(f"{pieces} separate pieces once welded within {weld:g} m: a garment is one piece; panels "
+                         f"whose seam vertices are duplicated are sewn by mesh.weld (a tolerance above the gap "
+                         f"between the copies, below the shortest edge)")
     if max_edge is not None:
         welded, faces = refine_to_edge(welded, faces, max_edge)
     return FileGarment(welded, faces, file_to_mesh, units, up)

@@ -21,11 +21,16 @@ ATTACHMENT_GROUP = "band"
 
 
 def write_garment_obj(path: Path, kind: str, max_edge: float, units: str = "m", up: str = "y",
-                      offset=(0.0, 0.0, 0.0), panels: bool = True, band_group: bool = True) -> np.ndarray:
+                      offset=(0.0, 0.0, 0.0), panels: bool = True, band_group: bool = True,
+                      seam_gap: float = 0.0) -> np.ndarray:
     """Write `kind` as an artist's OBJ; returns the file's vertices as they were worn on the mannequin (metres,
-    Y-up), in file order."""
+    Y-up), in file order. `seam_gap` (metres): the k-th seam copy of a vertex moves k gaps along x, as in exports
+    whose panels do not quite meet."""
     garment = make_garment(kind, max_edge=max_edge, panels=panels)
-    worn, faces = garment.vertices, garment.faces
+    worn, faces = garment.vertices.copy(), garment.faces
+    first = np.r_[True, (np.diff(worn, axis=0) != 0).any(axis=1)]   # copies follow their first (cut_along_edges)
+    start = np.maximum.accumulate(np.where(first, np.arange(len(worn)), 0))
+    worn[:, 0] += seam_gap * (np.arange(len(worn)) - start)
     stored = (worn + np.asarray(offset)) / UNIT_METRES[units]
     if up == "z":
         stored = stored @ Y_UP_TO_Z_UP.T
