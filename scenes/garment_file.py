@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
-from geometry.mesh import unique_edges, validate_mesh, weld_vertices
+from geometry.mesh import boundary_loops, unique_edges, validate_mesh, weld_vertices
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 GARMENT_SIZE = (0.25, 2.0)   # metres: the largest extent of any garment a 1.7 m mannequin wears
@@ -79,6 +79,8 @@ def garment_from_file(vertices: np.ndarray, faces: np.ndarray, units: str, up: s
     seams) and, with `max_edge`, refined by midpoint subdivision until every edge is shorter (the file's vertices
     stay, first and in their order). ValueError for a mesh the solver cannot take (non-manifold, inconsistently
     oriented, degenerate), naming the problem in the welded mesh."""
+    if not boundary_loops(len(vertices), np.asarray(faces)):
+        raise ValueError("a closed surface without openings, not a garment (a garment has a waist, neck or hem)")
     units, up = detect_units(vertices, units), detect_up(vertices, up)
     metres = np.asarray(vertices, dtype=np.float64) * UNITS[units]
     if up == "z":
