@@ -28,7 +28,7 @@ from pipeline.core.meshio import load_mesh_groups
 from pipeline.solvers.dress_settle import settle_on_body
 from pipeline.solvers.xpbd import solver_settings
 from scenes.capsules import capsules_world
-from scenes.dressing import RestBody, check_encloses, guess_anchor, pin_vertices, place, push_outside
+from scenes.dressing import TORSO_PARTS, RestBody, check_encloses, guess_anchor, pin_vertices, place, push_outside
 from scenes.garment_file import garment_from_file
 from scenes.garments import Garment
 from scenes.skeleton import default_skeleton
@@ -65,14 +65,14 @@ def dress(settings: dict) -> Dressed:
     ratio = _edge_ratio(settled, placed, garment.faces)
     if not (EDGE_TOLERANCE[0] <= ratio.min() and ratio.max() <= EDGE_TOLERANCE[1]):
         raise ValueError(f"the settle changed its edge lengths by {ratio.min():.2f}x to {ratio.max():.2f}x (allowed "
-                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body; set mesh.fit.scale "
-                         f"above {fit['scale']:g}")
+                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body where it is placed; set "
+                         f"mesh.fit.scale above {fit['scale']:g} or mesh.fit.offset")
     attrs = dict(file=str(path), sha256=hashlib.sha256(path.read_bytes()).hexdigest(), units=garment.units,
                  up=garment.up, anchor=anchor, scale=fit["scale"], offset=list(fit["offset"]), weld=mesh["weld"],
                  file_vertices=len(vertices), vertices=len(settled), edge_ratio_min=ratio.min(),
                  edge_ratio_max=ratio.max(), edge_ratio_mean_abs=float(np.abs(ratio - 1).mean()),
                  clearance_m=clearance[-1])
-    parts = body.nearest_part(placed[pinned])
+    parts = body.nearest_part(placed[pinned], TORSO_PARTS if mesh["pins"] == "auto" else None)
     return Dressed(Garment("file", settled, garment.faces, pinned, parts), placed, stages, clearance, attrs)
 
 

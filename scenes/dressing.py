@@ -17,11 +17,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.mesh import boundary_loops
-from scenes.capsules import body_signed_distance, capsules_world
+from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
 from scenes.kinematics import rest_transforms
 from scenes.skeleton import Skeleton
 
 ANCHORS = ("waist", "shoulders", "chest")
+# The parts an automatic pin (a waistband, a collar) may follow: the torso carries them. A collar nearer the
+# upper arm than the chest would otherwise be dragged by the arm and tear at the shoulder.
+TORSO_PARTS = ("pelvis", "spine", "chest")
 # The ease a loose opening has around the body when a tube is worn at the waist or at the chest: 3 cm all round.
 TUBE_EASE = 0.03
 
@@ -64,10 +67,12 @@ class RestBody:
     def distance(self, points: np.ndarray) -> np.ndarray:
         return body_signed_distance(self.skel, self.transforms, np.asarray(points).reshape(-1, 3))
 
-    def nearest_part(self, points: np.ndarray) -> np.ndarray:
-        """The part whose capsule is nearest each point (a pin follows it: 'skinned to the nearest bone')."""
-        from scenes.capsules import capsule_signed_distance
-        return capsule_signed_distance(points, self.a, self.b, self.ra, self.rb).argmin(axis=1).astype(np.int64)
+    def nearest_part(self, points: np.ndarray, among: tuple[str, ...] | None = None) -> np.ndarray:
+        """The part whose capsule is nearest each point, of the parts named `among` (default: all); a pin follows
+        it ('skinned to the nearest bone')."""
+        parts = np.arange(self.skel.n_parts) if among is None else np.array([self.skel.index(n) for n in among])
+        distance = capsule_signed_distance(points, self.a[parts], self.b[parts], self.ra[parts], self.rb[parts])
+        return parts[distance.argmin(axis=1)].astype(np.int64)
 
 
 def guess_anchor(vertices: np.ndarray, faces: np.ndarray, body: RestBody) -> str:
@@ -160,7 +165,8 @@ def push_outside(points: np.ndarray, body: RestBody, clearance: float, steps: in
 
 
 def pin_vertices(spec, top: Opening, groups: dict[str, np.ndarray], file_to_mesh: np.ndarray) -> np.ndarray:
-    """The pinned vertex ids of the mesh: `auto` the top opening (waistband, collar), `{group: NAME}` the
+    """The pinned vertex ids of the mesh: `auto` the top opening (waistband, collar: each follows the nearest of
+    TORSO_PARTS), `{group: NAME}` the
     vertices of the file's group NAME, `{indices: [...]}` the file's vertices by their 0-based number. ValueError
     naming a group the file has not or an index beyond its vertices."""
     if spec == "auto":
