@@ -55,7 +55,7 @@ def dress(settings: dict) -> Dressed:
     placed[pinned] = push_outside(placed[pinned], body, 2 * solver.collision_thickness)
     a, b, ra, rb = capsules_world(body.skel, body.transforms)
     settled, stages = settle_on_body(placed, garment.faces, pinned, np.stack([a, b], 1), np.stack([ra, rb], 1),
-                                     solver, max(1, fit["settle_frames"] // 4), settings["device"])
+                                     solver, fit["settle_frames"], settings["device"])
     clearance = np.array([body.distance(x).min() for x in stages])
     if clearance[-1] < 0:
         worst = int(np.argmin(body.distance(settled)))

@@ -143,7 +143,7 @@ def check_encloses(vertices: np.ndarray, faces: np.ndarray, anchor: str, top: Op
             side = "thigh_l" if leg.centre[0] > body.joint("pelvis")[0] else "thigh_r"
             if abs(winding(vertices[leg.loop], body.joint(side))) != 1:
                 raise ValueError(f"its leg opening at {np.round(leg.centre, 3).tolist()} m does not go around the "
-                                 f"{side[-1] == 'l' and 'left' or 'right'} leg: set mesh.fit.offset or "
+                                 f"{'left' if side.endswith('_l') else 'right'} leg: set mesh.fit.offset or "
                                  f"mesh.fit.scale")
 
 

@@ -17,11 +17,13 @@ RADIUS_START = 0.5
 
 
 def settle_on_body(placed: np.ndarray, faces: np.ndarray, pinned: np.ndarray, capsules: np.ndarray,
-                   radii: np.ndarray, settings: SolverSettings, frames_per_stage: int, device: str = "cpu"
+                   radii: np.ndarray, settings: SolverSettings, frames: int, device: str = "cpu"
                    ) -> tuple[np.ndarray, np.ndarray]:
     """The cloth after the settle (V, 3) float64, and each stage's last frame (STAGES, V, 3) (what the dress
-    stage checks against the body and stores). `capsules` (N, 2, 3) the body's capsules at rest, `radii` (N, 2);
-    the pinned vertices stay where `placed` has them; the scene's solver `settings`, with body collision on."""
+    stage checks against the body and stores). `frames` are shared by the stages (at least one each);
+    `capsules` (N, 2, 3) the body's capsules at rest, `radii` (N, 2); the pinned vertices stay where `placed` has
+    them; the scene's solver `settings`, with body collision on."""
+    frames_per_stage = max(1, frames // STAGES)
     settings = dataclasses.replace(settings, body_collision=True)
     x = np.asarray(placed, dtype=np.float64)
     inputs = FrameInputs(pin_targets=x[pinned][None] if len(pinned) else None, capsules=capsules[None])
