@@ -106,6 +106,14 @@ def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> Non
                                 f"{os.getcwd()})")
 
 
+def check_garment_file(scene: str, settings: Settings) -> None:
+    """A garment_file scene's garment file exists (as check_bvh_files for motion files)."""
+    for path in garment_files(settings):
+        if not os.path.isfile(path):
+            raise PipelineError(f"{path}: garment file of scene '{scene}' (mesh.file) does not exist (working "
+                                f"directory {os.getcwd()})")
+
+
 def application_of(model_dir: str) -> str:
     """The application (pose, pca) of a model folder (pose, pca/k<K>)."""
     return model_dir.split("/")[0]

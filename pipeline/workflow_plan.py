@@ -14,7 +14,7 @@ import sys
 
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import check_bvh_files, sequences_or_error
+from pipeline.workflow_paths import check_bvh_files, check_garment_file, garment_files, sequences_or_error
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
 
@@ -37,6 +37,7 @@ def plan(config: dict) -> tuple[dict[str, dict], dict[str, list[str]]]:
     costs = {}
     for scene, names in sequences.items():
         check_bvh_files(scene, settings[scene], names)
+        check_garment_file(scene, settings[scene])
         costs[scene] = scene_cost(scene, settings[scene], names)
         if not config.get("allow_large", False):
             check_cost(scene, *costs[scene])
@@ -60,7 +61,8 @@ def scene_cost(scene: str, settings: dict, names: list[str]) -> tuple[int, int]:
                                 f"{MAX_PLAYED_FRAMES:,} (its settle, blend and hold frames and the clip it plays)")
         frames += length
     runs = len(sequence_shards(settings)) if settings["shard"] > 1 else len(names)
-    return SCENE_JOBS + len(names) + 2 * runs + SETTLE_JOBS * library, frames
+    dress = len(garment_files(settings))     # a garment from a file: its dress job
+    return SCENE_JOBS + dress + len(names) + 2 * runs + SETTLE_JOBS * library, frames
 
 
 def check_cost(scene: str, jobs: int, frames: int) -> None:

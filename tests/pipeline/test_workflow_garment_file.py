@@ -17,7 +17,7 @@ from pipeline.core.meshio import load_mesh_groups
 from pipeline.dress import EDGE_TOLERANCE
 from scenes.capsules import capsule_signed_distance
 from scenes.garment_file import garment_from_file
-from workflow_runs import build, tail, tiny_pants
+from workflow_runs import build, snakemake, tail, tiny_pants
 
 GARMENTS = {   # scene: (procedural kind it is made from, file traits, its overlay's mesh keys)
     "trousers": ("pants", dict(units="cm", offset=(0.2, 0.4, 0.1)), dict(units="auto", up="auto", weld=0.0)),
@@ -80,3 +80,16 @@ def test_the_settled_garment_is_clear_of_the_body_in_every_frame_and_keeps_the_f
         clearance = [capsule_signed_distance(x, a, b, *capsules[2:]).min()
                      for x, a, b in zip(positions, capsules[0], capsules[1])]
         assert min(clearance) >= 0.0, (sequence.name, np.argmin(clearance), min(clearance))
+
+
+def test_a_missing_garment_file_is_one_error_before_any_job(tmp_path):
+    tiny = tiny_pants(tmp_path)
+    (tmp_path / "overlay.yaml").write_text(yaml.safe_dump({"scenes": {"mine": {"like": "pants", "mesh": {
+        "generator": "garment_file", "file": "nowhere.obj", "units": "auto", "up": "auto", "weld": 0.0,
+        "max_edge": 0.25, "remesh": False, "pins": "auto",
+        "fit": {"anchor": "auto", "offset": [0, 0, 0], "scale": 1.0, "settle_frames": 12}}}}}))
+    run = snakemake(tmp_path, "-n", "results/mine/", "--configfile", str(tiny), str(tmp_path / "overlay.yaml"))
+    errors = [line for line in run.stderr.splitlines() if line.startswith("error: ")]
+    assert run.returncode != 0 and errors == [f"error: nowhere.obj: garment file of scene 'mine' (mesh.file) does "
+                                              f"not exist (working directory {tmp_path})"], tail(run)
+    assert "Traceback" not in run.stderr and not (tmp_path / "results").exists()
