@@ -28,9 +28,9 @@ from pipeline.core.meshio import load_mesh_groups
 from pipeline.solvers.dress_settle import settle_on_body
 from pipeline.solvers.xpbd import solver_settings
 from scenes.capsules import capsules_world
-from scenes.dressing import TORSO_PARTS, RestBody, check_encloses, guess_anchor, pin_vertices, place, push_outside
+from scenes.dressing import TORSO_PARTS, check_encloses, guess_anchor, pin_vertices, place, push_outside
 from scenes.garment_file import garment_from_file
-from scenes.garments import Garment
+from scenes.garments import Garment, RestMannequin
 from scenes.skeleton import default_skeleton
 
 # The settled garment's edges keep the file's lengths within these ratios: stretch is stiff (at most 10 %
@@ -45,7 +45,7 @@ def dress(settings: dict) -> Dressed:
     vertices, faces, groups = load_mesh_groups(path)
     garment = garment_from_file(vertices, faces, mesh["units"], mesh["up"], mesh["weld"],
                                 mesh["max_edge"] if mesh["remesh"] else None)
-    body = RestBody(default_skeleton())
+    body = RestMannequin(default_skeleton())
     anchor = guess_anchor(garment.vertices, garment.faces, body) if fit["anchor"] == "auto" else fit["anchor"]
     placed, top = place(garment.vertices, garment.faces, anchor, body, fit["scale"], np.asarray(fit["offset"]))
     check_encloses(placed, garment.faces, anchor, top, body)

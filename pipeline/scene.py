@@ -37,12 +37,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                                           "mesh and pins")
     args = parser.parse_args(argv)
     settings = read_settings(args.settings, unread=LEARNING_ONLY)
-    dressed = None
     if (settings["mesh"]["generator"] == "garment_file") != (args.dressed is not None):
         raise PipelineError(f"{args.settings}: --dressed is given exactly for a garment_file scene (mesh.generator "
                             f"here: '{settings['mesh']['generator']}')")
-    if args.dressed is not None:
-        dressed = read_dressed_garment(args.dressed, default_skeleton().n_parts)
+    dressed = None if args.dressed is None else read_dressed_garment(args.dressed, default_skeleton().n_parts)
     where = f"scene '{settings['scene']}'" + (f" sequence '{args.sequence}'" if args.sequence else "")
     try:
         if args.sequence is None:

@@ -17,9 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.mesh import boundary_loops
-from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
-from scenes.kinematics import rest_transforms
-from scenes.skeleton import Skeleton
+from scenes.garment_file import CLOSED_SURFACE
+from scenes.garments import RestMannequin
 
 ANCHORS = ("waist", "shoulders", "chest")
 # The parts an automatic pin (a waistband, a collar) may follow: the torso carries them. A collar nearer the
@@ -47,41 +46,13 @@ def openings(vertices: np.ndarray, faces: np.ndarray) -> list[Opening]:
     return sorted(found, key=lambda o: -o.centre[1])
 
 
-class RestBody:
-    """The mannequin at rest: joints, capsules, girths and distances, what dressing measures against."""
-
-    def __init__(self, skel: Skeleton):
-        self.skel = skel
-        self.transforms = rest_transforms(skel)
-        self.a, self.b, self.ra, self.rb = capsules_world(skel, self.transforms)
-        self.scale = skel.height / 1.7
-
-    def joint(self, name: str) -> np.ndarray:
-        return self.transforms[1][self.skel.index(name)]
-
-    def girth(self, name: str) -> float:
-        """Around a horizontal torso capsule through its axis: two lengths of its segment and a circle."""
-        p = self.skel.index(name)
-        return float(2 * np.linalg.norm(self.b[p] - self.a[p]) + np.pi * (self.ra[p] + self.rb[p]))
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        return body_signed_distance(self.skel, self.transforms, np.asarray(points).reshape(-1, 3))
-
-    def nearest_part(self, points: np.ndarray, among: tuple[str, ...] | None = None) -> np.ndarray:
-        """The part whose capsule is nearest each point, of the parts named `among` (default: all); a pin follows
-        it ('skinned to the nearest bone')."""
-        parts = np.arange(self.skel.n_parts) if among is None else np.array([self.skel.index(n) for n in among])
-        distance = capsule_signed_distance(points, self.a[parts], self.b[parts], self.ra[parts], self.rb[parts])
-        return parts[distance.argmin(axis=1)].astype(np.int64)
-
-
-def guess_anchor(vertices: np.ndarray, faces: np.ndarray, body: RestBody) -> str:
+def guess_anchor(vertices: np.ndarray, faces: np.ndarray, body: RestMannequin) -> str:
     """How a garment is worn, from its openings: two side by side at its bottom are legs (waist); two at its sides
     above its lowest are sleeves or armholes (shoulders); a tube's top opening sized for the waist or the chest
     (whichever girth, with TUBE_EASE, it is nearer). ValueError where the openings cannot tell."""
     found = openings(vertices, faces)
     if not found:
-        raise ValueError("a closed surface without openings, not a garment (a garment has a waist, neck or hem)")
+        raise ValueError(CLOSED_SURFACE)
     if len(found) == 1:
         raise ValueError("one opening only (a cape, a bib?): cannot tell how it is worn; set mesh.fit.anchor to "
                          f"one of {', '.join(ANCHORS)}")
@@ -98,7 +69,7 @@ def guess_anchor(vertices: np.ndarray, faces: np.ndarray, body: RestBody) -> str
     return "shoulders"
 
 
-def place(vertices: np.ndarray, faces: np.ndarray, anchor: str, body: RestBody, scale: float,
+def place(vertices: np.ndarray, faces: np.ndarray, anchor: str, body: RestMannequin, scale: float,
           offset: np.ndarray) -> tuple[np.ndarray, Opening]:
     """The garment scaled by `scale`, moved to its anchor on the rest-pose body (module docstring), then by
     `offset` (metres); also its top opening (the waistband, collar or top hem), whose vertices the automatic pins
@@ -126,7 +97,7 @@ def winding(loop_points: np.ndarray, centre: np.ndarray) -> int:
     return int(round(float(((turn + np.pi) % (2 * np.pi) - np.pi).sum()) / (2 * np.pi)))
 
 
-def check_encloses(vertices: np.ndarray, faces: np.ndarray, anchor: str, top: Opening, body: RestBody) -> None:
+def check_encloses(vertices: np.ndarray, faces: np.ndarray, anchor: str, top: Opening, body: RestMannequin) -> None:
     """The placed garment goes around the body where it is worn: its top opening around the torso (waist, chest)
     or the neck (shoulders) and, for trousers, each leg opening around its own leg. ValueError saying what to
     set otherwise (a garment cut open down one side, a misplaced or mis-scaled one)."""
@@ -147,7 +118,7 @@ def check_encloses(vertices: np.ndarray, faces: np.ndarray, anchor: str, top: Op
                                  f"mesh.fit.scale")
 
 
-def push_outside(points: np.ndarray, body: RestBody, clearance: float, steps: int = 50) -> np.ndarray:
+def push_outside(points: np.ndarray, body: RestMannequin, clearance: float, steps: int = 50) -> np.ndarray:
     """Points moved out of the body until each is at least `clearance` from it, along the distance's gradient
     (finite differences), for the pins, which the settle cannot move."""
     points = np.array(points, dtype=np.float64)

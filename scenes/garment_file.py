@@ -22,6 +22,7 @@ from geometry.mesh import boundary_loops, unique_edges, validate_mesh, weld_vert
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 GARMENT_SIZE = (0.25, 2.0)   # metres: the largest extent of any garment a 1.7 m mannequin wears
+CLOSED_SURFACE = "a closed surface without openings, not a garment (a garment has a waist, neck or hem)"
 UP_RATIO = 1.2               # the up axis' extent is at least this many times the other's
 # Z-up (x, y, z) -> Y-up (x, z, -y): the front (-y in Blender) becomes +z, the mannequin's front.
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -80,7 +81,7 @@ def garment_from_file(vertices: np.ndarray, faces: np.ndarray, units: str, up: s
     stay, first and in their order). ValueError for a mesh the solver cannot take (non-manifold, inconsistently
     oriented, degenerate), naming the problem in the welded mesh."""
     if not boundary_loops(len(vertices), np.asarray(faces)):
-        raise ValueError("a closed surface without openings, not a garment (a garment has a waist, neck or hem)")
+        raise ValueError(CLOSED_SURFACE)
     units, up = detect_units(vertices, units), detect_up(vertices, up)
     metres = np.asarray(vertices, dtype=np.float64) * UNITS[units]
     if up == "z":

@@ -15,12 +15,12 @@ from geometry.mesh import boundary_loops, cut_along_edges, unique_edges, validat
 from geometry.shapes import cube_sphere, grid_patch
 from meshops.rings import boundary_walk
 from pipeline.core.meshio import load_mesh_groups
-from scenes.dressing import RestBody, check_encloses, guess_anchor, pin_vertices, place, push_outside
+from scenes.dressing import check_encloses, guess_anchor, pin_vertices, place, push_outside
 from scenes.garment_file import detect_units, detect_up, garment_from_file, refine_to_edge
-from scenes.garments import make_garment
+from scenes.garments import RestMannequin, make_garment
 from scenes.skeleton import default_skeleton
 
-BODY = RestBody(default_skeleton())
+BODY = RestMannequin(default_skeleton())
 WELD = 1e-4
 
 
