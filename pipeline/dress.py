@@ -65,8 +65,10 @@ def dress(settings: dict) -> Dressed:
     ratio = _edge_ratio(settled, placed, garment.faces)
     if not (EDGE_TOLERANCE[0] <= ratio.min() and ratio.max() <= EDGE_TOLERANCE[1]):
         raise ValueError(f"the settle changed its edge lengths by {ratio.min():.2f}x to {ratio.max():.2f}x (allowed "
-                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body where it is placed; set "
-                         f"mesh.fit.scale above {fit['scale']:g} or mesh.fit.offset")
+                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body where it is placed (set "
+                         f"mesh.fit.scale above {fit['scale']:g} or mesh.fit.offset), or too fine a mesh for the "
+                         f"solver's budget to hold it up (raise solver.iterations or solver.substeps, or give a "
+                         f"coarser file)")
     attrs = dict(file=str(path), sha256=hashlib.sha256(path.read_bytes()).hexdigest(), units=garment.units,
                  up=garment.up, anchor=anchor, scale=fit["scale"], offset=list(fit["offset"]), weld=mesh["weld"],
                  file_vertices=len(vertices), vertices=len(settled), edge_ratio_min=ratio.min(),
