@@ -168,3 +168,15 @@ def test_a_garment_of_20k_vertices_is_read_welded_and_placed_in_seconds(tmp_path
     assert len(garment.vertices) > 20_000 and anchor == "waist"
     assert np.abs(placed[garment.file_to_mesh] - worn).max() < 0.01
     assert time.perf_counter() - start < 30    # a guard against a quadratic step, not a benchmark
+
+
+@pytest.mark.parametrize("suffix", ["ply", "glb"])
+def test_a_garment_in_another_format_trimesh_reads_is_dressed_the_same(tmp_path, suffix):
+    import trimesh
+    whole = make_garment("pants", max_edge=0.16)
+    path = tmp_path / f"pants.{suffix}"
+    trimesh.Trimesh(whole.vertices * 1000.0, whole.faces, process=False).export(path)
+    garment, anchor, placed, _, groups = dressed(path)
+    assert (garment.units, anchor, groups) == ("mm", "waist", {})
+    # glTF is Y-up by definition and trimesh keeps the file's vertex order for one mesh.
+    np.testing.assert_allclose(placed, whole.vertices, atol=1e-6)
