@@ -32,6 +32,7 @@ from scenes.dressing import TORSO_PARTS, check_encloses, guess_anchor, pin_verti
 from scenes.garment_file import garment_from_file
 from scenes.garments import Garment, RestMannequin
 from scenes.skeleton import default_skeleton
+from sim.solver import UnstableSimulation
 
 # The settled garment's edges keep the file's lengths within these ratios: stretch is stiff (at most 10 %
 # longer after the settle's few iterations), compression is the solver's allowance less 5 % (a fold).
@@ -54,21 +55,15 @@ def dress(settings: dict) -> Dressed:
     solver = solver_settings(settings)
     placed[pinned] = push_outside(placed[pinned], body, 2 * solver.collision_thickness)
     a, b, ra, rb = capsules_world(body.skel, body.transforms)
-    settled, stages = settle_on_body(placed, garment.faces, pinned, np.stack([a, b], 1), np.stack([ra, rb], 1),
-                                     solver, fit["settle_frames"], settings["device"])
+    try:
+        settled, stages = settle_on_body(placed, garment.faces, pinned, np.stack([a, b], 1), np.stack([ra, rb], 1),
+                                         solver, fit["settle_frames"], settings["device"])
+    except UnstableSimulation as err:
+        raise ValueError(f"the settle blew up ({err.cause}): placed far inside the body? set mesh.fit.offset or "
+                         f"mesh.fit.scale") from None
     clearance = np.array([body.distance(x).min() for x in stages])
-    if clearance[-1] < 0:
-        worst = int(np.argmin(body.distance(settled)))
-        raise ValueError(f"it stays inside the body after the settle (vertex {worst} {-clearance[-1] * 100:.1f} cm "
-                         f"deep at {np.round(settled[worst], 3).tolist()} m): set mesh.fit.scale above "
-                         f"{fit['scale']:g} or mesh.fit.offset to give it room")
     ratio = _edge_ratio(settled, placed, garment.faces)
-    if not (EDGE_TOLERANCE[0] <= ratio.min() and ratio.max() <= EDGE_TOLERANCE[1]):
-        raise ValueError(f"the settle changed its edge lengths by {ratio.min():.2f}x to {ratio.max():.2f}x (allowed "
-                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body where it is placed (set "
-                         f"mesh.fit.scale above {fit['scale']:g} or mesh.fit.offset), or too fine a mesh for the "
-                         f"solver's budget to hold it up (raise solver.iterations or solver.substeps, or give a "
-                         f"coarser file)")
+    _check_settled(settled, clearance[-1], ratio, body, fit["scale"])
     attrs = dict(file=str(path), sha256=hashlib.sha256(path.read_bytes()).hexdigest(), units=garment.units,
                  up=garment.up, anchor=anchor, scale=fit["scale"], offset=list(fit["offset"]), weld=mesh["weld"],
                  file_vertices=len(vertices), vertices=len(settled), edge_ratio_min=ratio.min(),
@@ -76,6 +71,22 @@ def dress(settings: dict) -> Dressed:
                  clearance_m=clearance[-1])
     parts = body.nearest_part(placed[pinned], TORSO_PARTS if mesh["pins"] == "auto" else None)
     return Dressed(Garment("file", settled, garment.faces, pinned, parts), placed, stages, clearance, attrs)
+
+
+def _check_settled(settled: np.ndarray, clearance: float, ratio: np.ndarray, body: RestMannequin,
+                   scale: float) -> None:
+    """The settled garment clear of the body and its edges within EDGE_TOLERANCE of the file's; ValueError saying
+    what to set otherwise."""
+    if clearance < 0:
+        worst = int(np.argmin(body.distance(settled)))
+        raise ValueError(f"it stays inside the body after the settle (vertex {worst} {-clearance * 100:.1f} cm deep at "
+                         f"{np.round(settled[worst], 3).tolist()} m): set mesh.fit.scale above {scale:g} or "
+                         f"mesh.fit.offset to give it room")
+    if not (EDGE_TOLERANCE[0] <= ratio.min() and ratio.max() <= EDGE_TOLERANCE[1]):
+        raise ValueError(f"the settle changed its edge lengths by {ratio.min():.2f}x to {ratio.max():.2f}x (allowed "
+                         f"{EDGE_TOLERANCE[0]}-{EDGE_TOLERANCE[1]}x): too tight for the body where it is placed (set "
+                         f"mesh.fit.scale above {scale:g} or mesh.fit.offset), or too fine a mesh for the solver's "
+                         f"budget to hold it up (raise solver.iterations or solver.substeps, or give a coarser file)")
 
 
 def _edge_ratio(x: np.ndarray, rest: np.ndarray, faces: np.ndarray) -> np.ndarray:
