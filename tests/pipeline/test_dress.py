@@ -7,6 +7,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 import pytest
+import yaml
 
 from garment_files import write_garment_obj
 from geometry.mesh import unique_edges
@@ -106,3 +107,13 @@ def test_a_scene_like_another_takes_all_its_settings_and_profile_overlays_but_it
     for like in ("nothing", "mine"):
         with pytest.raises(PipelineError, match=f"like: '{like}' is not another scene"):
             garment_settings(tmp_path / "any.obj", like=like)
+
+
+def test_the_readmes_overlay_resolves_to_a_garment_file_scene_sized_like_pants():
+    readme = open("README.md").read().split("## Your own garment", 1)[1]
+    overlay = yaml.safe_load(readme.split("```yaml", 1)[1].split("```", 1)[0])
+    config = {**CONFIG, "scenes": {**CONFIG["scenes"], **overlay["scenes"]}}
+    (name,) = overlay["scenes"]
+    settings = resolve_scene(config, name, "cpu")
+    assert settings["mesh"]["generator"] == "garment_file" and settings["frames"] == resolve_scene(
+        CONFIG, "pants", "cpu")["frames"]
