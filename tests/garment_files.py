@@ -37,24 +37,16 @@ def write_garment_obj(path: Path, kind: str, max_edge: float, units: str = "m", 
     edges = unique_edges(faces)
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(worn),) * 2)
     _, piece = csgraph.connected_components(graph, directed=False)
+    # The waistband or collar as a group of its own: the faces with a corner on the attachment (a face belongs to
+    # one group, so the panels list the others).
+    band = np.isin(faces, garment.attachment).any(axis=1) if band_group else np.zeros(len(faces), dtype=bool)
     lines = [f"# {kind} exported in {units}, {up} up", "mtllib garment.mtl"]
     lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in stored]
     lines += [f"vt {u:.4f} {v:.4f}" for u, v in np.random.default_rng(0).random((len(worn), 2))]
-    for panel in range(piece.max() + 1):
-        lines.append(f"g panel_{panel}")
-        lines.append("usemtl cloth")
-        lines += [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in faces[piece[faces[:, 0]] == panel]]
-    if band_group:
-        # The attachment as its own group of faces: those with a corner on the band.
-        band = np.isin(faces, garment.attachment).any(axis=1)
-        lines.append(f"g {ATTACHMENT_GROUP}")
-        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces[band]]
-        lines = _without_faces(lines, faces[band])
+    for name, members in [*((f"panel_{p}", (piece[faces[:, 0]] == p) & ~band) for p in range(piece.max() + 1)),
+                          (ATTACHMENT_GROUP, band)]:
+        if members.any():
+            lines += [f"g {name}", "usemtl cloth"]
+            lines += [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in faces[members]]
     path.write_text("\n".join(lines) + "\n")
     return worn
-
-
-def _without_faces(lines: list[str], faces: np.ndarray) -> list[str]:
-    """The band's faces listed under the band group only (a face belongs to one group)."""
-    band = {f"{a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in faces}
-    return [line for line in lines if not (line.startswith("f ") and line[2:] in band)]
