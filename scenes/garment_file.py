@@ -23,6 +23,7 @@ from geometry.mesh import boundary_loops, unique_edges, validate_mesh, weld_vert
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
 GARMENT_SIZE = (0.25, 2.0)   # metres: the largest extent of any garment a 1.7 m mannequin wears
 CLOSED_SURFACE = "a closed surface without openings, not a garment (a garment has a waist, neck or hem)"
+MAX_REFINED_FACES = 2_000_000   # mesh.remesh's limit: ~1M vertices, beyond any garment a solver here steps
 UP_RATIO = 1.2               # the up axis' extent is at least this many times the other's
 # Z-up (x, y, z) -> Y-up (x, z, -y): the front (-y in Blender) becomes +z, the mannequin's front.
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -90,8 +91,7 @@ def garment_from_file(vertices: np.ndarray, faces: np.ndarray, units: str, up: s
     try:
         validate_mesh(welded, faces)
     except ValueError as err:
-        hint = "" if weld > 0 else " (panels with duplicated seam vertices need mesh.weld > 0)"
-        raise ValueError(f"not a mesh the cloth solver can take once welded: {err}{hint}") from None
+        raise ValueError(f"not a mesh the cloth solver can take once welded within {weld:g} m: {err}") from None
     edges = unique_edges(faces)
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(welded),) * 2)
     pieces = csgraph.connected_components(graph, directed=False)[0]
@@ -106,15 +106,21 @@ def garment_from_file(vertices: np.ndarray, faces: np.ndarray, units: str, up: s
 
 def refine_to_edge(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple[np.ndarray, np.ndarray]:
     """Midpoint subdivision of every face, repeated until every edge is shorter than max_edge: old vertices keep
-    their indices, each edge's midpoint is appended once (so the mesh stays manifold and oriented)."""
+    their indices, each edge's midpoint is appended once (so the mesh stays manifold and oriented). ValueError
+    when that would make more than MAX_REFINED_FACES faces (each round quadruples them)."""
+    edges = unique_edges(faces)
+    longest = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).max()
+    rounds = max(0, int(np.floor(np.log2(longest / max_edge))) + 1)
+    if len(faces) * 4 ** rounds > MAX_REFINED_FACES:
+        raise ValueError(f"refining its {len(faces):,} faces to max_edge {max_edge:g} m takes {rounds} rounds of "
+                         f"midpoint subdivision, beyond {MAX_REFINED_FACES:,} faces: raise max_edge or set "
+                         f"mesh.remesh false")
     while True:
-        edges = unique_edges(faces)
+        directed = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1)      # (F, 3, 2)
+        edges, edge_of = np.unique(np.sort(directed, axis=2).reshape(-1, 2), axis=0, return_inverse=True)
         if np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1).max() < max_edge:
             return vertices, faces
-        n = len(vertices)
-        key = {tuple(e): n + i for i, e in enumerate(edges.tolist())}
-        mid = np.array([[key[tuple(sorted(pair))] for pair in ((a, b), (b, c), (c, a))] for a, b, c in faces.tolist()])
+        ab, bc, ca = (len(vertices) + edge_of.reshape(-1, 3)).T
         a, b, c = faces.T
-        ab, bc, ca = mid.T
         vertices = np.concatenate([vertices, 0.5 * (vertices[edges[:, 0]] + vertices[edges[:, 1]])])
         faces = np.concatenate([np.stack(t, 1) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])

@@ -180,3 +180,9 @@ def test_a_garment_in_another_format_trimesh_reads_is_dressed_the_same(tmp_path,
     assert (garment.units, anchor, groups) == ("mm", "waist", {})
     # glTF is Y-up by definition and trimesh keeps the file's vertex order for one mesh.
     np.testing.assert_allclose(placed, whole.vertices, atol=1e-6)
+
+
+def test_refining_to_a_tiny_max_edge_is_refused_before_it_fills_memory():
+    garment = make_garment("skirt", max_edge=0.25)
+    with pytest.raises(ValueError, match="beyond 2,000,000 faces: raise max_edge"):
+        refine_to_edge(garment.vertices, garment.faces, 1e-5)
