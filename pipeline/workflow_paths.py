@@ -60,17 +60,6 @@ def settle_folder(scene: str) -> str:
     return f"results/{scene}/settle"
 
 
-def dressed_garment(scene: str, settings: Settings) -> list[str]:
-    """The dressed garment (the dress stage's dressed.h5) a garment_file scene's scene files are made from; none
-    for the other generators."""
-    return [f"results/{scene}/dressed.h5"] if settings["mesh"]["generator"] == "garment_file" else []
-
-
-def dressed_flag(scene: str, settings: Settings) -> list[str]:
-    """The scene stage's `--dressed DRESSED` for dressed_garment, or nothing."""
-    return [flag for path in dressed_garment(scene, settings) for flag in ("--dressed", path)]
-
-
 def garment_files(settings: Settings) -> list[str]:
     """The user's garment file a garment_file scene is dressed from: editing it dresses the garment again."""
     return [settings["mesh"]["file"]] if settings["mesh"]["generator"] == "garment_file" else []

@@ -62,15 +62,6 @@ def bvh_files(wildcards):
     return sequence_bvh_files(SETTINGS[wildcards.scene], wildcards.seq)
 
 
-def dressed_garment(wildcards):
-    """A garment_file scene's dressed.h5, which its scene files are made from (none for other scenes)."""
-    return workflow_paths.dressed_garment(wildcards.scene, SETTINGS[wildcards.scene])
-
-
-def dressed_flag(wildcards):
-    return workflow_paths.dressed_flag(wildcards.scene, SETTINGS[wildcards.scene])
-
-
 def sequence_files(name):
     """An input function: artifact `name` of every sequence of the scene."""
     return lambda w: workflow_paths.sequence_files(w.scene, SEQUENCES[w.scene], name)

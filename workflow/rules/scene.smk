@@ -13,6 +13,7 @@ rule settings:
     params: settings=lambda w: shared_settings(SETTINGS[w.scene])
     log: log_of("settings")
     benchmark: benchmark_of("settings")
+    localrule: True     # a JSON file: in Snakemake's own process, never a cluster job
     localrule: True
     threads: 1
     resources: mem_mb=500
@@ -28,6 +29,7 @@ rule simulation_settings:
     log: log_of("simulation_settings")
     benchmark: benchmark_of("simulation_settings")
     localrule: True
+    localrule: True
     threads: 1
     resources: mem_mb=500
     run:
@@ -36,8 +38,45 @@ rule simulation_settings:
             print(f"{output[0]}: profile {params.settings['profile']}, device {params.settings['device']}", file=f)
 
 
-# A garment from the user's file: dressed on the mannequin and settled clear of it (pipeline/dress.py), the rest
-# mesh and pins of its scene files.
+rule scene:
+    input: settings=f"{OUT}/simulation.json"
+    output: f"{OUT}/scene.h5"
+    log: log_of("scene")
+    benchmark: benchmark_of("scene")
+    threads: 1
+    resources: mem_mb=2000
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} 2>&1 | tee {log:q}"
+
+
+rule sequence:
+    input: settings=f"{OUT}/simulation.json", bvh=bvh_files
+    output: f"{SEQ}/scene.h5"
+    log: log_of("sequence", per_sequence=True)
+    benchmark: benchmark_of("sequence", per_sequence=True)
+    threads: 1
+    resources: mem_mb=2000
+    priority: 10        # the low-res shards wait on them (simulate.smk: the order of the GPU's jobs)
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} 2>&1 | tee {log:q}"
+
+
+# A scene with a motion library: the body at rest for settle_frames, whose cloth every window starts from once its
+# runs settle it (simulate.smk).
+rule settle_scene:
+    input: settings=f"{OUT}/simulation.json"
+    output: f"{OUT}/settle/scene.h5"
+    wildcard_constraints: scene=LIBRARY_SCENES
+    log: log_of("settle_scene")
+    benchmark: benchmark_of("settle_scene")
+    threads: 1
+    resources: mem_mb=2000
+    priority: 10
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle 2>&1 | tee {log:q}"
+
+
+# A garment from the user's file (mesh.generator garment_file): dressed on the mannequin and settled clear of it
+# (pipeline/dress.py), its scene files made from that garment (--dressed) by rules of their own, chosen over scene,
+# sequence and settle_scene for those scenes: the procedural scenes' rules stay as they were, so nothing they made
+# is made again.
 rule dress:
     input: settings=f"{OUT}/simulation.json", garment=lambda w: workflow_paths.garment_files(SETTINGS[w.scene])
     output: f"{OUT}/dressed.h5"
@@ -49,42 +88,47 @@ rule dress:
     shell: "{PY:q} -m pipeline.dress {input.settings:q} {output:q} 2>&1 | tee {log:q}"
 
 
-rule scene:
-    input: settings=f"{OUT}/simulation.json", dressed=dressed_garment
+ruleorder: scene_dressed > scene
+ruleorder: sequence_dressed > sequence
+ruleorder: settle_scene_dressed > settle_scene
+
+rule scene_dressed:
+    input: settings=f"{OUT}/simulation.json", dressed=f"{OUT}/dressed.h5"
     output: f"{OUT}/scene.h5"
-    params: dressed=dressed_flag
+    wildcard_constraints: scene=FILE_SCENES
     log: log_of("scene")
     benchmark: benchmark_of("scene")
     threads: 1
     resources: mem_mb=2000
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} {params.dressed:q} 2>&1 | tee {log:q}"
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --dressed {input.dressed:q} 2>&1 | tee {log:q}"
 
 
-rule sequence:
-    input: settings=f"{OUT}/simulation.json", bvh=bvh_files, dressed=dressed_garment
+rule sequence_dressed:
+    input: settings=f"{OUT}/simulation.json", bvh=bvh_files, dressed=f"{OUT}/dressed.h5"
     output: f"{SEQ}/scene.h5"
-    params: dressed=dressed_flag
+    wildcard_constraints: scene=FILE_SCENES
     log: log_of("sequence", per_sequence=True)
     benchmark: benchmark_of("sequence", per_sequence=True)
     threads: 1
     resources: mem_mb=2000
-    priority: 10        # the low-res shards wait on them (simulate.smk: the order of the GPU's jobs)
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} {params.dressed:q} 2>&1 | tee {log:q}"
+    priority: 10
+    shell:
+        "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} "
+        "--dressed {input.dressed:q} 2>&1 | tee {log:q}"
 
 
-# A scene with a motion library: the body at rest for settle_frames, whose cloth every window starts from once its
-# runs settle it (simulate.smk).
-rule settle_scene:
-    input: settings=f"{OUT}/simulation.json", dressed=dressed_garment
+rule settle_scene_dressed:
+    input: settings=f"{OUT}/simulation.json", dressed=f"{OUT}/dressed.h5"
     output: f"{OUT}/settle/scene.h5"
-    params: dressed=dressed_flag
-    wildcard_constraints: scene=LIBRARY_SCENES
+    wildcard_constraints: scene=FILE_SCENES
     log: log_of("settle_scene")
     benchmark: benchmark_of("settle_scene")
     threads: 1
     resources: mem_mb=2000
     priority: 10
-    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle {params.dressed:q} 2>&1 | tee {log:q}"
+    shell:
+        "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle --dressed {input.dressed:q} "
+        "2>&1 | tee {log:q}"
 
 
 rule subdivide:
