@@ -5,7 +5,8 @@
 # in workflow/rules/: common.smk (settings and sequences per scene, paths, input functions), scene.smk,
 # simulate.smk, learning.smk, study.smk (`results/<scene>/study/`: error against the amount of training motion),
 # applications.smk (`results/<scene>/pose/`, `pca/`), tradeoff.smk (`results/<scene>/tradeoff/`: speed against
-# accuracy), multi.smk (`results/multi/`: one network for several garments).
+# accuracy), multi.smk (`results/multi/`: one network for several garments), convs.smk (`results/<scene>/convs/`: the
+# operators RC, EC, SP and SPD side by side).
 import os
 
 from snakemake.utils import min_version, validate
@@ -32,6 +33,7 @@ include: "workflow/rules/study.smk"
 include: "workflow/rules/applications.smk"
 include: "workflow/rules/tradeoff.smk"
 include: "workflow/rules/multi.smk"
+include: "workflow/rules/convs.smk"
 
 rule all:
     default_target: True

@@ -251,6 +251,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--tradeoff-report", help="the scene's tradeoff/report.md, listed under the report's "
                                                   "files (made by its own target; the link works once it exists)")
     parser.add_argument("--study-report", help="the scene's study/report.md, likewise")
+    parser.add_argument("--convs-report", help="the scene's convs/report.md (the operator comparison), likewise")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
     parser.add_argument("--no-predictions", action="store_true",
                         help="eval.h5 without every frame's predicted positions (errors and times only: a grid of "
@@ -345,7 +346,9 @@ def main(argv: Sequence[str] | None = None) -> None:
              + "inference times", os.path.relpath(args.eval, report_dir))] + [
             (label, os.path.relpath(path, report_dir)) for label, path in (
                 ("the speed-accuracy trade (target results/<scene>/tradeoff/)", args.tradeoff_report),
-                ("the generalisation study (target results/<scene>/study/)", args.study_report)) if path]
+                ("the generalisation study (target results/<scene>/study/)", args.study_report),
+                ("the operator comparison, RC, EC, SP and SPD (target results/<scene>/convs/)", args.convs_report))
+            if path]
         sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
                                     pictures, plots, videos, files, task,
                                     _motion_kind_sections(by_kind, read_dropped(args.dataset), task))

@@ -1,7 +1,8 @@
 """What a workflow config plans, checked and costed when the Snakefile loads, before Snakemake builds its DAG:
 every scene resolved, its sequences listed and their motion-capture files found, each sequence's frames within
 MAX_PLAYED_FRAMES, and each scene's jobs and simulated frames within MAX_SCENE_JOBS and MAX_SCENE_FRAMES unless
-the config says `allow_large: true`. One line on stderr states the cost; a problem is one `error:` line and exit
+the config says `allow_large: true`. One line on stderr states the cost, and a second the largest scene's disk
+once its mesh is made (`snakemake results/<scene>/subdiv.h5`, seconds: a frame's weight is its vertex counts); a problem is one `error:` line and exit
 status 2 (pipeline.core.cli.exit_on_error), not Snakemake's stack of Snakefile frames.
 
 The limits sit well above every shipped profile (the paper's garments: 65 sequences, ~20,000 frames a level,
@@ -10,25 +11,37 @@ The limits sit well above every shipped profile (the paper's garments: 65 sequen
 """
 from __future__ import annotations
 
+import os
+import re
 import sys
+from typing import Iterable
 
+from pipeline.artifacts.subdiv import read_vertex_counts
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import check_bvh_files, check_garment_file, garment_files, sequences_or_error
+from pipeline.workflow_paths import (check_bvh_files, check_garment_file, garment_files, sequences_or_error,
+                                     subdiv_file)
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
 
 MAX_SCENE_JOBS = 1_000
 MAX_SCENE_FRAMES = 500_000      # simulated a level
+# What a frame weighs on disk: float32 positions (12 bytes a vertex) in a run, and in the dataset x_low, the target
+# and at most this much besides (the mannequin's capsules and their velocities, its pose and body state: 3,800 bytes
+# measured on the pants); the dataset keeps fewer frames than are simulated (the lead-ins).
+POSITION_BYTES = 12
+DATASET_FRAME_EXTRA = 4096
 # The jobs of results/<scene>/ besides its sequences': settings, simulation settings, scene, subdivide,
 # operators, dataset, train, evaluate and the target itself.
 SCENE_JOBS = 9
 SETTLE_JOBS = 3                 # a motion library's settle sequence: its scene and its two runs
 
 
-def plan(config: dict) -> tuple[dict[str, dict], dict[str, list[str]]]:
-    """Every scene's resolved settings and its sequence names, checked and costed (module docstring); the cost
-    said in one line on stderr."""
+def plan(config: dict, announce: bool = True, targets: Iterable[str] = ()) -> tuple[dict[str, dict], dict[str, list[str]]]:
+    """Every scene's resolved settings and its sequence names, checked and costed (module docstring); with
+    `announce`, the cost said in one line on stderr and the disk of each scene the targets name (no target: the
+    default scene) in one line each (the Snakefile asks in its main process only: Snakemake parses it again in
+    each process it spawns for a job, and the lines would repeat)."""
     settings = {scene: resolve_scene(config, scene) for scene in config["scenes"]}
     if config["default_scene"] not in settings:
         raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "
@@ -41,7 +54,10 @@ def plan(config: dict) -> tuple[dict[str, dict], dict[str, list[str]]]:
         costs[scene] = scene_cost(scene, settings[scene], names)
         if not config.get("allow_large", False):
             check_cost(scene, *costs[scene])
-    print(_cost_line(costs), file=sys.stderr)
+    if announce:
+        print(_cost_line(costs), file=sys.stderr)
+        for scene in targeted_scenes(targets, settings, config["default_scene"]):
+            print(_disk_line(scene, costs[scene]), file=sys.stderr)
     return settings, sequences
 
 
@@ -71,6 +87,36 @@ def check_cost(scene: str, jobs: int, frames: int) -> None:
         raise PipelineError(f"scene '{scene}' plans {jobs:,} jobs and {frames:,} frames a level, more than "
                             f"{MAX_SCENE_JOBS:,} jobs or {MAX_SCENE_FRAMES:,} frames: lower `sequences` (or the "
                             f"library's windows), or run with --config allow_large=true")
+
+
+def targeted_scenes(targets: Iterable[str], scenes: Iterable[str], default_scene: str) -> list[str]:
+    """The scenes whose `results/<scene>/...` the targets name, in order, once each; the default scene without
+    targets."""
+    named = [match[1] for target in targets if (match := re.match(r"results/([^/]+)", os.path.normpath(target)))]
+    return list(dict.fromkeys(scene for scene in named if scene in scenes)) if targets else [default_scene]
+
+
+def disk_bytes(n_low: int, n_high: int, frames: int) -> tuple[int, int]:
+    """(bytes of the runs, at most bytes of the dataset) for `frames` simulated a level of a mesh of n_low -> n_high
+    vertices."""
+    positions = POSITION_BYTES * (n_low + n_high)
+    return frames * positions, frames * (positions + DATASET_FRAME_EXTRA)
+
+
+def _disk_line(scene: str, cost: tuple[int, int]) -> str:
+    path = subdiv_file(scene)
+    if not os.path.exists(path):
+        return f"disk: known for {scene} once its mesh is made (`snakemake {path}`, seconds)"
+    n_low, n_high = read_vertex_counts(path)
+    runs, dataset = disk_bytes(n_low, n_high, cost[1])
+    return (f"disk: {scene}, {n_low:,} -> {n_high:,} vertices: {_size(runs)} of runs "
+            f"({_size(runs / cost[1])} a frame of both levels), at most {_size(dataset)} of dataset")
+
+
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n_bytes >= scale or unit == "kB":
+            return f"{n_bytes / scale:,.1f} {unit}"
 
 
 def _cost_line(costs: dict[str, tuple[int, int]]) -> str:

@@ -34,15 +34,23 @@ def skinning_weights(skel: Skeleton, rest_vertices: np.ndarray, faces: np.ndarra
                          f"{max_influences}, {blend_width}, {smoothing_step}")
     a, b, ra, rb = capsules_world(skel, rest_transforms(skel))
     nearest = capsule_signed_distance(rest_vertices, a, b, ra, rb).argmin(axis=1)
-    weights = np.zeros((len(rest_vertices), skel.n_parts))
+    return diffused_weights(nearest, skel.n_parts, rest_vertices, faces, blend_width * skel.height / 1.7,
+                            max_influences, smoothing_step)
+
+
+def diffused_weights(nearest: np.ndarray, n_parts: int, rest_vertices: np.ndarray, faces: np.ndarray,
+                     width: float, max_influences: int = 4,
+                     smoothing_step: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex bound to its `nearest` part, the weights diffused over about `width` along the mesh and cut to
+    the `max_influences` largest (see skinning_weights): influences (V, k) and weights (V, k)."""
+    weights = np.zeros((len(rest_vertices), n_parts))
     weights[np.arange(len(rest_vertices)), nearest] = 1.0
     edges = unique_edges(faces)
     edge_length = np.linalg.norm(rest_vertices[edges[:, 0]] - rest_vertices[edges[:, 1]], axis=1).mean()
-    width = blend_width * skel.height / 1.7
     neighbours = _neighbour_average(len(rest_vertices), edges)
     for _ in range(int(np.ceil((width / edge_length) ** 2 / smoothing_step))):
         weights = (1.0 - smoothing_step) * weights + smoothing_step * (neighbours @ weights)
-    k = min(max_influences, skel.n_parts)
+    k = min(max_influences, n_parts)
     order = np.argsort(-weights, axis=1, kind="stable")[:, :k]
     top = np.take_along_axis(weights, order, axis=1)
     return order.astype(np.int64), top / top.sum(axis=1, keepdims=True)

@@ -4,9 +4,9 @@ Pictures are embedded as data: URIs; videos too (an MP4 as a looping, muted, aut
 encoder's fallback, as an <img>). Links to exported files stay relative to the page, so the page and its folder
 move together. Every string is HTML-escaped (titles, captions and table cells may come from config values);
 `Paragraphs` understand a little markdown, applied to the escaped text: blank lines between paragraphs, lines
-starting "- " as a list, `code` and **bold**. `report_html` returns the page as text for the caller's atomic
-writer (a stage: pipeline.core.h5.atomic_write(path).write(page.encode())); viz/markdown_report.py writes
-the same pieces as markdown.
+starting "- " as a list, `code` and **bold**; a table cell is bold as a `Strong`. `report_html` returns the page
+as text for the caller's atomic writer (a stage: pipeline.core.h5.atomic_write(path).write(page.encode()));
+viz/markdown_report.py writes the same pieces as markdown.
 """
 from __future__ import annotations
 
@@ -40,9 +40,16 @@ class Paragraphs:
 
 
 @dataclasses.dataclass(frozen=True)
+class Strong:
+    """A table cell shown in bold (the lowest of a row, say): <strong> in HTML, **text** in markdown."""
+
+    text: str
+
+
+@dataclasses.dataclass(frozen=True)
 class Table:
     header: Sequence[str]
-    rows: Sequence[Sequence[str | int | float]]      # floats are shown with 4 significant digits
+    rows: Sequence[Sequence[str | int | float | Strong]]     # floats are shown with 4 significant digits
     caption: str = ""
 
     def __post_init__(self):
@@ -146,15 +153,22 @@ def _paragraphs(text: str) -> str:
     return "\n".join(out)
 
 
-def cell_text(value: str | int | float) -> str:
-    """A table cell's text, unescaped (viz.markdown_report shows cells alike)."""
+def cell_text(value: str | int | float | Strong) -> str:
+    """A table cell's text, unescaped (viz.markdown_report shows cells alike; it marks a Strong cell itself)."""
+    if isinstance(value, Strong):
+        return value.text
     return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def _cell(value: str | int | float | Strong) -> str:
+    text = _text(cell_text(value))
+    return f"<td><strong>{text}</strong></td>" if isinstance(value, Strong) else f"<td>{text}</td>"
 
 
 def _table(table: Table) -> str:
     caption = f"<caption>{_text(table.caption)}</caption>" if table.caption else ""
     head = "".join(f"<th>{_text(h)}</th>" for h in table.header)
-    rows = "".join("<tr>" + "".join(f"<td>{_text(cell_text(c))}</td>" for c in row) + "</tr>" for row in table.rows)
+    rows = "".join("<tr>" + "".join(_cell(c) for c in row) + "</tr>" for row in table.rows)
     return f"<table>{caption}<thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>"
 
 

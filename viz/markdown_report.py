@@ -10,7 +10,7 @@ import urllib.parse
 from pathlib import Path
 from typing import Callable, Sequence
 
-from viz.html_report import Links, Paragraphs, Picture, Piece, Section, Table, Video, cell_text
+from viz.html_report import Links, Paragraphs, Picture, Piece, Section, Strong, Table, Video, cell_text
 
 
 def report_markdown(title: str, sections: Sequence[Section], href: Callable[[Path], str]) -> str:
@@ -27,7 +27,7 @@ def _piece(piece: Piece, href: Callable[[Path], str]) -> str:
         return piece.text.strip()
     if isinstance(piece, Table):
         rows = [piece.header, ["---"] * len(piece.header), *piece.rows]
-        table = "\n".join("| " + " | ".join(cell_text(c).replace("|", "\\|") for c in row) + " |" for row in rows)
+        table = "\n".join("| " + " | ".join(_cell(c) for c in row) + " |" for row in rows)
         return f"{piece.caption}\n\n{table}" if piece.caption else table
     if isinstance(piece, Picture):
         return f"![{piece.caption or piece.path.name}]({_target(href(piece.path))})"
@@ -36,6 +36,12 @@ def _piece(piece: Piece, href: Callable[[Path], str]) -> str:
     if isinstance(piece, Links):
         return "\n".join(f"- [{label}]({_target(target)})" for label, target in piece.links)
     raise TypeError(f"not a report piece: {type(piece).__name__}")
+
+
+def _cell(value) -> str:
+    """A pipe-table cell: `|` escaped, a Strong cell in ** **."""
+    text = cell_text(value).replace("|", "\\|")
+    return f"**{text}**" if isinstance(value, Strong) else text
 
 
 def _target(path: str) -> str:

@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import FLOAT32_MAX, atomic_h5, open_artifact, read
+from pipeline.core.h5 import atomic_h5, open_artifact, read, read_or_nan, read_strings
 
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
@@ -67,7 +67,7 @@ def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tr
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
     with open_artifact(path) as f:
-        columns = {name: _read_strings(f, name) for name in STRING_COLUMNS}
+        columns = {name: read_strings(f, name) for name in STRING_COLUMNS}
         columns.update({name: read(f, name, np.int64) for name in INT_COLUMNS})
         columns.update({name: _read_float_column(f, name) for name in FLOAT_COLUMNS})
         n_rows = len(columns["method"])
@@ -83,20 +83,6 @@ def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
                         reference)
 
 
-def _read_strings(f: h5py.File, name: str) -> np.ndarray:
-    column = f.get(name)
-    if not isinstance(column, h5py.Dataset) or column.dtype.kind != "S" or column.ndim != 1:
-        raise PipelineError(f"{f.filename}: missing dataset '{name}' (one string per row)")
-    return np.array([value.decode() for value in column[()]], dtype=str)
-
-
 def _read_float_column(f: h5py.File, name: str) -> np.ndarray:
     """A float column; NaN only in the columns of NAN_WHEN_ABSENT (read() refuses NaN anywhere)."""
-    column = f.get(name)
-    if name in NAN_WHEN_ABSENT and isinstance(column, h5py.Dataset) and column.dtype.kind == "f":
-        data = np.asarray(column[()], dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            if not np.all(np.isnan(data) | (np.abs(data) <= FLOAT32_MAX)):
-                raise PipelineError(f"{f.filename}: dataset '{name}' contains inf or values beyond float32's range")
-        return data
-    return read(f, name, np.float64)
+    return read_or_nan(f, name) if name in NAN_WHEN_ABSENT else read(f, name, np.float64)

@@ -66,6 +66,16 @@ def read_subdivision(path: str | os.PathLike) -> Subdivision:
     return Subdivision(S, vertices, faces)
 
 
+def read_vertex_counts(path: str | os.PathLike) -> tuple[int, int]:
+    """(low-res, high-res) vertex counts from the attributes alone: what a frame of the runs and the dataset
+    weighs (pipeline.workflow_plan), without reading the matrices."""
+    with open_artifact(path) as f:
+        counts = [f.attrs.get(name) for name in ("n_low_vertices", "n_high_vertices")]
+    if not all(isinstance(n, (int, np.integer)) and 0 < n < 2 ** 31 for n in counts):
+        raise PipelineError(f"{path}: attributes n_low_vertices and n_high_vertices must be positive integers")
+    return int(counts[0]), int(counts[1])
+
+
 def read_harmonics(path: str | os.PathLike) -> Harmonics:
     with open_artifact(path) as f:
         return Harmonics(read(f, "harmonics/basis", np.float64), read(f, "harmonics/eigenvalues", np.float64),

@@ -290,7 +290,7 @@ def _names(entries: list) -> str:
 # Read by the workflow only, never by a stage: kept out of settings.json, so that changing them reruns no stage
 # of the scene (more sequences add jobs; the study's grid adds study jobs; an application's settings go into its
 # own settings.json, `application_settings`).
-WORKFLOW_ONLY = ("sequences", "library_windows", "shard", "study", "applications", "tradeoff")
+WORKFLOW_ONLY = ("sequences", "library_windows", "shard", "study", "applications", "tradeoff", "convs")
 
 
 def shared_settings(settings: dict) -> dict:

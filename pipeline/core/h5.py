@@ -344,6 +344,27 @@ def read(f: h5py.File, name: str, dtype: Any = None) -> np.ndarray:
     return data
 
 
+def read_strings(f: h5py.File, name: str) -> np.ndarray:
+    """A 1-D dataset of byte strings (a table's text column) as str, naming the file and dataset otherwise."""
+    column = f.get(name)
+    if not isinstance(column, h5py.Dataset) or column.dtype.kind != "S" or column.ndim != 1:
+        raise PipelineError(f"{f.filename}: missing dataset '{name}' (one string per row)")
+    return np.array([value.decode() for value in column[()]], dtype=str)
+
+
+def read_or_nan(f: h5py.File, name: str) -> np.ndarray:
+    """A float dataset as `read` checks it, but NaN allowed: a table's column where NaN means "not measured" (a
+    split the scene lacks); inf and values beyond float32's range are still refused."""
+    column = f.get(name)
+    if not isinstance(column, h5py.Dataset) or column.dtype.kind != "f":
+        return read(f, name, np.float64)        # its error: missing, a group, or not real numbers
+    data = np.asarray(column[()], dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        if not np.all(np.isnan(data) | (np.abs(data) <= FLOAT32_MAX)):
+            raise PipelineError(f"{f.filename}: dataset '{name}' contains inf or values beyond float32's range")
+    return data
+
+
 def config_of(f: h5py.File) -> dict[str, Any]:
     """The config recorded in an artifact's attrs."""
     return json.loads(f.attrs.get("config", "{}"))

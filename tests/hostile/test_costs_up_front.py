@@ -12,7 +12,7 @@ import pytest
 from pipeline.core.config import load_config
 from pipeline.core.errors import PipelineError
 from pipeline.core.meshio import load_mesh
-from pipeline.workflow_plan import plan
+from pipeline.workflow_plan import plan, targeted_scenes
 from hostile import REPO
 
 SNAKEMAKE = [sys.executable, "-m", "snakemake", "-n", "--cores", "1", "-s", str(REPO / "Snakefile")]
@@ -48,14 +48,23 @@ def test_settle_and_blend_frames_are_bounded(key, capsys):
     assert f"{key}: 1000000 is greater than the maximum of 100000" in _plan_error(config, capsys)
 
 
-def test_a_large_plan_is_stated_and_refused_unless_allowed(capsys):
+def test_a_large_plan_is_stated_and_refused_unless_allowed(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)    # no results/pants/subdiv.h5 here
     config = _shipped()
     config["profiles"]["cpu"]["scenes"]["pants"]["sequences"] = 2000
     assert "'pants' plans 6,012 jobs" in _plan_error(config, capsys)
     plan({**config, "allow_large": True})
     assert capsys.readouterr().err.splitlines() == [
         "plan: 7 scene(s); the largest, pants: 6,012 jobs, 420,210 frames simulated a level (limits 1,000 and "
-        "500,000 a scene)"]
+        "500,000 a scene)", "disk: known for pants once its mesh is made (`snakemake results/pants/subdiv.h5`, "
+        "seconds)"]
+
+
+@pytest.mark.parametrize("targets, scenes", [((), ["pants"]), (["results/flag/", "results/flag/report.md"], ["flag"]),
+                                             (["results/multi/", "results/./tshirt/x"], ["tshirt"]),
+                                             (["all"], [])])
+def test_the_disk_is_said_for_the_scenes_the_targets_name(targets, scenes):
+    assert targeted_scenes(targets, _shipped()["scenes"], "pants") == scenes
 
 
 def test_a_million_sequences_is_refused_by_the_schema(capsys):
@@ -91,3 +100,15 @@ def test_an_obj_error_never_quotes_the_line(tmp_path):
         load_mesh(tmp_path / "m.obj")
     assert "line 4" in str(refused.value) and "secret" not in str(refused.value)
 
+
+
+def test_the_plan_is_said_once_a_run(tmp_path):
+    """Snakemake parses the Snakefile again in each process it spawns for a job (rules with `run:`): the cost
+    line comes from the main process alone."""
+    command = [sys.executable, "-m", "snakemake", "--cores", "1", "-s", str(REPO / "Snakefile"),
+               "results/patch/simulation.json"]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [line for line in done.stderr.splitlines() if line.startswith("plan:")] == [
+        "plan: 7 scene(s); the largest, pants: 24 jobs, 1,050 frames simulated a level (limits 1,000 and "
+        "500,000 a scene)"]

@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
+from pipeline import workflow_plan
 from workflow_runs import REPO, TINY_FRAMES, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 CONFIG = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
@@ -51,6 +52,7 @@ def test_smoke_workflow_builds_everything_then_one_stage_reruns_alone(workdir, t
     report = (out / "report.md").read_text()
     assert "## Errors" in report and "ms per frame" in report
     assert "](tradeoff/report.md)" in report and "](study/report.md)" in report     # the scene's other reports
+    assert "](convs/report.md)" in report
     assert list((out / "renders").glob("*.png")) and list((out / "export" / "predicted_obj").glob("*.obj"))
     assert not list(out.glob(".*.tmp.h5")) and not list(out.glob("*.ckpt"))
     mtimes = {name: (out / name).stat().st_mtime_ns for name in PRODUCTS}
@@ -144,6 +146,47 @@ def test_a_high_res_batch_job_takes_a_thread_a_sequence_on_a_gpu(tmp_path, devic
     assert run.returncode == 0, tail(run)
     job = planned_jobs(run)["simulate_high_batch_pants_000"]
     assert job.get("threads", "1") == str(threads) and f" --threads {threads} " in job["shell"]   # 1: not printed
+
+
+def test_the_plan_states_what_the_runs_and_the_dataset_weigh(tiny_pants_build):
+    """Once the mesh is made, the plan's second line says the disk: the runs' positions byte for byte (as the
+    files hold them) and a bound on the dataset's frames."""
+    workdir = tiny_pants_build.workdir
+    assert tiny_pants_build.run.returncode == 0, tail(tiny_pants_build.run)
+    run = snakemake(workdir, "-n", "--configfile", str(tiny_pants_build.config), "--", "results/pants/")
+    disk = [line for line in run.stderr.splitlines() if line.startswith("disk:")]
+    out = workdir / "results" / "pants"
+    runs, counts = 0, {}
+    for level in ("low", "high"):
+        for path in sorted(out.glob(f"sequences/*/sim_{level}.h5")):
+            with h5py.File(path) as f:
+                runs += f["positions"].nbytes
+                counts[level] = f["positions"].shape[1]
+    frame = 12 * (counts["low"] + counts["high"])    # float32 positions of both levels
+    assert runs % frame == 0
+    assert len(disk) == 1 and disk[0].startswith(
+        f"disk: pants, {counts['low']:,} -> {counts['high']:,} vertices: {workflow_plan._size(runs)} of runs "
+        f"({workflow_plan._size(frame)} a frame of both levels), at most "), run.stderr
+    with h5py.File(out / "dataset.h5") as f:
+        frames = len(f["sequence"])
+        per_frame = []
+        f.visititems(lambda name, obj: per_frame.append(obj.nbytes) if isinstance(obj, h5py.Dataset)
+                     and obj.shape[:1] == (frames,) else None)
+    assert sum(per_frame) / frames <= 12 * sum(counts.values()) + workflow_plan.DATASET_FRAME_EXTRA
+
+
+def test_a_train_job_of_several_ranks_runs_them_under_torchrun_with_a_gpu_each(tmp_path):
+    """training.ranks: 2 on CUDA: the train job asks for two GPUs and runs two processes under torchrun, the job's
+    threads shared out between them."""
+    overlay = tmp_path / "ranks.yaml"
+    overlay.write_text(yaml.safe_dump({"profiles": {"cpu": {"scenes": {"patch": {"training": {"ranks": 2}}}}}}))
+    run = snakemake(tmp_path, "-n", "-p", "--configfile", str(REPO / "workflow_config.yaml"), str(overlay),
+                    "--config", "device=cuda:0", "--", "results/patch/model.pt")
+    assert run.returncode == 0, tail(run)
+    job = planned_jobs(run)["train"]
+    assert "gpu=2" in job["resources"] and job["threads"] == "2"
+    assert " -m torch.distributed.run --standalone --nproc_per_node=2 -m pipeline.train " in job["shell"]
+    assert " --threads 1 " in job["shell"]
 
 
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],
@@ -252,7 +295,7 @@ def test_no_config_value_reaches_a_shell_command(tmp_path):
     assert set(shells) == STAGES - SETTINGS_RULES
     words = {"-m", "low", "high", "2>&1", "|", "tee", "--settings", "--scene", "--renders", "--videos", "--export",
              "--html", "--train-log", "--threads", "2", "--quiet", "--sequence", "--tradeoff-report",
-             "--study-report",
+             "--study-report", "--convs-report",
              "train_000"}     # the one sequence name of a grid scene
     for name, command in shells.items():
         python, *rest = shlex.split(command)

@@ -30,21 +30,25 @@ rule dataset:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains.
+# Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains. With
+# `training.ranks: N` the job runs N processes under torchrun (one GPU each on CUDA), the job's threads shared out.
 rule train:
     input: settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5"
     output: model=f"{OUT}/model.pt", history=f"{OUT}/train.h5"
+    params:
+        launcher=lambda w: workflow_paths.train_launcher(SETTINGS[w.scene]),
+        threads=lambda w, threads: workflow_paths.rank_threads(SETTINGS[w.scene], threads),
     log: log_of("train")
     benchmark: benchmark_of("train")
     threads: workflow.cores
-    resources: mem_mb=8000, gpu=gpus_on_device
+    resources: mem_mb=8000, gpu=lambda w: workflow_paths.train_gpus(SETTINGS[w.scene])
     # Ahead of the study's, trade-off's and applications' jobs when they wait for the same GPU slots (`--resources
     # gpu=N`): the scene's own model and report are what the others compare against. (On the H100 the trade-off's
     # evaluations took every slot first and the lease ended before the scene's report was made.)
     priority: 1
     shell:
-        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
-        "--settings {input.settings:q} --threads {threads} 2>&1 | tee {log:q}"
+        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
+        "{output.history:q} --settings {input.settings:q} --threads {params.threads} 2>&1 | tee {log:q}"
 
 
 # dataset.h5 carries each frame's mannequin under scene.h5's names, so it is also the --scene the renders draw
@@ -63,12 +67,12 @@ rule evaluate:
     resources: mem_mb=8000, gpu=gpus_on_device
     priority: 1     # as train's
     # The scene's other reports, made by their own targets (the links work once those are built).
-    params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md"
+    params: tradeoff=f"{OUT}/tradeoff/report.md", study=f"{OUT}/study/report.md", convs=f"{OUT}/convs/report.md"
     shell:
         "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
         "{output.report:q} --html {output.html:q} --train-log {input.train_log:q} --scene {input.dataset:q} "
         "--renders {output.renders:q} --videos {output.videos:q} --export {output.export:q} "
-        "--tradeoff-report {params.tradeoff:q} --study-report {params.study:q} "
+        "--tradeoff-report {params.tradeoff:q} --study-report {params.study:q} --convs-report {params.convs:q} "
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 

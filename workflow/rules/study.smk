@@ -92,10 +92,7 @@ rule study_evaluate:
     benchmark: f"{STUDY_POINT}/{{variant}}/benchmarks/evaluate.tsv"
     threads: workflow.cores
     resources: mem_mb=8000, gpu=gpus_on_device
-    shell:
-        "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
-        "{output.report:q} --export {output.export:q} --render-frames 0 --video-frames 0 "
-        "--export-frames 1 --no-predictions --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+    shell: ERRORS_ONLY_EVALUATE
 
 
 rule study:
