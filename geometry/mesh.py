@@ -186,3 +186,26 @@ def weld_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float
     welded = old_to_new[faces]
     kept = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 2] != welded[:, 0])
     return vertices[np.sort(first)], welded[kept], old_to_new
+
+
+def boundary_loops(n_vertices: int, faces: np.ndarray) -> list[np.ndarray]:
+    """The boundary loops of a validated manifold mesh, each the vertex ids (k,) in the order of their faces' edges
+    (the mesh lies to the left of the walk), longest loop first. A vertex-manifold mesh has one boundary edge
+    leaving each boundary vertex, so every walk closes on its start."""
+    faces = np.asarray(faces, dtype=np.int64)
+    tail, head = faces.ravel(), np.roll(faces, -1, axis=1).ravel()
+    unpaired = ~np.isin(tail * n_vertices + head, head * n_vertices + tail)
+    following = np.full(n_vertices, -1, dtype=np.int64)
+    following[tail[unpaired]] = head[unpaired]
+    seen = np.zeros(n_vertices, dtype=bool)
+    loops = []
+    for start in tail[unpaired]:
+        if seen[start]:
+            continue
+        loop = [start]
+        seen[start] = True
+        while not seen[following[loop[-1]]]:
+            loop.append(following[loop[-1]])
+            seen[loop[-1]] = True
+        loops.append(np.asarray(loop, dtype=np.int64))
+    return sorted(loops, key=len, reverse=True)

@@ -227,7 +227,8 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
     evaluation = settings["evaluation"]
     return {"render_frames": evaluation["render_frames"], "video_frames": evaluation["video_frames"],
             "export_frames": evaluation["export_frames"], "timing_frames": evaluation["timing_frames"],
-            "device": settings["device"]}
+            "device": settings["device"],
+            "garment": settings["mesh"]["file"] if settings["mesh"]["generator"] == "garment_file" else None}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -243,6 +244,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--export", help="folder of OBJ/GLB exports (default: export/ beside the report)")
     parser.add_argument("--render-frames", type=int, default=3,
                         help="test (and held-out) frames shown as stills; 0: no stills and no plots")
+    parser.add_argument("--garment", help="the user's garment file the scene wore, named in the report "
+                                          "(--settings: mesh.file of a garment_file scene)")
     parser.add_argument("--video-frames", type=int, default=120, help="frames of each video; 0: no videos")
     parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
     parser.add_argument("--tradeoff-report", help="the scene's tradeoff/report.md, listed under the report's "
@@ -559,6 +562,8 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
                           ["last epoch's test loss", float(train_log.test_total[-1])]]
     guard = f", {len(data.guard)} guard (in no split)" if len(data.guard) else ""
     input_rows = [["dataset", args.dataset],
+                  *([["garment", f"{args.garment} (the user's file, dressed on the mannequin: dressed.h5)"]]
+                    if args.garment else []),
                   ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())
                    + guard],
                   *task.input_rows(data, state, n_low)]

@@ -16,6 +16,7 @@ import argparse
 import sys
 from typing import Sequence
 
+from pipeline.artifacts.dressed import read_dressed_garment
 from pipeline.artifacts.scene import write_dropped_scene, write_scene, write_scene_rest
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
@@ -23,6 +24,7 @@ from pipeline.core.errors import PipelineError
 from scenes.library import UnusableWindow, find_window
 from scenes.registry import build_rest, build_scene
 from scenes.sequences import library_of, window_key
+from scenes.skeleton import default_skeleton
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -31,18 +33,24 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("out", help="scene.h5 to write")
     parser.add_argument("--sequence", help="write this sequence (train_000, ..., held_out_000, ...) instead of "
                                            "what the sequences share")
+    parser.add_argument("--dressed", help="a garment_file scene's dressed.h5 (python -m pipeline.dress): its rest "
+                                          "mesh and pins")
     args = parser.parse_args(argv)
     settings = read_settings(args.settings, unread=LEARNING_ONLY)
+    if (settings["mesh"]["generator"] == "garment_file") != (args.dressed is not None):
+        raise PipelineError(f"{args.settings}: --dressed is given exactly for a garment_file scene (mesh.generator "
+                            f"here: '{settings['mesh']['generator']}')")
+    dressed = None if args.dressed is None else read_dressed_garment(args.dressed, default_skeleton().n_parts)
     where = f"scene '{settings['scene']}'" + (f" sequence '{args.sequence}'" if args.sequence else "")
     try:
         if args.sequence is None:
-            write_scene_rest(args.out, build_rest(settings), settings)
+            write_scene_rest(args.out, build_rest(settings, dressed), settings)
             return
         try:
-            scene = build_scene(settings, args.sequence)
+            scene = build_scene(settings, args.sequence, dressed)
         except UnusableWindow as err:      # one clip of a library: its sequence is dropped, the run goes on
             window = find_window(library_of(settings), window_key(args.sequence))
-            write_dropped_scene(args.out, build_rest(settings), args.sequence, str(err), window.describe(),
+            write_dropped_scene(args.out, build_rest(settings, dressed), args.sequence, str(err), window.describe(),
                                 settings)
             print(f"{where}: dropped: {err}", file=sys.stderr)
             return

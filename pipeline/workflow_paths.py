@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable
 
 from pipeline.core.config import application_settings
 from pipeline.core.errors import PipelineError
-from scenes.sequences import is_window_name, sequence_bvh_files
+from scenes.sequences import is_window_name, sequence_bvh_files, wears_garment
 
 Settings = dict[str, Any]
 
@@ -83,6 +83,11 @@ def settle_folder(scene: str) -> str:
     return f"results/{scene}/settle"
 
 
+def garment_files(settings: Settings) -> list[str]:
+    """The user's garment file a garment_file scene is dressed from: editing it dresses the garment again."""
+    return [settings["mesh"]["file"]] if settings["mesh"]["generator"] == "garment_file" else []
+
+
 def settled_runs(scene: str, sequences: Iterable[str], level: str) -> list[str]:
     """The settle run that a simulate job of these sequences starts from at `level` (low, high): the scene's when
     one of them is a motion library's window, none otherwise."""
@@ -113,6 +118,14 @@ def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> Non
                                 f"{os.getcwd()})")
 
 
+def check_garment_file(scene: str, settings: Settings) -> None:
+    """A garment_file scene's garment file exists (as check_bvh_files for motion files)."""
+    for path in garment_files(settings):
+        if not os.path.isfile(path):
+            raise PipelineError(f"{path}: garment file of scene '{scene}' (mesh.file) does not exist (working "
+                                f"directory {os.getcwd()})")
+
+
 def application_of(model_dir: str) -> str:
     """The application (pose, pca) of a model folder (pose, pca/k<K>)."""
     return model_dir.split("/")[0]
@@ -139,9 +152,9 @@ def pca_summary_arguments(scene: str, settings: Settings) -> list[str]:
 def application_products(scene: str, settings: Settings, application: str) -> list[str]:
     """What `results/<scene>/<application>/` stands for; a scene without a mannequin has no pose input, said in
     one line before any job runs."""
-    if application == "pose" and settings["mesh"]["generator"] != "garment":
+    if application == "pose" and not wears_garment(settings):
         raise PipelineError(f"results/{scene}/pose/: scene '{scene}' has no mannequin, so no pose input (pose to "
-                            f"cloth needs a garment scene, mesh.generator 'garment')")
+                            f"cloth needs a garment scene, mesh.generator 'garment' or 'garment_file')")
     folders = ["pose"] if application == "pose" else pca_model_dirs(settings)
     summary = [f"results/{scene}/pca/report.md"] if application == "pca" else []
     return [f"results/{scene}/{folder}/{name}" for folder in folders for name in APPLICATION_PRODUCTS] + summary

@@ -19,7 +19,8 @@ from typing import Iterable
 from pipeline.artifacts.subdiv import read_vertex_counts
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import check_bvh_files, sequences_or_error, subdiv_file
+from pipeline.workflow_paths import (check_bvh_files, check_garment_file, garment_files, sequences_or_error,
+                                     subdiv_file)
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
 
@@ -49,6 +50,7 @@ def plan(config: dict, announce: bool = True, targets: Iterable[str] = ()) -> tu
     costs = {}
     for scene, names in sequences.items():
         check_bvh_files(scene, settings[scene], names)
+        check_garment_file(scene, settings[scene])
         costs[scene] = scene_cost(scene, settings[scene], names)
         if not config.get("allow_large", False):
             check_cost(scene, *costs[scene])
@@ -75,7 +77,8 @@ def scene_cost(scene: str, settings: dict, names: list[str]) -> tuple[int, int]:
                                 f"{MAX_PLAYED_FRAMES:,} (its settle, blend and hold frames and the clip it plays)")
         frames += length
     runs = len(sequence_shards(settings)) if settings["shard"] > 1 else len(names)
-    return SCENE_JOBS + len(names) + 2 * runs + SETTLE_JOBS * library, frames
+    dress = len(garment_files(settings))     # a garment from a file: its dress job
+    return SCENE_JOBS + dress + len(names) + 2 * runs + SETTLE_JOBS * library, frames
 
 
 def check_cost(scene: str, jobs: int, frames: int) -> None:

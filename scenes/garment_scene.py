@@ -13,7 +13,7 @@ from geometry.rigid import apply_rigid
 from geometry.rotations import quat_to_matrix
 from scenes.bvh import read_bvh
 from scenes.capsules import capsule_velocities, capsules_world, limbs_through_each_other, self_collision_pairs
-from scenes.garments import make_garment
+from scenes.garments import Garment, make_garment
 from scenes.kinematics import rest_transforms
 from scenes.library import LibraryWindow, UnusableWindow, find_window
 from scenes.motion import (BodyState, ClipSequence, Motion, at_rest, body_state, play_clips, play_window,
@@ -26,16 +26,23 @@ from scenes.skeleton import TORSO, Skeleton, default_skeleton
 from scenes.skinning import rest_to_posed, skinning_weights
 
 
-def garment_rest(settings: dict) -> SceneRest:
-    """The garment at rest on the mannequin, its attachment pins and skinning (`mesh.generator: garment`);
-    ValueError for settings it cannot build (a mesh too coarse for the garment). `mesh.panels` cuts it
-    into panels with duplicated seam vertices; `mesh.weld` > 0 merges vertices that close, before the pins and
-    skinning are derived, so panels welded back give exactly the garment made whole."""
+def garment_rest(settings: dict, dressed: Garment | None = None) -> SceneRest:
+    """The garment at rest on the mannequin, its attachment pins and skinning; ValueError for settings it cannot
+    build. `mesh.generator: garment` makes it (scenes.garments; a mesh too coarse for the garment is an error):
+    `mesh.panels` cuts it into panels with duplicated seam vertices; `mesh.weld` > 0 merges vertices that close,
+    before the pins and skinning are derived, so panels welded back give exactly the garment made whole.
+    `garment_file` takes the garment the dress stage dressed and settled (`dressed`, pipeline/dress.py), welded
+    there already."""
     mesh = settings["mesh"]
     skel = default_skeleton()
-    garment = make_garment(mesh["garment"], skel, mesh["max_edge"], mesh["seed"], mesh["panels"])
-    if mesh["weld"] > 0:
-        garment = garment.welded(mesh["weld"])
+    if mesh["generator"] == "garment_file":
+        if dressed is None:
+            raise ValueError("a garment_file scene is made from its dressed garment (the dress stage's dressed.h5)")
+        garment = dressed
+    else:
+        garment = make_garment(mesh["garment"], skel, mesh["max_edge"], mesh["seed"], mesh["panels"])
+        if mesh["weld"] > 0:
+            garment = garment.welded(mesh["weld"])
     influences, weights = skinning_weights(skel, garment.vertices, garment.faces)
     pin_ids = garment.attachment if settings["physics"]["pins"] else np.zeros(0, np.int64)
     return SceneRest(name=settings["scene"], generator=mesh["generator"], vertices=garment.vertices,

@@ -31,7 +31,7 @@ import scipy.sparse as sp
 import scipy.sparse.csgraph as csgraph
 
 from geometry.mesh import cut_along_edges, edge_faces, validate_mesh, weld_vertices
-from scenes.capsules import body_signed_distance, capsules_world
+from scenes.capsules import body_signed_distance, capsule_signed_distance, capsules_world
 from scenes.kinematics import rest_transforms
 from scenes.skeleton import Skeleton, default_skeleton
 
@@ -75,7 +75,7 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
         raise ValueError(f"unknown garment kind '{kind}'; choose one of {', '.join(GARMENT_KINDS)}")
     if not max_edge > 0:
         raise ValueError(f"max_edge must be positive, got {max_edge}")
-    body = _RestMannequin(skel or default_skeleton())
+    body = RestMannequin(skel or default_skeleton())
     builder = _MeshBuilder(SPACING * max_edge)
     attachment, part = _BUILDERS[kind](body, builder, np.random.default_rng(seed))
     vertices, faces = builder.vertices, builder.faces
@@ -95,7 +95,7 @@ def make_garment(kind: str, skel: Skeleton | None = None, max_edge: float = 0.08
                    attachment_part=np.full(len(attachment), body.skel.index(part), dtype=np.int64))
 
 
-def _panel_seams(body: _RestMannequin, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _panel_seams(body: RestMannequin, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The seams (S, 2) of a garment sewn from about a dozen panels, along mesh edges. Horizontal seams at
     PANEL_SEAM_DEPTHS of its height split it into bands. The middle bands are quartered by centre-front,
     centre-back and side seams (the body's midplane and the coronal plane through the pelvis). Each piece of the
@@ -128,9 +128,9 @@ def _panel_seams(body: _RestMannequin, vertices: np.ndarray, faces: np.ndarray) 
 # Geometry helpers
 
 
-class _RestMannequin:
-    """The mannequin in its rest pose, which every garment is fitted around: its capsules and joint positions,
-    with distance queries and ring fitting."""
+class RestMannequin:
+    """The mannequin in its rest pose, which every garment is fitted around (and a garment from a file is dressed
+    on, scenes.dressing): its capsules and joint positions, girths, distance queries and ring fitting."""
 
     def __init__(self, skel: Skeleton):
         self.skel = skel
@@ -146,6 +146,18 @@ class _RestMannequin:
 
     def distance(self, points: np.ndarray, parts: np.ndarray | None = None) -> np.ndarray:
         return body_signed_distance(self.skel, self.transforms, np.asarray(points).reshape(-1, 3), parts)
+
+    def girth(self, name: str) -> float:
+        """Around a horizontal torso capsule through its axis: two lengths of its segment and a circle."""
+        p = self.skel.index(name)
+        return float(2 * np.linalg.norm(self.b[p] - self.a[p]) + np.pi * (self.ra[p] + self.rb[p]))
+
+    def nearest_part(self, points: np.ndarray, among: tuple[str, ...] | None = None) -> np.ndarray:
+        """The part whose capsule is nearest each point, of the parts named `among` (default: all)."""
+        parts = np.arange(self.skel.n_parts) if among is None else self.parts(*among)
+        distance = capsule_signed_distance(np.asarray(points).reshape(-1, 3), self.a[parts], self.b[parts],
+                                           self.ra[parts], self.rb[parts])
+        return parts[distance.argmin(axis=1)].astype(np.int64)
 
     def lowest(self, name: str) -> float:
         p = self.skel.index(name)
@@ -275,7 +287,7 @@ def _axis_point(chain: np.ndarray, y: np.ndarray) -> np.ndarray:
 class _Tube:
     """Rings of a horizontal tube around the torso: a superellipse template scaled per ring."""
 
-    def __init__(self, body: _RestMannequin, rx: float, rz: float, exponent: float = 3.0):
+    def __init__(self, body: RestMannequin, rx: float, rz: float, exponent: float = 3.0):
         self.body, self.rx, self.rz, self.exponent = body, rx, rz, exponent
         self.directions = _ring_template(rx, rz, exponent, 128)
 
@@ -298,7 +310,7 @@ class _Tube:
         return base[:, None, :] + scales[:, None, None] * template[None]
 
 
-def _waist_tube(body: _RestMannequin, builder: _MeshBuilder, top: float, bottom: float, ease: float,
+def _waist_tube(body: RestMannequin, builder: _MeshBuilder, top: float, bottom: float, ease: float,
                 flare: float = 0.0) -> np.ndarray:
     """Tube from the waist at height `top` down to `bottom`, hugging pelvis and thighs with `ease` and never
     narrowing downward; below its widest fitted ring it flares by `flare` (radius gained per unit of drop).
@@ -347,7 +359,7 @@ def _neckline(neck_point: np.ndarray, center: np.ndarray, neck_z: float) -> np.n
                            neck_z + (center[2] - neck_z) * np.sin(psi)], axis=1)
 
 
-def _upper_body(body: _RestMannequin, builder: _MeshBuilder, torso_rings: np.ndarray, ease: float) -> dict:
+def _upper_body(body: RestMannequin, builder: _MeshBuilder, torso_rings: np.ndarray, ease: float) -> dict:
     """Front and back panels from the top ring of the torso tube (index (n,), vertex 0 at the left armpit, n/4
     in front) up to the shoulder seams and neckline. Each panel column is a quadratic Bezier curve from the ring
     up to the top row, bulging forward (backward) enough to open the armholes around the arms. Returns the two
@@ -415,7 +427,7 @@ def _upper_body(body: _RestMannequin, builder: _MeshBuilder, torso_rings: np.nda
 # Garments: each adds its pieces to the builder and returns (attachment vertex indices, part they follow).
 
 
-def _pants(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _pants(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Waist at the top of the pelvis, crotch seam 3 cm under it, legs down to just above the ankles."""
     s = body.scale
     ease = 0.025 * s * rng.uniform(0.85, 1.15)
@@ -440,7 +452,7 @@ def _pants(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator
     return index[0], "pelvis"
 
 
-def _leg(body: _RestMannequin, builder: _MeshBuilder, loop: np.ndarray, side: str, top: float, hem: float,
+def _leg(body: RestMannequin, builder: _MeshBuilder, loop: np.ndarray, side: str, top: float, hem: float,
          ease: float) -> None:
     """A trouser leg from a loop at the crotch down to the hem: circles around the thigh and shin, never closer
     to the midplane than a quarter of the gap between the thighs (so the two legs do not touch), reached from the
@@ -473,7 +485,7 @@ def _leg(body: _RestMannequin, builder: _MeshBuilder, loop: np.ndarray, side: st
     builder.tube(loop, (1 - blend[..., None]) * lowered + blend[..., None] * on_circle, np.array([0.0, -1.0, 0.0]))
 
 
-def _skirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _skirt(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """A-line skirt from the waist to just above the knees."""
     s = body.scale
     ease = 0.025 * s * rng.uniform(0.85, 1.15)
@@ -483,7 +495,7 @@ def _skirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator
     return index[0], "pelvis"
 
 
-def _torso(body: _RestMannequin, builder: _MeshBuilder, hem: float, ease: float, flare: float) -> np.ndarray:
+def _torso(body: RestMannequin, builder: _MeshBuilder, hem: float, ease: float, flare: float) -> np.ndarray:
     """Torso tube from the armpits down to `hem` (top to bottom), straight around the chest, belly and hips,
     flaring below the hips by `flare`. Returns the index grid."""
     s = body.scale
@@ -506,7 +518,7 @@ def _torso(body: _RestMannequin, builder: _MeshBuilder, hem: float, ease: float,
     return index
 
 
-def _tshirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _tshirt(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Straight, loose tshirt down to the hips with short sleeves."""
     s = body.scale
     ease = 0.03 * s * rng.uniform(0.85, 1.15)
@@ -522,7 +534,7 @@ def _tshirt(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generato
     return upper["shoulder"], "chest"
 
 
-def _dress(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _dress(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Sleeveless dress, straight over the torso, flaring from the hips to below the knees."""
     s = body.scale
     ease = 0.03 * s * rng.uniform(0.85, 1.15)
@@ -540,7 +552,7 @@ def _circle_around(axis: np.ndarray, n: int) -> np.ndarray:
     return np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2
 
 
-def _cape(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _cape(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """Hangs down the back from an arc that runs over both shoulders and behind the neck, widening downward."""
     s = body.scale
     arm = body.skel.index("upper_arm_l")
@@ -567,7 +579,7 @@ def _cape(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator)
     return index[0], "chest"
 
 
-def _patch(body: _RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+def _patch(body: RestMannequin, builder: _MeshBuilder, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """A flat bib hanging in front of the chest and belly, held along its top edge."""
     s = body.scale
     chest = body.skel.index("chest")

@@ -79,9 +79,18 @@ def clip_key(entry: str | dict) -> str:
     return f"bvh:{os.path.normpath(entry['bvh'])}@{entry.get('start', '')}-{entry.get('end', '')}"
 
 
+# The generators of scenes whose cloth the mannequin wears: the procedural garments and a garment from a file.
+GARMENT_GENERATORS = ("garment", "garment_file")
+
+
+def wears_garment(settings: dict) -> bool:
+    """Whether the scene's cloth is a garment on the mannequin (it has clips, capsules, attachment pins)."""
+    return settings["mesh"]["generator"] in GARMENT_GENERATORS
+
+
 def held_out_clips(settings: dict) -> list:
     """The held-out clip entries: `drivers.mannequin.test_clips` when `dataset.split` is `held_out`, else none."""
-    if settings["mesh"]["generator"] != "garment" or settings["dataset"]["split"] != HELD_OUT:
+    if not wears_garment(settings) or settings["dataset"]["split"] != HELD_OUT:
         return []
     return list(settings["drivers"]["mannequin"]["test_clips"])
 
@@ -94,7 +103,7 @@ def training_clips(settings: dict) -> list:
 
 def library_of(settings: dict) -> dict | None:
     """The scene's motion library settings (`drivers.mannequin.library`), or None."""
-    if settings["mesh"]["generator"] != "garment":
+    if not wears_garment(settings):
         return None
     return settings["drivers"]["mannequin"].get("library")
 
@@ -160,7 +169,7 @@ def sequence_clips(settings: dict, name: str) -> list:
 
 def sequence_bvh_files(settings: dict, name: str) -> list[str]:
     """The motion-capture files sequence `name` reads (none for a grid scene)."""
-    if settings["mesh"]["generator"] != "garment":
+    if not wears_garment(settings):
         return []
     if is_window_name(name):
         return [find_window(library_of(settings), window_key(name)).clip.path]

@@ -26,7 +26,7 @@ import yaml
 from model.feature_spec import FeatureSpec
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import FLOAT32_MAX, atomic_write
-from scenes.sequences import clip_key, held_out_clips, library_of, training_clips
+from scenes.sequences import clip_key, held_out_clips, library_of, training_clips, wears_garment
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "config.schema.yaml"
 
@@ -163,12 +163,26 @@ def resolve_scene(config: dict, scene: str, profile: str | None = None, device: 
     merged = deep_merge({k: v for k, v in config.items() if k != "profiles"}, overlays[profile])
     if scene not in merged["scenes"]:
         raise PipelineError(f"{source}: unknown scene '{scene}' (known: {', '.join(sorted(merged['scenes']))})")
-    settings = deep_merge(merged["defaults"], merged["scenes"][scene])
+    settings = deep_merge(merged["defaults"], _scene_block(merged["scenes"], scene, source))
     _require_complete(settings, load_schema()["$defs"]["scene_settings"], f"scenes.{scene}", source,
                       hint=" (set it there or in defaults)")
     _check_consistent(settings, f"scenes.{scene}", source)
     settings.update(scene=scene, profile=profile, device=device or merged["device"])
     return settings
+
+
+def _scene_block(scenes: dict, scene: str, source: str) -> dict:
+    """`scenes.<scene>` (the profile's overlay merged in), over the scene it is `like` less that scene's mesh: a
+    scene of another mesh takes everything else of its base, profile overlays included."""
+    block = scenes[scene]
+    like = block.get("like")
+    if like is None:
+        return block
+    if like not in scenes or like == scene or "like" in scenes[like]:
+        raise PipelineError(f"{source}: scenes.{scene}.like: '{like}' is not another scene of the config without a "
+                            f"`like` of its own (known: {', '.join(sorted(s for s in scenes if s != scene))})")
+    base = {key: value for key, value in scenes[like].items() if key != "mesh"}
+    return deep_merge(base, {key: value for key, value in block.items() if key != "like"})
 
 
 def _require_complete(settings: dict, schema: dict, where: str | None, source: str, hint: str = "",
@@ -205,11 +219,11 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     """Rules between keys that a schema cannot state."""
     def fail(message: str):
         raise PipelineError(f"{source}: {where}: {message}")
-    garment = settings["mesh"]["generator"] == "garment"
+    garment = wears_garment(settings)
     if garment != (settings["drivers"]["pins"] == "attachment"):
-        fail("drivers.pins must be 'attachment' exactly when mesh.generator is 'garment'")
+        fail("drivers.pins must be 'attachment' exactly when mesh.generator is 'garment' or 'garment_file'")
     if not garment and (settings["physics"]["body_collision"] or settings["dataset"]["frame"] == "torso"):
-        fail("physics.body_collision and dataset.frame 'torso' need a mannequin (mesh.generator 'garment')")
+        fail("physics.body_collision and dataset.frame 'torso' need a mannequin (mesh.generator 'garment' or 'garment_file')")
     if settings["network"]["conv"] not in settings["operators"]["conv"]:
         fail(f"network.conv '{settings['network']['conv']}' is not among operators.conv "
              f"{settings['operators']['conv']}")
@@ -238,7 +252,7 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
         fail("library_windows.held_out_subjects needs drivers.mannequin.library and dataset.split 'held_out'")
     if settings["dataset"]["split"] == "held_out":
         if not garment:
-            fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment')")
+            fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment' or 'garment_file')")
         if not held_out_clips(settings) and not held_subjects:
             fail("dataset.split 'held_out' needs drivers.mannequin.test_clips or library_windows.held_out_subjects")
         if settings["sequences"] and not training_clips(settings):
@@ -264,7 +278,7 @@ def feature_spec(network: Mapping[str, Any], has_body: bool, where: str) -> Feat
         raise PipelineError(f"{where}: {err}") from None
     if "body" in features.inputs and not has_body:
         raise PipelineError(f"{where}: input 'body' measures the cloth against the mannequin's capsules, and this "
-                            f"scene has no mannequin (mesh.generator 'garment' has one)")
+                            f"scene has no mannequin (mesh.generator 'garment' and 'garment_file' have one)")
     return features
 
 

@@ -25,16 +25,22 @@ def load_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     reordering vertices) and .h5 artifacts holding `vertices` and `faces` at the root, under `rest/`, or under
     `levels/0/`. A vertex that no face uses is refused by the validation, not dropped.
     """
+    vertices, faces, _ = load_mesh_groups(path)
+    check_mesh(path, vertices, faces)
+    return vertices, faces
+
+
+def load_mesh_groups(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Vertices, faces and named vertex groups of a mesh file, not yet validated (a garment's panels are checked
+    once welded). The groups are an OBJ's `g` and `o` groups: each name maps to the vertices of the faces listed
+    under it (a name used twice gathers both); other formats have none."""
     path = Path(path)
     require_input_file(path)
     if path.suffix.lower() in (".h5", ".hdf5"):
-        vertices, faces = _load_h5_mesh(path)
-    elif path.suffix.lower() == ".obj":
-        vertices, faces = _load_obj(path)
-    else:
-        vertices, faces = _load_trimesh(path)
-    check_mesh(path, vertices, faces)
-    return vertices, faces
+        return (*_load_h5_mesh(path), {})
+    if path.suffix.lower() == ".obj":
+        return _load_obj(path)
+    return (*_load_trimesh(path), {})
 
 
 def check_mesh(source: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray) -> None:
@@ -61,14 +67,15 @@ def _load_h5_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     raise PipelineError(f"{path}: no mesh found (expected 'vertices' and 'faces' at the root, 'rest/' or 'levels/0/')")
 
 
-def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Positions and faces of an OBJ file, vertex i being the file's i-th `v` line.
+def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Positions, faces and `g`/`o` groups of an OBJ file, vertex i being the file's i-th `v` line.
 
     Read here, not with trimesh: trimesh drops vertices that no face uses and splits vertices along texture
     seams, renumbering the rest. Polygons are fanned into triangles; indices may be negative (relative to the
-    vertices read so far); texture coordinates, normals, groups, materials, lines and points are ignored.
+    vertices read so far); texture coordinates, normals, materials, lines and points are ignored.
     """
-    vertices, faces = [], []
+    vertices, faces, face_group, names = [], [], [], {}
+    group = -1
     text = path.read_text(encoding="utf-8", errors="replace").replace("\\\n", " ")   # joined continuation lines
     for number, line in enumerate(text.splitlines(), 1):
         fields = line.split("#", 1)[0].split()
@@ -83,13 +90,18 @@ def _load_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
                     raise ValueError("a face needs three or more vertex indices, counted from 1")
                 ids = [i - 1 if i > 0 else len(vertices) + i for i in ids]
                 faces.extend((ids[0], ids[k], ids[k + 1]) for k in range(1, len(ids) - 1))
+                face_group.extend([group] * (len(ids) - 2))
+            elif fields[:1] in (["g"], ["o"]) and len(fields) > 1:
+                group = names.setdefault(" ".join(fields[1:]), len(names))
         except ValueError as err:
             # Named by its number, never quoted: int() and float() would quote the line's words too.
             raise PipelineError(f"{path}: line {number}: a 'v' line needs three numbers, an 'f' line three or "
                                 f"more vertex indices counted from 1") from None
     if not faces:
         raise PipelineError(f"{path}: file holds no triangle mesh")
-    return np.asarray(vertices, dtype=np.float64).reshape(-1, 3), np.asarray(faces, dtype=np.int64)
+    faces, face_group = np.asarray(faces, dtype=np.int64), np.asarray(face_group, dtype=np.int64)
+    groups = {name: np.unique(faces[face_group == index]) for name, index in names.items()}
+    return np.asarray(vertices, dtype=np.float64).reshape(-1, 3), faces, groups
 
 
 def _load_trimesh(path: Path) -> tuple[np.ndarray, np.ndarray]:

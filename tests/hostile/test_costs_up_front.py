@@ -87,11 +87,11 @@ def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path):
 
 
 def test_a_config_error_in_the_snakefile_is_one_line(tmp_path):
-    (tmp_path / "bad.yaml").write_text("scenes: {pants: {mesh: {file: x}}}\n")
+    (tmp_path / "bad.yaml").write_text("scenes: {pants: {mesh: {files: x}}}\n")
     done = subprocess.run(SNAKEMAKE + ["--configfile", str(tmp_path / "bad.yaml")], capture_output=True, text=True,
                           cwd=tmp_path, timeout=60)
     assert done.returncode == 2
-    assert done.stderr.splitlines() == ["error: workflow config: unknown key 'file' in scenes.pants.mesh"]
+    assert done.stderr.splitlines() == ["error: workflow config: unknown key 'files' in scenes.pants.mesh"]
 
 
 def test_an_obj_error_never_quotes_the_line(tmp_path):

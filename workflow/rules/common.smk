@@ -30,6 +30,8 @@ ERRORS_ONLY_EVALUATE = (
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
 # The scenes with a motion library, whose windows start from their settle sequence's runs (results/<scene>/settle/)
 LIBRARY_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if library_of(settings) is not None)
+# The scenes of a garment from a file, dressed on the mannequin first (results/<scene>/dressed.h5).
+FILE_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if workflow_paths.garment_files(settings))
 
 # Several GPUs: each CUDA job takes a free one (pipeline.core.gpu_slots), told how many through its environment.
 os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))

@@ -73,6 +73,64 @@ rule settle_scene:
     shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle 2>&1 | tee {log:q}"
 
 
+# A garment from the user's file (mesh.generator garment_file): dressed on the mannequin and settled clear of it
+# (pipeline/dress.py), its scene files made from that garment (--dressed) by rules of their own, chosen over scene,
+# sequence and settle_scene for those scenes: the procedural scenes' rules stay as they were, so nothing they made
+# is made again.
+rule dress:
+    input: settings=f"{OUT}/simulation.json", garment=lambda w: workflow_paths.garment_files(SETTINGS[w.scene])
+    output: f"{OUT}/dressed.h5"
+    wildcard_constraints: scene=FILE_SCENES
+    log: log_of("dress")
+    benchmark: benchmark_of("dress")
+    threads: 1
+    resources: mem_mb=4000
+    shell: "{PY:q} -m pipeline.dress {input.settings:q} {output:q} 2>&1 | tee {log:q}"
+
+
+ruleorder: scene_dressed > scene
+ruleorder: sequence_dressed > sequence
+ruleorder: settle_scene_dressed > settle_scene
+
+rule scene_dressed:
+    input: settings=f"{OUT}/simulation.json", dressed=f"{OUT}/dressed.h5"
+    output: f"{OUT}/scene.h5"
+    wildcard_constraints: scene=FILE_SCENES
+    log: log_of("scene")
+    benchmark: benchmark_of("scene")
+    threads: 1
+    resources: mem_mb=2000
+    shell: "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --dressed {input.dressed:q} 2>&1 | tee {log:q}"
+
+
+rule sequence_dressed:
+    input: settings=f"{OUT}/simulation.json", bvh=bvh_files, dressed=f"{OUT}/dressed.h5"
+    output: f"{SEQ}/scene.h5"
+    wildcard_constraints: scene=FILE_SCENES
+    log: log_of("sequence", per_sequence=True)
+    benchmark: benchmark_of("sequence", per_sequence=True)
+    threads: 1
+    resources: mem_mb=2000
+    priority: 10
+    shell:
+        "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence {wildcards.seq:q} "
+        "--dressed {input.dressed:q} 2>&1 | tee {log:q}"
+
+
+rule settle_scene_dressed:
+    input: settings=f"{OUT}/simulation.json", dressed=f"{OUT}/dressed.h5"
+    output: f"{OUT}/settle/scene.h5"
+    wildcard_constraints: scene=FILE_SCENES
+    log: log_of("settle_scene")
+    benchmark: benchmark_of("settle_scene")
+    threads: 1
+    resources: mem_mb=2000
+    priority: 10
+    shell:
+        "{PY:q} -m pipeline.scene {input.settings:q} {output:q} --sequence settle --dressed {input.dressed:q} "
+        "2>&1 | tee {log:q}"
+
+
 rule subdivide:
     input: settings=f"{OUT}/simulation.json", scene=f"{OUT}/scene.h5"
     output: f"{OUT}/subdiv.h5"
