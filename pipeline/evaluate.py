@@ -598,7 +598,8 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
             f"Median **{np.median(times):.2f} ms per frame** on {device} on the deployment path ({times.path}; "
             f"{task.timed}, one frame per call, {len(times)} test frame(s) timed "
             f"after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, max {times.max():.2f} ms); eager PyTorch on "
-            f"the same frames: median {np.median(times.eager):.2f} ms. {task.timing_reference}")]),
+            f"the same frames: median {np.median(times.eager):.2f} ms. "
+            f"{task.timing_note(args.dataset, float(np.median(times)))}{task.timing_reference}")]),
         Section("Files", [Links(files)]),
     ]
     return sections

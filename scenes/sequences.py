@@ -80,10 +80,16 @@ def clip_key(entry: str | dict) -> str:
 
 
 def held_out_clips(settings: dict) -> list:
-    """The held-out clip entries: `drivers.mannequin.test_clips` when `dataset.split` is `held_out`, else none."""
-    if settings["mesh"]["generator"] != "garment" or settings["dataset"]["split"] != HELD_OUT:
+    """The held-out clip entries when `dataset.split` is `held_out`: a garment's `drivers.mannequin.test_clips`, the
+    hand's `drivers.hand.test_motions`; else none."""
+    if settings["dataset"]["split"] != HELD_OUT:
         return []
-    return list(settings["drivers"]["mannequin"]["test_clips"])
+    generator = settings["mesh"]["generator"]
+    if generator == "garment":
+        return list(settings["drivers"]["mannequin"]["test_clips"])
+    if generator == "hand":
+        return list(settings["drivers"]["hand"]["test_motions"])
+    return []
 
 
 def training_clips(settings: dict) -> list:

@@ -182,3 +182,8 @@ class Task(abc.ABC):
     def error_note(self, data: LearningData) -> str:
         """A sentence on what the predictor is, for the report (empty by default)."""
         return ""
+
+    def timing_note(self, dataset: str, network_ms: float) -> str:
+        """Sentences the report's inference time adds: what the network replaces costs, against its median
+        `network_ms` (empty by default)."""
+        return ""
