@@ -5,10 +5,11 @@ sequences' FEM runs, with a seeded random share of the training sequences' frame
 held-out sequences (the fist: a motion of a kind never trained on) as a third split.
 
 CLI: `python -m pipeline.hand_dataset HAND.h5 OUT.h5 SEQUENCE [SEQUENCE ...] [--settings SETTINGS.json]
-[--test-fraction 0.1] [--seed 0] [--frame-time DT] [--quiet]`: a SEQUENCE is a folder results/<scene>/sequences/<name>/ holding
-fem.h5, its role from its name (train_..., held_out_...). `dataset.test_fraction`, `dataset.seed` and `solver.dt`
-(--frame-time) of --settings are the flags' defaults. The FEM's median ms a frame (after the first two frames: compiling, the first motion)
-is stored with it (attr fem_ms_per_frame), the report's speedup.
+[--test-fraction 0.1] [--seed 0] [--frame-time DT] [--quiet]`: a SEQUENCE is a folder
+results/<scene>/sequences/<name>/ holding fem.h5, its role from its name (train_..., held_out_...), the training
+ones first. `dataset.test_fraction`, `dataset.seed` and `solver.dt` (--frame-time) of --settings are the flags'
+defaults. The FEM's median ms a frame (after the first two frames: compiling, the first motion) is stored with it
+(attr fem_ms_per_frame): the report's speedup.
 """
 from __future__ import annotations
 

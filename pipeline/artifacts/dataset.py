@@ -99,7 +99,8 @@ def count_test_frames(n_frames: int, test_fraction: float) -> int:
 
 
 def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded random split (the paper's; every task's dataset draws it so): sorted train and test frame ids, at least one frame in each."""
+    """Seeded random split (the paper's; every task's dataset draws it so): sorted train and test frame ids, at
+    least one frame in each."""
     n_test = count_test_frames(n_frames, test_fraction)
     order = np.random.default_rng(seed).permutation(n_frames)
     return np.sort(order[n_test:]), np.sort(order[:n_test])

@@ -15,6 +15,7 @@ import dataclasses
 import os
 from typing import Any, Mapping
 
+import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
@@ -103,6 +104,15 @@ def read_hand(path: str | os.PathLike) -> Hand:
                         weights[NODE_WEIGHTS], float(quality["min_dihedral_deg"]),
                         float(quality["min_radius_ratio"]), int(quality["split_nodes"]))
     return Hand(skeleton, vertices, faces, skin_influences, weights[SKIN_WEIGHTS], volume)
+
+
+def read_skin_vertex_count(path: str | os.PathLike) -> int:
+    """The skin's vertex count from the shape of `vertices` alone (what a frame of the runs weighs)."""
+    with open_artifact(path) as f:
+        shape = f[VERTICES].shape if isinstance(f.get(VERTICES), h5py.Dataset) else ()
+    if len(shape) != 2 or shape[1] != 3 or not 0 < shape[0] < 2 ** 31:
+        raise PipelineError(f"{path}: '{VERTICES}' must be (S, 3) skin vertices, got {shape}")
+    return int(shape[0])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
+from pipeline import workflow_plan
 from pipeline.artifacts.hand import read_hand, read_hand_run
 from pipeline.core.errors import PipelineError
 from scenes.hand_motion import fist_trajectory
@@ -101,6 +102,21 @@ def test_the_network_beats_linear_blend_skinning_on_the_test_frames(hand):
         network, predictor = (f[f"errors/{who}/test/l1"][()] for who in ("network", "predictor"))
         held = f["errors/network/held_out/l1"][()]
     assert network < predictor and np.isfinite(held)
+
+
+def test_the_plan_states_what_the_fem_runs_weigh(hand):
+    workdir = hand.parents[1]
+    run = snakemake(workdir, "-n", "--configfile", str(workdir / "hand.yaml"), "--", "results/hand/")
+    disk = [line for line in run.stderr.splitlines() if line.startswith("disk:")]
+    runs = 0
+    for name in SEQUENCES:
+        with h5py.File(hand / "sequences" / name / "fem.h5") as f:
+            runs += f["skin"].nbytes
+            vertices = f["skin"].shape[1]
+    assert disk == [f"disk: hand, {vertices:,} skin vertices: {workflow_plan._size(runs)} of FEM runs "
+                    f"({workflow_plan._size(12 * vertices)} a frame), at most "
+                    f"{workflow_plan._size(2 * runs + 3 * FRAMES * workflow_plan.DATASET_FRAME_EXTRA)} of dataset"], \
+        run.stderr
 
 
 def test_a_damaged_hand_file_is_one_error(hand, tmp_path):
