@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from pipeline import workflow_plan
+from pipeline import hand_dataset, hand_simulate, workflow_plan
 from pipeline.artifacts.hand import read_hand, read_hand_run
 from pipeline.core.errors import PipelineError
 from scenes.hand_motion import fist_trajectory
@@ -134,3 +134,13 @@ def test_a_hand_scene_must_be_moved_by_the_fem(tmp_path):
     config = hand_config(tmp_path, solver={"kind": "xpbd"})
     run = snakemake(tmp_path, "results/hand/", "-n", "--configfile", str(config))
     assert run.returncode != 0 and "solver.kind must be 'fem' exactly when mesh.generator is 'hand'" in run.stderr
+
+
+def test_the_hand_stages_refuse_sequences_they_cannot_make_or_order(hand, tmp_path):
+    sequences = [str(hand / "sequences" / name) for name in ("held_out_000", "train_000")]
+    with pytest.raises(PipelineError, match="the training ones first"):
+        hand_dataset.main([str(hand / "hand.h5"), str(tmp_path / "dataset.h5"), *sequences])
+    with pytest.raises(PipelineError, match="no held-out hand motion for sequence 'held_out_001'"):
+        hand_simulate.main([str(hand / "simulation.json"), str(hand / "hand.h5"), "held_out_001",
+                            str(tmp_path / "fem.h5")])
+    assert not list(tmp_path.iterdir())            # nothing half-written
