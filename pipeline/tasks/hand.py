@@ -22,6 +22,7 @@ class HandTask(DecoderTask):
     name = "hand"
     predictor_label = "linear blend skinning"
     input_label = "linear blend skinning"
+    truth_label = "FEM ground truth"
     input_description = ("the hand's 18 joint angles (radians: wrist flexion and deviation, per finger MCP flexion "
                          "and abduction and PIP flexion, the thumb's CMC flexion and abduction, MCP and IP flexion)")
     timing_reference = ("Paper Table 4 (hand: 18 joint angles -> 33,641 vertices, RC13 decoder, 5,746,175 "

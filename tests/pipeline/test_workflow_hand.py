@@ -47,7 +47,7 @@ def test_the_hand_scene_makes_every_product_and_its_report_shows_the_skin(hand):
         assert (hand / "sequences" / name / "fem.h5").is_file()
     assert list((hand / "renders").glob("frame_*.png"))
     report = (hand / "report.md").read_text()
-    assert "18 scalars per frame" in report and "linear blend skinning" in report
+    assert "18 scalars per frame" in report and "linear blend skinning | FEM ground truth | network output" in report
     assert "The FEM it replaces took a median" in report and "x faster** (Table 4's speedup column)" in report
 
 
