@@ -1,6 +1,9 @@
 # `make run`: set up the virtualenv and build the default scene (workflow_config.yaml's default_scene) on the
 # CPU profile; `make run SCENE=flag` builds another scene.
 # `make test`: set up the virtualenv and run the test suite (what CI runs).
+# `make test-cluster`: the Slurm executor plugin (requirements-cluster.txt) into the virtualenv, a single-node Slurm
+# on this machine (tools/local_slurm.sh: root, Debian's slurm-wlm, slurmdbd, munge, mariadb-server), the workflow
+# through profiles/slurm against a local run (tests/cluster), then Slurm torn down.
 # Setup installs the pinned requirements, then the project itself (editable), so the stages, bench/ and tests/
 # import it from any directory; the stamp names both files' contents, so a change to either reinstalls.
 VENV ?= .venv
@@ -8,7 +11,9 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat requirements.txt pyproject.toml | sha1sum | cut -c1-12)
 SCENE ?=
 
-.PHONY: setup run test bench clean
+CLUSTER_STAMP := $(VENV)/.cluster-$(shell cat requirements-cluster.txt | sha1sum | cut -c1-12)
+
+.PHONY: setup run test test-cluster bench clean
 
 setup: $(STAMP)
 
@@ -24,6 +29,15 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests
+
+$(CLUSTER_STAMP): $(STAMP) requirements-cluster.txt
+	$(PY) -m pip install -q -r requirements-cluster.txt
+	rm -f $(VENV)/.cluster-* && touch $@
+
+test-cluster: $(CLUSTER_STAMP)
+	tools/local_slurm.sh up
+	LEARNED_CLOTH_SLURM=1 SLURM_CONF=$${LOCAL_SLURM_DIR:-/tmp/local-slurm}/slurm.conf \
+		$(PY) -m pytest -q tests/cluster; status=$$?; tools/local_slurm.sh down; exit $$status
 
 bench: $(STAMP)
 	$(PY) bench/cloth_solver.py

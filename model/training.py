@@ -20,13 +20,15 @@ from typing import Any, Callable, Iterator, Mapping, Protocol
 
 import torch
 
+from model import data_parallel
 from model.autoregressive import pushforward_inputs, reads_previous_output
+from model.data_parallel import SINGLE, Ranks
 from model.features import FrameBatch, FrameStore
 from model.losses import LossWeights, l1_loss, l2_loss, normal_loss, total_loss
 from model.mesh_hierarchy import MeshHierarchy
 from model.sampler import Sampler, SampleSettings
-from model.training_step import (LOSS_TERMS, BatchLoss, GraphedStep, adam, eager_step, learning_rate,
-                                 set_learning_rate)
+from model.training_step import (DDP_WARMUP_STEPS, LOSS_TERMS, WARMUP_STEPS, BatchLoss, GraphedStep, adam,
+                                 eager_step, learning_rate, set_learning_rate)
 
 # 1 pickled a History object. One of format 2 written before the sampler existed holds other settings (its
 # identity has no `sampling`), so it is not resumed but started afresh.
@@ -178,7 +180,7 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
         resume_from: dict[str, Any] | None = None, save_checkpoint: Callable[[dict[str, Any]], None] | None = None,
         identity: dict[str, Any] | None = None,
         on_batch: Callable[[int, torch.Tensor], None] = lambda epoch, loss: None,
-        on_notice: Callable[[str], None] = print) -> History:
+        on_notice: Callable[[str], None] = print, ranks: Ranks = SINGLE) -> History:
     """Train `model` in place for `settings.epochs` epochs; returns the loss history. `frames` says what a
     batch's loss and a split's errors are (a `Frames`, or another `Problem`), `mesh` what it runs `model` on.
 
@@ -188,53 +190,85 @@ def fit(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy
     `on_notice`. Raises CheckpointError for a matching state that cannot be restored. `on_batch(epoch, loss)`
     is called after every optimiser step with the batch's loss as a 0-d tensor on the device (reading it makes
     the host wait for the GPU: read it now and then, not every step).
+
+    `ranks` of several processes train `model.net` with DistributedDataParallel (model.data_parallel: the
+    process group must be started), `settings.batch_size` frames a rank and step; the history is every rank's
+    frames', and only rank 0 calls `save_checkpoint`.
     """
     model.input_noise = settings.input_noise
     optimizer = adam(model, settings.lr, settings.cuda_graph, scheduled=settings.lr_schedule != "constant")
     step = eager_step(model, mesh, frames, optimizer, settings.weights)
     if settings.cuda_graph:
-        step = GraphedStep(step, settings.batch_size, train_ids.device)
+        step = GraphedStep(step, settings.batch_size, train_ids.device,
+                           DDP_WARMUP_STEPS if ranks.parallel else WARMUP_STEPS)
     shuffle = torch.Generator().manual_seed(settings.seed)
     sampler = Sampler(len(train_ids), settings.sampling)
-    identity = {"settings": _settings_key(settings), **(identity or {})}
+    # A checkpoint of another number of ranks is another run (each step's frames differ).
+    identity = {"settings": _settings_key(settings), **(identity or {}), **({"ranks": ranks.size} if ranks.parallel
+                                                                             else {})}
+    if ranks.parallel:
+        # Every rank's input noise its own: seeded by the run's seed and the rank (the weights are seeded already).
+        torch.manual_seed(settings.seed * 65_537 + ranks.rank)
     history = History()
     if resume_from is not None:
         history = _resume(resume_from, identity, settings.epochs, model, optimizer, shuffle, sampler, on_notice,
-                          train_ids.device)
-    steps_per_epoch = -(-sampler.frames_per_epoch // settings.batch_size)
-    monitored = monitored_test_frames(test_ids)
-    for epoch in range(history.epochs_done, settings.epochs):
-        start = time.perf_counter()
-        model.train()
-        order = train_ids[sampler.epoch(shuffle).to(train_ids.device)]
-        # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait for
-        # the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
-        totals, weighted = [], []
-        for index, batch in enumerate(frames.feed(order, settings.batch_size)):
-            if settings.lr_schedule != "constant":
-                set_learning_rate(optimizer, learning_rate(settings.lr_schedule, settings.lr,
-                                                           epoch * steps_per_epoch + index,
-                                                           settings.epochs * steps_per_epoch))
-            values = step(batch)
-            totals.append(values[0])
-            weighted.append(values * len(batch))
-            on_batch(epoch, values[0])
-        history.batch_total.extend(torch.stack(totals).tolist())
-        for name, total in zip(TERMS, torch.stack(weighted).sum(dim=0).tolist()):
-            history.train[name].append(total / len(order))
-        model.eval()
-        test = frames.errors(model, mesh, monitored, split_batch_size(settings.batch_size), settings.weights)
-        for name in TERMS:
-            history.test[name].append(test[name])
-        history.epoch_seconds.append(time.perf_counter() - start)
-        _check_finite(history, epoch)
-        if save_checkpoint is not None:
-            save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
-                             "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
-                             "sampler": sampler.state(),
-                             "noise": _noise_state(train_ids.device), "history": dataclasses.asdict(history)})
+                          train_ids.device, ranks)
+    steps_per_epoch = data_parallel.steps_of(sampler.frames_per_epoch, settings.batch_size, ranks)
+    monitored = data_parallel.my_part(monitored_test_frames(test_ids), ranks)
+    with data_parallel.distributed(model, ranks):
+        for epoch in range(history.epochs_done, settings.epochs):
+            start = time.perf_counter()
+            model.train()
+            order = train_ids[sampler.epoch(shuffle).to(train_ids.device)]
+            mine, last_weight = data_parallel.step_share(order, settings.batch_size, ranks)
+            last = data_parallel.steps_of(len(order), settings.batch_size, ranks) - 1
+            # The losses stay on the device until the epoch ends: a `.item()` per step would make the host wait
+            # for the GPU at every step, and a launch-bound step then costs the host's time plus the GPU's.
+            values, counts = [], []
+            for index, batch in enumerate(frames.feed(mine, settings.batch_size)):
+                if settings.lr_schedule != "constant":
+                    set_learning_rate(optimizer, learning_rate(settings.lr_schedule, settings.lr,
+                                                               epoch * steps_per_epoch + index,
+                                                               settings.epochs * steps_per_epoch))
+                weight = last_weight if index == last else 1.0
+                values.append(step(batch, weight))
+                counts.append(len(batch) if weight else 0)       # a weight-0 frame only keeps the rank in step
+                on_batch(epoch, values[-1][0])
+            batch_totals, sums = _epoch_losses(torch.stack(values), counts, ranks)
+            history.batch_total.extend(batch_totals)
+            for name, total in zip(TERMS, sums):
+                history.train[name].append(total / len(order))
+            model.eval()
+            # A rank may have no test frame to score (fewer test frames than ranks): it adds nothing to the sums.
+            test = frames.errors(model, mesh, monitored, split_batch_size(settings.batch_size), settings.weights) \
+                if len(monitored) or not ranks.parallel else None
+            if ranks.parallel:
+                test = data_parallel.combined_errors(test, len(monitored), ranks, settings.weights,
+                                                     train_ids.device)
+            for name in TERMS:
+                history.test[name].append(test[name])
+            history.epoch_seconds.append(time.perf_counter() - start)
+            _check_finite(history, epoch)
+            noise = _noise_state(train_ids.device, ranks)      # every rank's, gathered: a collective
+            if save_checkpoint is not None and ranks.main:
+                save_checkpoint({"format": CHECKPOINT_FORMAT, "identity": identity, "model": model.state_dict(),
+                                 "optimizer": optimizer.state_dict(), "shuffle": shuffle.get_state(),
+                                 "sampler": sampler.state(), "noise": noise,
+                                 "history": dataclasses.asdict(history)})
     model.eval()
     return history
+
+
+def _epoch_losses(values: torch.Tensor, counts: list[int], ranks: Ranks) -> tuple[list[float], list[float]]:
+    """Each step's total loss and the epoch's sums of each term x frames, over every rank's frames, from this
+    rank's steps' loss terms `values` (steps, 4) and frame counts. One process: its own (the arithmetic it has
+    always done); several: each step's loss the frame-weighted mean of the ranks' (one reduction an epoch)."""
+    weighted = values * torch.tensor(counts, dtype=values.dtype, device=values.device)[:, None]
+    if not ranks.parallel:
+        return values[:, 0].tolist(), weighted.sum(dim=0).tolist()
+    per_step = data_parallel.sum_over_ranks(
+        torch.cat([weighted, torch.tensor(counts, dtype=values.dtype, device=values.device)[:, None]], dim=1), ranks)
+    return (per_step[:, 0] / per_step[:, -1]).tolist(), per_step[:, :-1].sum(dim=0).tolist()
 
 
 def _check_finite(history: History, epoch: int) -> None:
@@ -257,13 +291,16 @@ def split_batch_size(batch_size: int) -> int:
     return max(batch_size, SPLIT_BATCH)
 
 
-def _noise_state(device: torch.device) -> torch.Tensor:
+def _noise_state(device: torch.device, ranks: Ranks = SINGLE) -> torch.Tensor:
     """The state of the generator that input noise draws from (torch's default one on `device`): saved so that
-    a resumed run draws the noise the uninterrupted one would have."""
-    return torch.cuda.get_rng_state(device) if device.type == "cuda" else torch.get_rng_state()
+    a resumed run draws the noise the uninterrupted one would have; of several ranks every rank's, one row each."""
+    state = torch.cuda.get_rng_state(device) if device.type == "cuda" else torch.get_rng_state()
+    return data_parallel.gather_over_ranks(state, ranks) if ranks.parallel else state
 
 
-def _restore_noise_state(state: torch.Tensor, device: torch.device) -> None:
+def _restore_noise_state(state: torch.Tensor, device: torch.device, ranks: Ranks = SINGLE) -> None:
+    if ranks.parallel:
+        state = state[ranks.rank].clone()     # its own storage: set_rng_state reads a view's from its start
     if device.type == "cuda":
         torch.cuda.set_rng_state(state, device)
     else:
@@ -272,7 +309,7 @@ def _restore_noise_state(state: torch.Tensor, device: torch.device) -> None:
 
 def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model: torch.nn.Module,
             optimizer: torch.optim.Optimizer, shuffle: torch.Generator, sampler: Sampler,
-            on_notice: Callable[[str], None], device: torch.device) -> History:
+            on_notice: Callable[[str], None], device: torch.device, ranks: Ranks = SINGLE) -> History:
     """Restore model, optimiser, shuffle and sampler states from a matching checkpoint; a fresh History
     otherwise."""
     if not (isinstance(state, dict) and state.get("format") == CHECKPOINT_FORMAT
@@ -289,8 +326,8 @@ def _resume(state: dict[str, Any], identity: dict[str, Any], epochs: int, model:
         shuffle.set_state(state["shuffle"])
         sampler.restore(state["sampler"])
         if "noise" in state:       # checkpoints written before input noise existed have none
-            _restore_noise_state(state["noise"], device)
-    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as err:
+            _restore_noise_state(state["noise"], device, ranks)
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError, RuntimeError) as err:
         # The message of a failed load_state_dict spans lines; the type is enough to say it is damaged.
         raise CheckpointError(f"checkpoint contents cannot be restored ({type(err).__name__})") from None
     history.resumed_from_epoch = history.epochs_done

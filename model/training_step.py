@@ -17,8 +17,12 @@ from model.mesh_hierarchy import MeshHierarchy
 
 LOSS_TERMS = ("l1", "l2", "normal")   # the terms a Problem's batch_loss returns beside the total
 WARMUP_STEPS = 3                      # eager steps on a side stream before capture (lazy initialisations)
+# DistributedDataParallel's own: its reducer settles its buckets over the first iterations, and torch's CUDA-graph
+# notes ask for at least 11 eager DDP iterations before a whole step with its gradient reduction is captured.
+DDP_WARMUP_STEPS = 11
 
-Step = Callable[[torch.Tensor], torch.Tensor]   # frame ids (B,) -> (total, l1, l2, normal) of that batch, 0-d each
+# frame ids (B,) and the weight of their loss in the gradient -> (total, l1, l2, normal) of that batch, 0-d each
+Step = Callable[[torch.Tensor, float], torch.Tensor]
 LR_SCHEDULES = ("constant", "cosine")
 COSINE_FLOOR = 0.01    # a cosine schedule ends at 1 % of the base rate, not 0: the last steps still move
 
@@ -64,13 +68,15 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, rate: float) -> None:
 
 def eager_step(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHierarchy], problem: BatchLoss,
                optimizer: torch.optim.Optimizer, weights) -> Step:
-    """Loss of the batch, backward, optimiser step; returns the loss terms, detached, on the device."""
-    def step(ids: torch.Tensor) -> torch.Tensor:
+    """Loss of the batch, backward of `weight` x the loss, optimiser step; returns the loss terms (unweighted),
+    detached, on the device. The weight is a rank's share of a shorter last step (model.data_parallel), 1
+    otherwise."""
+    def step(ids: torch.Tensor, weight: float = 1.0) -> torch.Tensor:
         loss, terms = problem.batch_loss(model, mesh, ids, weights)
         # Zeroed in place rather than dropped: a captured step must find the same gradient tensors at every
         # replay (and 0 + g is g, so the eager arithmetic is unchanged).
         optimizer.zero_grad(set_to_none=False)
-        loss.backward()
+        (loss if weight == 1.0 else loss * weight).backward()
         optimizer.step()
         return torch.stack([loss.detach(), *(terms[name].detach() for name in LOSS_TERMS)])
     return step
@@ -78,22 +84,23 @@ def eager_step(model: torch.nn.Module, mesh: MeshHierarchy | Mapping[str, MeshHi
 
 class GraphedStep:
     """`step` for batches of `batch_size` frame ids on one CUDA device, replayed as a graph after WARMUP_STEPS
-    eager steps (run on a side stream, as capture requires); a batch of another size (an epoch's last) runs
-    eagerly. Every call is a real training step, the warm-up ones included. The optimiser must be capturable."""
+    eager steps (run on a side stream, as capture requires; `warmup` of them, DDP_WARMUP_STEPS for a network run
+    through DistributedDataParallel); a batch of another size or weight (an epoch's last) runs eagerly. Every call
+    is a real training step, the warm-up ones included. The optimiser must be capturable."""
 
-    def __init__(self, step: Step, batch_size: int, device: torch.device):
+    def __init__(self, step: Step, batch_size: int, device: torch.device, warmup: int = WARMUP_STEPS):
         if torch.device(device).type != "cuda":
             raise ValueError(f"a CUDA graph needs a CUDA device, not {device}")
         self._step = step
         self._ids = torch.zeros(batch_size, dtype=torch.int64, device=device)
         self._graph: torch.cuda.CUDAGraph | None = None
         self._values: torch.Tensor | None = None
-        self._warm = 0
+        self._warm, self._warmup = 0, warmup
 
-    def __call__(self, ids: torch.Tensor) -> torch.Tensor:
-        if len(ids) != len(self._ids):
-            return self._step(ids)
-        if self._graph is None and self._warm < WARMUP_STEPS:
+    def __call__(self, ids: torch.Tensor, weight: float = 1.0) -> torch.Tensor:
+        if len(ids) != len(self._ids) or weight != 1.0:
+            return self._step(ids, weight)
+        if self._graph is None and self._warm < self._warmup:
             self._warm += 1
             side = torch.cuda.Stream(device=self._ids.device)
             side.wait_stream(torch.cuda.current_stream(self._ids.device))

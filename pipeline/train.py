@@ -9,6 +9,8 @@
         [--sample-share 1] [--sample-block 1] [--sample-buffer 4096] [--device-cache-gb GB]
         [--train-on train[,held_out]] [--threads N] [--quiet]
 
+    torchrun --nproc_per_node=N -m pipeline.train ...   (the same flags: N ranks, --batch-size frames each)
+
 A checkpoint (default MODEL.pt.ckpt) is written after every epoch; rerunning the same command after a kill
 resumes from it (bit for bit on the same device and thread count), and it is removed once model.pt and train.h5
 are complete. A file at the checkpoint path that is not a checkpoint is refused, not overwritten, and so is a
@@ -29,6 +31,12 @@ frames too: an oracle whose held-out error is what the architecture can reach on
 the evaluation's report say. With --settings (a
 scene's resolved settings.json), `network.*`, `training.*` (loss weights from `training.loss`) and `device` are
 the defaults of the flags of the same names, --arch included.
+
+Under torchrun (or any launcher that sets WORLD_SIZE, RANK, LOCAL_RANK, MASTER_ADDR and MASTER_PORT) the ranks
+train together with DistributedDataParallel (model.data_parallel): NCCL on CUDA, one GPU a rank (cuda:LOCAL_RANK,
+or a free one of the workflow's shared pool), gloo on the CPU. Every step takes --batch-size frames of each rank,
+so N ranks train the model one process trains at N x --batch-size, up to rounding; rank 0 alone shows progress
+and writes the checkpoint, model.pt and train.h5, and a rerun resumes from the checkpoint with the same N.
 """
 from __future__ import annotations
 
@@ -44,7 +52,9 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from model import data_parallel
 from model.autoregressive import reads_previous_output
+from model.data_parallel import Ranks
 from model.feature_spec import FEATURE_CHANNELS, FRAMES, TANGENTS
 from model.losses import LossWeights
 from model.sampler import Sampler, SampleSettings
@@ -54,7 +64,7 @@ from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, Learni
                                         read_frame_origins, read_library_windows)
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.train_log import write_train_log
-from pipeline.core import cli
+from pipeline.core import cli, gpu_slots
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
 from pipeline.core.torch_setup import configure_torch
@@ -137,6 +147,16 @@ def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -
     return n_bytes <= budget_gb * 2 ** 30
 
 
+def rank_device(ranks: Ranks, device: str) -> str:
+    """The device of this process: `device` itself for one process or the CPU; of several ranks on CUDA, a GPU
+    each: a free one of the workflow's shared pool (pipeline.core.gpu_slots; the job asked for one a rank),
+    which the rank sees as cuda:0, or else the launcher's GPUs (torchrun's, a Slurm job's), one a local rank,
+    whatever index `device` names."""
+    if not (ranks.parallel and device.startswith("cuda")):
+        return device
+    return "cuda:0" if gpu_slots.claim_gpu() is not None else f"cuda:{ranks.local}"
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.train", description=__doc__.splitlines()[0])
     parser.add_argument("dataset"), parser.add_argument("operators")
@@ -209,8 +229,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     checkpoint = Path(args.checkpoint or f"{args.model}.ckpt")
     cli.refuse_aliases({"MODEL": args.model, "LOG": args.log, "--checkpoint": checkpoint},
                        {"DATASET": args.dataset, "OPERATORS": args.operators, "--settings": cli.settings_of(argv)})
-    device = configure_torch(args.device, args.seed, args.threads, deterministic=args.deterministic,
-                             tf32=args.tf32, cuda_graph=args.cuda_graph)
+    try:
+        ranks = Ranks.from_environment()
+    except ValueError as err:
+        raise PipelineError(f"torchrun's environment: {err}") from None
+    device = configure_torch(rank_device(ranks, args.device), args.seed, args.threads,
+                             deterministic=args.deterministic, tf32=args.tf32, cuda_graph=args.cuda_graph)
+    with data_parallel.process_group(ranks, device, graphed=args.cuda_graph):
+        train(args, sampling, checkpoint, device, ranks)
+
+
+def train(args: argparse.Namespace, sampling: SampleSettings, checkpoint: Path, device: torch.device,
+          ranks: Ranks) -> None:
+    """Load, build, fit and (rank 0) write model.pt and train.h5, as `main` checked the arguments."""
+    quiet = args.quiet or not ranks.main
     task_name, n_bytes = frame_bytes(args.dataset)
     stream = task_of(task_name, args.dataset).streams and not keep_resident(n_bytes, args.device_cache_gb, device)
     data = load_dataset(args.dataset, frames=not stream)
@@ -231,14 +263,14 @@ def main(argv: Sequence[str] | None = None) -> None:
         every = len(trained)
         trained = sequences_within(data, trained, args.train_frames, args.seed)
         args.epochs, sampling = same_steps(every, len(trained), args.epochs, sampling)
-        if not args.quiet:
+        if not quiet:
             print(f"train: {len(trained):,} of {every:,} frames (--train-frames {args.train_frames}), {args.epochs} "
                   f"epochs at a sample share of {sampling.share:g}: the steps of every frame", file=sys.stderr)
     reader = FrameReader(args.dataset) if stream else None
     try:
         frames = (task.streamed_frames(data, reader, split_batch_size(args.batch_size), device, args.sample_buffer)
                   if stream else task.frames(data, device))
-        if stream and not args.quiet:
+        if stream and not quiet:
             print(f"train: {n_bytes / 2 ** 30:.2f} GiB of frames streamed from {args.dataset} (more than "
                   f"--device-cache-gb or half the free memory)", file=sys.stderr)
         train_ids = torch.as_tensor(trained, device=device)
@@ -249,9 +281,10 @@ def main(argv: Sequence[str] | None = None) -> None:
                                  LossWeights(args.loss_l1, args.loss_l2, args.loss_normal), args.seed,
                                  args.cuda_graph, args.input_noise, args.lr_schedule, sampling)
         resume_from = read_checkpoint(checkpoint)
-        steps_per_epoch = -(-Sampler(len(trained), sampling).frames_per_epoch // args.batch_size)
+        steps_per_epoch = data_parallel.steps_of(Sampler(len(trained), sampling).frames_per_epoch, args.batch_size,
+                                                 ranks)
         start = time.perf_counter()
-        with training_bar("train", args.epochs, steps_per_epoch, args.quiet) as bar:
+        with training_bar("train", args.epochs, steps_per_epoch, quiet) as bar:
             on_batch = batch_reporter(bar, args.epochs, steps_per_epoch)
             identity = {"dataset": data.fingerprint, "operators": mesh.fingerprint(),
                         "spec": dataclasses.asdict(spec), "features": dataclasses.asdict(model.spec),
@@ -259,7 +292,8 @@ def main(argv: Sequence[str] | None = None) -> None:
             try:
                 history = fit(model, mesh.to(device), frames, train_ids, torch.as_tensor(data.test, device=device),
                               settings, resume_from, lambda state: write_checkpoint(checkpoint, state), identity,
-                              on_batch, lambda notice: bar.write(f"{checkpoint}: {notice}"))
+                              on_batch, lambda notice: not ranks.main or bar.write(f"{checkpoint}: {notice}"),
+                              ranks)
             except CheckpointError as err:
                 raise PipelineError(f"{checkpoint}: {err}") from None
             except Diverged as err:
@@ -268,8 +302,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     finally:
         if reader is not None:
             reader.close()
+    if not ranks.main:
+        return      # rank 0 writes what every rank trained
     config = {**vars(args), "parameter_count": parameter_count}
-    training = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "lr_schedule": args.lr_schedule,
+    training = {"epochs": args.epochs, "batch_size": args.batch_size, "ranks": ranks.size, "lr": args.lr,
+                "lr_schedule": args.lr_schedule,
                 "seed": args.seed, "deterministic": args.deterministic, "tf32": args.tf32, "cuda_graph": args.cuda_graph,
                 "input_noise": args.input_noise, "sampling": dataclasses.asdict(sampling),
                 "streamed": stream, "train_on": args.train_on, "train_frames": len(trained),

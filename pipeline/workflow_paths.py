@@ -34,6 +34,24 @@ def one_of(names: Iterable[str]) -> str:
     return "|".join(map(re.escape, names)) or "(?!)"
 
 
+def train_launcher(settings: Settings) -> list[str]:
+    """What comes between the interpreter and `-m pipeline.train` in the train job: nothing for one process;
+    torchrun (`python -m torch.distributed.run`, on this machine, a free port of its own) for `training.ranks`
+    processes."""
+    ranks = settings["training"]["ranks"]
+    return [] if ranks == 1 else ["-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={ranks}"]
+
+
+def train_gpus(settings: Settings) -> int:
+    """GPUs the train job asks for: one a rank on a CUDA device, none on the CPU."""
+    return settings["training"]["ranks"] if settings["device"].startswith("cuda") else 0
+
+
+def rank_threads(settings: Settings, threads: int) -> int:
+    """CPU threads of each of the train job's ranks: the job's threads shared out, at least one each."""
+    return max(1, threads // settings["training"]["ranks"])
+
+
 def batch_rule_name(stage: str, scene: str, shard: int) -> str:
     """The name of the rule that runs `stage` on shard `shard` of a sharded scene: a Python identifier (the
     scene's other characters become _), one per scene and shard."""

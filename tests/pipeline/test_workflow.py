@@ -175,6 +175,20 @@ def test_the_plan_states_what_the_runs_and_the_dataset_weigh(tiny_pants_build):
     assert sum(per_frame) / frames <= 12 * sum(counts.values()) + workflow_plan.DATASET_FRAME_EXTRA
 
 
+def test_a_train_job_of_several_ranks_runs_them_under_torchrun_with_a_gpu_each(tmp_path):
+    """training.ranks: 2 on CUDA: the train job asks for two GPUs and runs two processes under torchrun, the job's
+    threads shared out between them."""
+    overlay = tmp_path / "ranks.yaml"
+    overlay.write_text(yaml.safe_dump({"profiles": {"cpu": {"scenes": {"patch": {"training": {"ranks": 2}}}}}}))
+    run = snakemake(tmp_path, "-n", "-p", "--configfile", str(REPO / "workflow_config.yaml"), str(overlay),
+                    "--config", "device=cuda:0", "--", "results/patch/model.pt")
+    assert run.returncode == 0, tail(run)
+    job = planned_jobs(run)["train"]
+    assert "gpu=2" in job["resources"] and job["threads"] == "2"
+    assert " -m torch.distributed.run --standalone --nproc_per_node=2 -m pipeline.train " in job["shell"]
+    assert " --threads 1 " in job["shell"]
+
+
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],
                                                                "oracle": True})
 def test_the_study_trains_one_network_per_count_and_variant_on_the_first_sequences(tiny_pants_build):

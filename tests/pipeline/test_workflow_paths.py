@@ -128,3 +128,14 @@ def test_a_library_that_cannot_be_listed_is_one_error_naming_the_scene_and_the_f
                                             f"folder does not exist"):
         workflow_paths.sequences_or_error("pants", lambda: sequence_names(settings))
     assert workflow_paths.sequences_or_error("pants", lambda: ["train_000"]) == ["train_000"]
+
+
+def test_the_train_job_runs_its_ranks_under_torchrun_with_a_gpu_and_a_share_of_the_threads_each():
+    one = {"device": "cuda:0", "training": {"ranks": 1}}
+    four = {"device": "cuda:0", "training": {"ranks": 4}}
+    assert workflow_paths.train_launcher(one) == [] and workflow_paths.train_gpus(one) == 1
+    assert workflow_paths.train_launcher(four) == ["-m", "torch.distributed.run", "--standalone",
+                                                   "--nproc_per_node=4"]
+    assert workflow_paths.train_gpus(four) == 4 and workflow_paths.train_gpus({**four, "device": "cpu"}) == 0
+    assert [workflow_paths.rank_threads(four, t) for t in (1, 4, 16, 17)] == [1, 1, 4, 4]
+    assert workflow_paths.rank_threads(one, 16) == 16

@@ -39,6 +39,7 @@ rule application_settings:
     params: settings=lambda w: application_settings(SETTINGS[w.scene], w.application)
     log: f"{APPLICATION}/logs/settings.log"
     benchmark: f"{APPLICATION}/benchmarks/settings.tsv"
+    localrule: True     # a JSON file: in Snakemake's own process, never a cluster job
     localrule: True
     threads: 1
     resources: mem_mb=500

@@ -31,21 +31,25 @@ rule dataset:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains.
+# Without --quiet: its progress bar (epoch, running loss) is what `make run` shows while it trains. With
+# `training.ranks: N` the job runs N processes under torchrun (one GPU each on CUDA), the job's threads shared out.
 rule train:
     input: settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5"
     output: model=f"{OUT}/model.pt", history=f"{OUT}/train.h5"
+    params:
+        launcher=lambda w: workflow_paths.train_launcher(SETTINGS[w.scene]),
+        threads=lambda w, threads: workflow_paths.rank_threads(SETTINGS[w.scene], threads),
     log: log_of("train")
     benchmark: benchmark_of("train")
     threads: workflow.cores
-    resources: mem_mb=8000, gpu=gpus_on_device
+    resources: mem_mb=8000, gpu=lambda w: workflow_paths.train_gpus(SETTINGS[w.scene])
     # Ahead of the study's, trade-off's and applications' jobs when they wait for the same GPU slots (`--resources
     # gpu=N`): the scene's own model and report are what the others compare against. (On the H100 the trade-off's
     # evaluations took every slot first and the lease ended before the scene's report was made.)
     priority: 1
     shell:
-        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
-        "--settings {input.settings:q} --threads {threads} 2>&1 | tee {log:q}"
+        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
+        "{output.history:q} --settings {input.settings:q} --threads {params.threads} 2>&1 | tee {log:q}"
 
 
 # dataset.h5 carries each frame's mannequin under scene.h5's names, so it is also the --scene the renders draw

@@ -13,6 +13,7 @@ rule settings:
     params: settings=lambda w: shared_settings(SETTINGS[w.scene])
     log: log_of("settings")
     benchmark: benchmark_of("settings")
+    localrule: True     # a JSON file: in Snakemake's own process, never a cluster job
     localrule: True
     threads: 1
     resources: mem_mb=500
@@ -27,6 +28,7 @@ rule simulation_settings:
     params: settings=lambda w: simulation_settings(SETTINGS[w.scene])
     log: log_of("simulation_settings")
     benchmark: benchmark_of("simulation_settings")
+    localrule: True
     localrule: True
     threads: 1
     resources: mem_mb=500
