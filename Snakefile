@@ -6,7 +6,7 @@
 # simulate.smk, learning.smk, study.smk (`results/<scene>/study/`: error against the amount of training motion),
 # applications.smk (`results/<scene>/pose/`, `pca/`), tradeoff.smk (`results/<scene>/tradeoff/`: speed against
 # accuracy), multi.smk (`results/multi/`: one network for several garments), convs.smk (`results/<scene>/convs/`: the
-# operators RC, EC, SP and SPD side by side).
+# operators RC, EC, SP and SPD side by side), hand.smk (the FEM hand's mesh, runs and dataset: joint angles -> skin).
 import os
 
 from snakemake.utils import min_version, validate
@@ -29,6 +29,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/scene.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learning.smk"
+include: "workflow/rules/hand.smk"
 include: "workflow/rules/study.smk"
 include: "workflow/rules/applications.smk"
 include: "workflow/rules/tradeoff.smk"

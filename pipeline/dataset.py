@@ -44,7 +44,8 @@ from typing import Any, Callable, Iterator, Sequence, TypeVar
 
 import numpy as np
 
-from pipeline.artifacts.dataset import RANDOM, WINDOWS, DatasetLayout, Split, SplitRule, write_dataset
+from pipeline.artifacts.dataset import (RANDOM, WINDOWS, DatasetLayout, Split, SplitRule, count_test_frames,
+                                       split_frames, write_dataset)
 from pipeline.artifacts.scene import (CAPSULE_A, CAPSULE_B, read_library_window, read_mannequin_frames, read_sequence,
                                       read_torso_transforms)
 from pipeline.artifacts.simulation import RunPhysics, read_run_outline, read_run_physics, read_trajectory
@@ -77,20 +78,6 @@ class SequenceSource:
     @property
     def kept(self) -> int:
         return self.n_frames - self.first
-
-
-def count_test_frames(n_frames: int, test_fraction: float) -> int:
-    """How many of `n_frames` training frames are test: the share rounded, at least one, and one short of all."""
-    if n_frames < 2:
-        raise PipelineError(f"a train/test split needs at least 2 frames of training sequences, got {n_frames}")
-    return min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
-
-
-def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded random split: sorted train and test frame ids, at least one frame in each."""
-    n_test = count_test_frames(n_frames, test_fraction)
-    order = np.random.default_rng(seed).permutation(n_frames)
-    return np.sort(order[n_test:]), np.sort(order[:n_test])
 
 
 # A clock of the frames: per frame a key (frames of one key share a timeline; -1: on no timeline of this clock)

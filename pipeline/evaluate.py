@@ -310,7 +310,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     comparison = None if len(shown) == 0 else fit_comparison(
         [low_positions[shown]], [truth[shown]], low_faces, data.faces,
         [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.predictor, predicted)],
-        input_label=task.input_label, predictor_label=task.predictor_label)
+        input_label=task.input_label, predictor_label=task.predictor_label, truth_label=task.truth_label)
 
     def frame_meshes(frame: int) -> FrameMeshes:
         return FrameMeshes(low_positions[frame], data.predictor[frame], truth[frame], predicted[frame],
@@ -588,12 +588,12 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     ]
     if videos:
         sections.append(Section("Videos", [Paragraphs(
-            f"{shown_input} | high-res ground truth | network output | |error| of the network, through one camera "
+            f"{shown_input} | {task.truth_label} | network output | |error| of the network, through one camera "
             "and on one colour scale for every frame, the stills' too (saturating at the 99th percentile of the "
             "errors of every frame shown).")] + [Video(path, caption) for path, caption in videos]))
     if pictures:
         sections.append(Section("Renders", [Paragraphs(
-            f"Test (and held-out) frames: {task.input_label} | high-res ground truth | network output | |error| of "
+            f"Test (and held-out) frames: {task.input_label} | {task.truth_label} | network output | |error| of "
             f"{task.predictor_label} alone | |error| of the network (one colour scale, saturating at the 99th "
             "percentile of the errors of every frame shown).")] + [Picture(path, path.stem) for path in pictures]))
     sections += [
@@ -603,7 +603,8 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
             f"Median **{np.median(times):.2f} ms per frame** on {device} on the deployment path ({times.path}; "
             f"{task.timed}, one frame per call, {len(times)} test frame(s) timed "
             f"after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, max {times.max():.2f} ms); eager PyTorch on "
-            f"the same frames: median {np.median(times.eager):.2f} ms. {task.timing_reference}")]),
+            f"the same frames: median {np.median(times.eager):.2f} ms. "
+            f"{task.timing_note(args.dataset, float(np.median(times)))}{task.timing_reference}")]),
         Section("Files", [Links(files)]),
     ]
     return sections

@@ -22,6 +22,8 @@ Settings = dict[str, Any]
 SCENE_PRODUCTS = ("operators.h5", "dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html",
                   "renders", "videos", "export")
 SEQUENCE_PRODUCTS = ("sim_low.h5", "sim_high.h5")
+# The hand scene's (mesh.generator hand, workflow/rules/hand.smk): its skin and tet volume, a FEM run a sequence.
+HAND_MESH, HAND_RUN = "hand.h5", "fem.h5"
 # What each model folder of an application (pose, pca/k<K>) holds.
 APPLICATION_PRODUCTS = ("dataset.h5", "model.pt", "train.h5", "eval.h5", "report.md", "report.html", "renders",
                         "videos", "export")
@@ -66,9 +68,25 @@ def sequence_files(scene: str, sequences: list[str], name: str) -> list[str]:
     return [f"{folder}/{name}" for folder in sequence_folders(scene, sequences)]
 
 
-def scene_products(scene: str, sequences: list[str]) -> list[str]:
-    """What `results/<scene>/` stands for: each sequence's runs, then the scene's products."""
-    return ([f"results/{scene}/sequences/{seq}/{name}" for seq in sequences for name in SEQUENCE_PRODUCTS]
+def is_hand(settings: Settings) -> bool:
+    """Whether a scene is a hand (its FEM runs and dataset are hand.smk's) rather than cloth."""
+    return settings["mesh"]["generator"] == "hand"
+
+
+def sequence_products(settings: Settings) -> tuple[str, ...]:
+    """What each sequence of the scene is simulated into: the cloth's two runs, or the hand's FEM run."""
+    return (HAND_RUN,) if is_hand(settings) else SEQUENCE_PRODUCTS
+
+
+def operators_mesh(scene: str, settings: Settings) -> str:
+    """The mesh a scene's operators are built on: the subdivided cloth (subdiv.h5) or the hand's skin (hand.h5)."""
+    return f"results/{scene}/{HAND_MESH if is_hand(settings) else 'subdiv.h5'}"
+
+
+def scene_products(scene: str, sequences: list[str], per_sequence: tuple[str, ...] = SEQUENCE_PRODUCTS) -> list[str]:
+    """What `results/<scene>/` stands for: each sequence's runs (`per_sequence`: sequence_products), then the
+    scene's products."""
+    return ([f"results/{scene}/sequences/{seq}/{name}" for seq in sequences for name in per_sequence]
             + [f"results/{scene}/{name}" for name in SCENE_PRODUCTS])
 
 

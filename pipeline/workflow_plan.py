@@ -19,8 +19,8 @@ from typing import Iterable
 from pipeline.artifacts.subdiv import read_vertex_counts
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import (check_bvh_files, check_garment_file, garment_files, sequences_or_error,
-                                     subdiv_file)
+from pipeline.workflow_paths import (HAND_MESH, check_bvh_files, check_garment_file, garment_files, is_hand,
+                                     sequences_or_error, subdiv_file)
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
 
@@ -57,7 +57,8 @@ def plan(config: dict, announce: bool = True, targets: Iterable[str] = ()) -> tu
     if announce:
         print(_cost_line(costs), file=sys.stderr)
         for scene in targeted_scenes(targets, settings, config["default_scene"]):
-            print(_disk_line(scene, costs[scene]), file=sys.stderr)
+            line = _hand_disk_line if is_hand(settings[scene]) else _disk_line
+            print(line(scene, costs[scene]), file=sys.stderr)
     return settings, sequences
 
 
@@ -111,6 +112,19 @@ def _disk_line(scene: str, cost: tuple[int, int]) -> str:
     runs, dataset = disk_bytes(n_low, n_high, cost[1])
     return (f"disk: {scene}, {n_low:,} -> {n_high:,} vertices: {_size(runs)} of runs "
             f"({_size(runs / cost[1])} a frame of both levels), at most {_size(dataset)} of dataset")
+
+
+def _hand_disk_line(scene: str, cost: tuple[int, int]) -> str:
+    """A hand scene's disk: its FEM runs store the skin a frame, its dataset the predictor and target besides."""
+    path = f"results/{scene}/{HAND_MESH}"
+    if not os.path.exists(path):
+        return f"disk: known for {scene} once its mesh is made (`snakemake {path}`, seconds)"
+    # Imported here, once a hand's mesh exists: the Snakefile imports this module at every start.
+    from pipeline.artifacts.hand import read_skin_vertex_count
+    runs, _ = disk_bytes(0, read_skin_vertex_count(path), cost[1])
+    return (f"disk: {scene}, {read_skin_vertex_count(path):,} skin vertices: {_size(runs)} of FEM runs "
+            f"({_size(runs / cost[1])} a frame), at most {_size(2 * runs + cost[1] * DATASET_FRAME_EXTRA)} of "
+            f"dataset")
 
 
 def _size(n_bytes: float) -> str:

@@ -10,9 +10,12 @@
 """
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 
 from scenes.hand_skeleton import ANGLE_LIMITS, ANGLE_NAMES, fist_angles
+from scenes.sequences import TRAIN, parse_sequence_name
 
 
 def _smootherstep(t: np.ndarray) -> np.ndarray:
@@ -62,3 +65,20 @@ def fist_trajectory(frames: int) -> np.ndarray:
             if name.startswith(finger):
                 out[:, k] = closure * closed[k]
     return out
+
+
+# The held-out motions a config may name (drivers.hand.test_motions), each of `frames` frames.
+HELD_OUT_MOTIONS = {"fist": fist_trajectory}
+
+
+def sequence_angles(name: str, frames: int, fps: float, drive: Mapping) -> np.ndarray:
+    """(frames, 18) the angles sequence `name` plays (scenes.sequences): training sequence k the random trajectory
+    of seed drive["seed"] + k, held-out sequence k the motion drive["test_motions"][k]. ValueError for a name
+    the drive has no motion for."""
+    role, index = parse_sequence_name(name)
+    if role == TRAIN:
+        return random_trajectory(frames, fps, drive["seed"] + index, drive["min_interval"], drive["max_interval"])
+    motions = drive["test_motions"]
+    if index >= len(motions) or motions[index] not in HELD_OUT_MOTIONS:
+        raise ValueError(f"no held-out hand motion for sequence '{name}' (test_motions: {motions})")
+    return HELD_OUT_MOTIONS[motions[index]](frames)

@@ -89,10 +89,15 @@ def wears_garment(settings: dict) -> bool:
 
 
 def held_out_clips(settings: dict) -> list:
-    """The held-out clip entries: `drivers.mannequin.test_clips` when `dataset.split` is `held_out`, else none."""
-    if not wears_garment(settings) or settings["dataset"]["split"] != HELD_OUT:
+    """The held-out clip entries when `dataset.split` is `held_out`: a garment's `drivers.mannequin.test_clips`, the
+    hand's `drivers.hand.test_motions`; else none."""
+    if settings["dataset"]["split"] != HELD_OUT:
         return []
-    return list(settings["drivers"]["mannequin"]["test_clips"])
+    if wears_garment(settings):
+        return list(settings["drivers"]["mannequin"]["test_clips"])
+    if settings["mesh"]["generator"] == "hand":
+        return list(settings["drivers"]["hand"]["test_motions"])
+    return []
 
 
 def training_clips(settings: dict) -> list:

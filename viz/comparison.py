@@ -25,6 +25,7 @@ class Comparison:
     value_label: str = "|error| (scene units)"
     input_label: str = "low-res input"            # the first panel: what the network is given, as a mesh
     predictor_label: str = "Loop subdivision"     # what the network's output is added to
+    truth_label: str = "high-res ground truth"    # what the network is trained towards (the hand's: its FEM)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +41,8 @@ class FrameMeshes:
 
 def fit_comparison(low: Sequence[np.ndarray], truth: Sequence[np.ndarray], low_faces: np.ndarray,
                    faces: np.ndarray, errors: Sequence[np.ndarray], error_percentile: float = 99.0,
-                   input_label: str = "low-res input", predictor_label: str = "Loop subdivision") -> Comparison:
+                   input_label: str = "low-res input", predictor_label: str = "Loop subdivision",
+                   truth_label: str = "high-res ground truth") -> Comparison:
     """The camera framing the garment of every frame to be shown (its low-res input and ground truth: a wild
     network output leaves the frame instead of shrinking the cloth in it), and the colour scale saturating at
     `error_percentile` of `errors` (per-vertex |error| arrays): a few large boundary errors would otherwise wash
@@ -48,7 +50,7 @@ def fit_comparison(low: Sequence[np.ndarray], truth: Sequence[np.ndarray], low_f
     view = fit_view([*low, *truth])
     values = np.concatenate([np.ravel(e) for e in errors]) if len(errors) else np.zeros(1)
     return Comparison(low_faces, faces, view, float(np.percentile(values, error_percentile)),
-                      input_label=input_label, predictor_label=predictor_label)
+                      input_label=input_label, predictor_label=predictor_label, truth_label=truth_label)
 
 
 def comparison_image(comparison: Comparison, frame: FrameMeshes, title: str, predictor_error: bool = True,
@@ -57,7 +59,7 @@ def comparison_image(comparison: Comparison, frame: FrameMeshes, title: str, pre
     subdivision alone (if `predictor_error`) | |error| of the network, through the comparison's camera."""
     c = comparison
     panels = [Panel(c.input_label, frame.low, c.low_faces, backdrop=frame.body),
-              Panel("high-res ground truth", frame.truth, c.faces, backdrop=frame.body),
+              Panel(c.truth_label, frame.truth, c.faces, backdrop=frame.body),
               Panel("network output", frame.predicted, c.faces, backdrop=frame.body)]
     if predictor_error:
         panels.append(Panel(f"error: {c.predictor_label}", frame.truth, c.faces,

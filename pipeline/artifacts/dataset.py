@@ -91,6 +91,21 @@ class Split:
     test_split: SplitRule = SplitRule()
 
 
+def count_test_frames(n_frames: int, test_fraction: float) -> int:
+    """How many of `n_frames` training frames are test: the share rounded, at least one, and one short of all."""
+    if n_frames < 2:
+        raise PipelineError(f"a train/test split needs at least 2 frames of training sequences, got {n_frames}")
+    return min(max(1, int(round(test_fraction * n_frames))), n_frames - 1)
+
+
+def split_frames(n_frames: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded random split (the paper's; every task's dataset draws it so): sorted train and test frame ids, at
+    least one frame in each."""
+    n_test = count_test_frames(n_frames, test_fraction)
+    order = np.random.default_rng(seed).permutation(n_frames)
+    return np.sort(order[n_test:]), np.sort(order[:n_test])
+
+
 @dataclasses.dataclass(frozen=True)
 class PcaBasis:
     """A PCA of high-res positions (reference frame): x ≈ mean + sum_k c_k components[k], components orthonormal
@@ -113,6 +128,8 @@ class TaskLayout:
     input_meaning: str
     predictor_meaning: str
     pca: PcaBasis | None = None
+    # root attrs of the task's own (the hand: what its simulation cost a frame; read back by read_task_attrs)
+    attrs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,6 +303,7 @@ def _write_split(f, split: Split) -> None:
 def _write_task(f, task: TaskLayout) -> None:
     """A decoder task's attrs and, for PCA, its basis."""
     f.attrs[TASK] = task.name
+    f.attrs.update(task.attrs)
     f[INPUT].attrs["meaning"] = task.input_meaning
     f[PREDICTOR].attrs["meaning"] = task.predictor_meaning
     f[TARGET].attrs["meaning"] = "displacement x_high - predictor, per frame (F, V_high, 3)"
@@ -434,6 +452,15 @@ def load_dataset(path: str | os.PathLike, frames: bool = True) -> LearningData:
     return LearningData(inputs, targets, faces, rest_vertices, train, test, digest.hexdigest(), held_out, sequence,
                         previous, context, frame, held_out_clips, task, stored_predictor, pca, guard, test_split,
                         subdivision)
+
+
+def read_task_attrs(path: str | os.PathLike, names: tuple[str, ...]) -> dict[str, Any] | None:
+    """The root attrs `names` a task stored (TaskLayout.attrs), or None if any is missing."""
+    with open_artifact(path) as f:
+        if any(name not in f.attrs for name in names):
+            return None
+        return {name: f.attrs[name].item() if isinstance(f.attrs[name], np.generic) else f.attrs[name]
+                for name in names}
 
 
 def frame_bytes(path: str | os.PathLike) -> tuple[str, int]:

@@ -219,9 +219,21 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     """Rules between keys that a schema cannot state."""
     def fail(message: str):
         raise PipelineError(f"{source}: {where}: {message}")
-    garment = wears_garment(settings)
+    generator = settings["mesh"]["generator"]
+    garment, hand = wears_garment(settings), generator == "hand"
     if garment != (settings["drivers"]["pins"] == "attachment"):
         fail("drivers.pins must be 'attachment' exactly when mesh.generator is 'garment' or 'garment_file'")
+    if hand != (settings["drivers"]["pins"] == "bones"):
+        fail("drivers.pins must be 'bones' exactly when mesh.generator is 'hand'")
+    if hand != (settings["solver"].get("kind") == "fem"):
+        fail("solver.kind must be 'fem' exactly when mesh.generator is 'hand' (the volumetric FEM moves the hand)")
+    if "fem" in settings["solver"] and not hand:
+        fail("solver.fem applies only to solver.kind 'fem'")
+    if hand:
+        drive = settings["drivers"]["hand"]
+        if drive["min_interval"] > drive["max_interval"]:
+            fail(f"drivers.hand.min_interval {drive['min_interval']} is more than max_interval "
+                 f"{drive['max_interval']}")
     if not garment and (settings["physics"]["body_collision"] or settings["dataset"]["frame"] == "torso"):
         fail("physics.body_collision and dataset.frame 'torso' need a mannequin (mesh.generator 'garment' or 'garment_file')")
     if settings["network"]["conv"] not in settings["operators"]["conv"]:
@@ -241,8 +253,10 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
         if merged["network"]["conv"] not in merged["operators"]["conv"]:
             fail(f"applications.{name}: network.conv '{merged['network']['conv']}' is not among its operators.conv "
                  f"{merged['operators']['conv']}")
-    if not garment and settings["sequences"] != 1:
+    if generator == "grid" and settings["sequences"] != 1:
         fail(f"sequences {settings['sequences']}: a grid scene has one sequence (its rod's motion)")
+    if hand and settings["sequences"] < 1:
+        fail("sequences 0: the hand needs training sequences")
     library = library_of(settings)
     if garment and settings["sequences"] == 0 and library is None:
         fail("sequences 0: a garment scene without a motion library (drivers.mannequin.library) needs training "
@@ -251,11 +265,13 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     if held_subjects and (library is None or settings["dataset"]["split"] != "held_out"):
         fail("library_windows.held_out_subjects needs drivers.mannequin.library and dataset.split 'held_out'")
     if settings["dataset"]["split"] == "held_out":
-        if not garment:
-            fail("dataset.split 'held_out' needs mannequin clips (mesh.generator 'garment' or 'garment_file')")
+        if not (garment or hand):
+            fail("dataset.split 'held_out' needs mannequin clips or hand motions (mesh.generator 'garment', "
+                 "'garment_file' or 'hand')")
         if not held_out_clips(settings) and not held_subjects:
-            fail("dataset.split 'held_out' needs drivers.mannequin.test_clips or library_windows.held_out_subjects")
-        if settings["sequences"] and not training_clips(settings):
+            fail("dataset.split 'held_out' needs drivers.mannequin.test_clips, drivers.hand.test_motions or "
+                 "library_windows.held_out_subjects")
+        if garment and settings["sequences"] and not training_clips(settings):
             fail(f"drivers.mannequin.clips {_names(settings['drivers']['mannequin']['clips'])} are all held out "
                  f"(test_clips): training sequences need at least one other")
     if garment:

@@ -1,6 +1,7 @@
 """The learning problems of paper Table 2 as tasks of the shared learning stages: `upsampling` (Loop-subdivided
 low-res run → high-res), `pose` (the mannequin's 208 pose scalars → cloth, over linear blend skinning) and `pca`
-(K PCA coefficients of the high-res run → its details, over the PCA reconstruction). docs/architecture.md,
+(K PCA coefficients of the high-res run → its details, over the PCA reconstruction) and `hand` (18 joint angles →
+the FEM hand's skin, over linear blend skinning). docs/architecture.md,
 "Applications", says where each lives."""
 from __future__ import annotations
 
@@ -9,12 +10,13 @@ import torch
 from model.training import Frames
 from pipeline.artifacts.dataset import LearningData
 from pipeline.core.errors import PipelineError
+from pipeline.tasks.hand import HandTask
 from pipeline.tasks.pca import PcaTask
 from pipeline.tasks.pose import PoseTask
 from pipeline.tasks.task import Task
 from pipeline.tasks.upsampling import UpsamplingTask
 
-TASKS: dict[str, Task] = {task.name: task for task in (UpsamplingTask(), PoseTask(), PcaTask())}
+TASKS: dict[str, Task] = {task.name: task for task in (UpsamplingTask(), PoseTask(), PcaTask(), HandTask())}
 
 
 def task_of(name: str, where: str) -> Task:

@@ -133,6 +133,7 @@ class Task(abc.ABC):
     network: NetworkKind      # the network this task trains
     predictor_label = ""      # "Loop subdivision": how reports name the predictor
     input_label = ""          # the first panel of a render: what the network is given, as a mesh
+    truth_label = "high-res ground truth"    # the second: what it is trained towards
     timing_reference = ""     # the paper's figures to compare the inference time with
     timed = ""                # what the inference time covers
     streams = False           # whether training may read its frames from disk a batch at a time (streamed_frames)
@@ -181,4 +182,9 @@ class Task(abc.ABC):
 
     def error_note(self, data: LearningData) -> str:
         """A sentence on what the predictor is, for the report (empty by default)."""
+        return ""
+
+    def timing_note(self, dataset: str, network_ms: float) -> str:
+        """Sentences the report's inference time adds: what the network replaces costs, against its median
+        `network_ms` (empty by default)."""
         return ""

@@ -55,7 +55,7 @@ def test_a_large_plan_is_stated_and_refused_unless_allowed(capsys, tmp_path, mon
     assert "'pants' plans 6,012 jobs" in _plan_error(config, capsys)
     plan({**config, "allow_large": True})
     assert capsys.readouterr().err.splitlines() == [
-        "plan: 7 scene(s); the largest, pants: 6,012 jobs, 420,210 frames simulated a level (limits 1,000 and "
+        "plan: 8 scene(s); the largest, pants: 6,012 jobs, 420,210 frames simulated a level (limits 1,000 and "
         "500,000 a scene)", "disk: known for pants once its mesh is made (`snakemake results/pants/subdiv.h5`, "
         "seconds)"]
 
@@ -110,5 +110,5 @@ def test_the_plan_is_said_once_a_run(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert [line for line in done.stderr.splitlines() if line.startswith("plan:")] == [
-        "plan: 7 scene(s); the largest, pants: 24 jobs, 1,050 frames simulated a level (limits 1,000 and "
+        "plan: 8 scene(s); the largest, pants: 24 jobs, 1,050 frames simulated a level (limits 1,000 and "
         "500,000 a scene)"]

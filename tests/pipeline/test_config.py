@@ -102,6 +102,13 @@ def test_garment_scene_needs_no_grid_keys_and_refuses_them():
     ("pants", {"drivers": {"mannequin": {"test_clips": [{"bvh": "a.bvh", "start": 2, "end": 1.5}]}}},
      "BVH clip a.bvh: start 2 must come before end 1.5"),
     ("flag", {"sequences": 2}, "a grid scene has one sequence"),
+    ("hand", {"solver": {"kind": "xpbd"}}, "solver.kind must be 'fem' exactly when mesh.generator is 'hand'"),
+    ("pants", {"solver": {"kind": "fem"}}, "solver.kind must be 'fem' exactly when mesh.generator is 'hand'"),
+    ("flag", {"solver": {"fem": {"poisson_ratio": 0.3}}}, "solver.fem applies only to solver.kind 'fem'"),
+    ("hand", {"drivers": {"hand": {"min_interval": 2.0}}}, "min_interval 2.0 is more than max_interval 1.2"),
+    ("hand", {"drivers": {"hand": {"test_motions": []}}}, "needs drivers.mannequin.test_clips, drivers.hand.test"),
+    ("hand", {"sequences": 0}, "the hand needs training sequences"),
+    ("hand", {"mesh": {"max_edge": 0.1}}, "key 'max_edge' in scenes.hand.mesh applies only when generator is grid"),
 ])
 def test_inconsistent_settings_are_named(scene, change, message):
     config = copy.deepcopy(CONFIG)

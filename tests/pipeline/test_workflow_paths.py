@@ -42,6 +42,16 @@ def test_a_scenes_target_is_its_sequences_runs_then_its_products():
         "results/cloth/sequences/held_out_000/scene.h5"]
 
 
+def test_a_hand_scenes_sequences_are_fem_runs_and_its_operators_are_built_on_its_skin():
+    hand, cloth = {"mesh": {"generator": "hand"}}, {"mesh": {"generator": "garment"}}
+    products = workflow_paths.scene_products("hand", SEQUENCES, workflow_paths.sequence_products(hand))
+    assert products[:3] == [f"results/hand/sequences/{seq}/fem.h5" for seq in SEQUENCES]
+    assert products[3:] == workflow_paths.scene_products("hand", [])
+    assert workflow_paths.sequence_products(cloth) == ("sim_low.h5", "sim_high.h5")
+    assert workflow_paths.operators_mesh("hand", hand) == "results/hand/hand.h5"
+    assert workflow_paths.operators_mesh("pants", cloth) == "results/pants/subdiv.h5"
+
+
 def garment_settings(clips, test_clips):
     return {"mesh": {"generator": "garment"}, "dataset": {"split": "held_out"}, "sequences": 1,
             "drivers": {"mannequin": {"clips": clips, "test_clips": test_clips}}}

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from scenes.hand_motion import fist_trajectory, random_trajectory
+from scenes.hand_motion import fist_trajectory, random_trajectory, sequence_angles
 from scenes.hand_skeleton import ANGLE_LIMITS, ANGLE_NAMES, fist_angles, hand_transforms, hand_skeleton, part_angles
 
 
@@ -38,3 +38,15 @@ def test_the_fist_closes_finger_by_finger_holds_and_opens():
 def test_impossible_requests_are_refused(call):
     with pytest.raises(ValueError):
         call()
+
+
+DRIVE = {"seed": 7, "min_interval": 0.5, "max_interval": 1.0, "test_motions": ["fist"]}
+
+
+def test_a_sequence_plays_the_trajectory_its_name_and_the_drive_say():
+    np.testing.assert_array_equal(sequence_angles("train_002", 50, 60.0, DRIVE),
+                                  random_trajectory(50, 60.0, 9, 0.5, 1.0))       # seed 7 + index 2
+    np.testing.assert_array_equal(sequence_angles("held_out_000", 50, 60.0, DRIVE), fist_trajectory(50))
+    for name in ("held_out_001", "train_x"):
+        with pytest.raises(ValueError, match=name):
+            sequence_angles(name, 50, 60.0, DRIVE)

@@ -82,7 +82,12 @@ def sequence_folders(wildcards):
 
 def scene_products(scene):
     """What `results/<scene>/` stands for."""
-    return workflow_paths.scene_products(scene, SEQUENCES[scene])
+    return workflow_paths.scene_products(scene, SEQUENCES[scene], workflow_paths.sequence_products(SETTINGS[scene]))
+
+
+def operators_mesh(wildcards):
+    """The mesh the scene's operators are built on (the subdivided cloth, or the hand's skin)."""
+    return workflow_paths.operators_mesh(wildcards.scene, SETTINGS[wildcards.scene])
 
 
 def settled_runs(level, sequences=lambda w: [w.seq]):

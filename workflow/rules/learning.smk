@@ -2,15 +2,16 @@
 # and evaluation (torch on the scene's device, with the job's threads).
 
 
+# On the subdivided cloth (subdiv.h5), or a hand scene's skin (hand.h5).
 rule operators:
-    input: settings=f"{OUT}/settings.json", subdiv=f"{OUT}/subdiv.h5"
+    input: settings=f"{OUT}/settings.json", mesh=operators_mesh
     output: f"{OUT}/operators.h5"
     log: log_of("operators")
     benchmark: benchmark_of("operators")
     threads: 1
     resources: mem_mb=4000
     shell:
-        "{PY:q} -m pipeline.operators {input.subdiv:q} {output:q} --settings {input.settings:q} --quiet "
+        "{PY:q} -m pipeline.operators {input.mesh:q} {output:q} --settings {input.settings:q} --quiet "
         "2>&1 | tee {log:q}"
 
 
