@@ -32,9 +32,8 @@ from pipeline.artifacts.dataset import DatasetLayout, FrameReader, SequenceFrame
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core import cli
 from pipeline.core.h5 import atomic_h5, write_csr
-from pipeline.core.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch, keep_resident
 from pipeline.tasks.upsampling import UpsamplingTask
-from pipeline.train import keep_resident
 
 ARCH, CONV, LEVELS = "D16 D32 D D32", "RC7", 4
 FEATURES = FeatureSpec(("position", "velocity"))

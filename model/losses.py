@@ -17,12 +17,12 @@ _NORMAL_EPS2 = 1e-24
 
 def l1_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Eq. 4: mean over vertices of ||x^g - x^*||_1 / 3."""
-    return (target - predicted).abs().mean()
+    return _l1_terms(predicted, target).mean()
 
 
 def l2_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Eq. 5: sqrt(mean over vertices of ||x^g - x^*||_2^2)."""
-    squared = (target - predicted).square().sum(dim=-1).mean()
+    squared = _l2_terms(predicted, target).mean()
     # sqrt'(0) is infinite: an exact match must not turn the gradient into NaN.
     return torch.sqrt(squared.clamp_min(torch.finfo(squared.dtype).tiny))
 
@@ -39,7 +39,28 @@ def face_normals(positions: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 
 def normal_loss(predicted: torch.Tensor, target: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     """Eq. 6: mean over faces of ||n^g - n^*||_1 / 3."""
-    return (face_normals(target, faces) - face_normals(predicted, faces)).abs().mean()
+    return _normal_terms(predicted, target, faces).mean()
+
+
+def frame_terms(predicted: torch.Tensor, target: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    """(B, 3): each frame's L1, L2 squared and Ln, the means the losses above take over a whole batch taken
+    frame by frame. Every frame has as many vertices and faces, so a batch's L1 (L2 squared, Ln) is the mean of
+    its frames' (up to the order of the float sums): an evaluation sums them over a split a chunk at a time."""
+    return torch.stack([_l1_terms(predicted, target).mean(dim=(1, 2)), _l2_terms(predicted, target).mean(dim=1),
+                        _normal_terms(predicted, target, faces).mean(dim=(1, 2))], dim=1)
+
+
+# What the losses average (the same elementwise arithmetic for a batch's loss and for frame_terms).
+def _l1_terms(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (target - predicted).abs()
+
+
+def _l2_terms(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return (target - predicted).square().sum(dim=-1)
+
+
+def _normal_terms(predicted: torch.Tensor, target: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
+    return (face_normals(target, faces) - face_normals(predicted, faces)).abs()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -151,17 +151,6 @@ def split_errors(predict: Callable[[FrameBatch], torch.Tensor], frames: Frames, 
         return _errors(batches(), frames, len(ids), weights)
 
 
-def displacement_errors(displacement: torch.Tensor, frames: Frames, ids: torch.Tensor, batch_size: int,
-                        weights: LossWeights) -> dict[str, float]:
-    """`split_errors` of displacements already predicted for every frame (F, V, 3): a network run once over all
-    frames scores every split without running again."""
-    def batches():
-        for batch in in_batches(ids, batch_size):
-            yield batch, frames.store.predictor(batch), displacement[batch]
-    with torch.no_grad():
-        return _errors(batches(), frames, len(ids), weights)
-
-
 def _errors(batches, frames: Frames, count: int, weights: LossWeights) -> dict[str, float]:
     """The errors of (frame ids, S x_low, predicted displacement) batches over `count` frames in all."""
     sums = []      # per batch (l1, l2², normal) × its frame count, on the device until the end (no per-batch wait)
@@ -169,8 +158,13 @@ def _errors(batches, frames: Frames, count: int, weights: LossWeights) -> dict[s
         predicted, truth = positions + displacement, positions + frames.targets[batch]
         sums.append(torch.stack([l1_loss(predicted, truth), l2_loss(predicted, truth) ** 2,
                                  normal_loss(predicted, truth, frames.faces)]) * len(batch))
-    l1, l2sq, normal = (torch.stack(sums).sum(dim=0) / count).tolist()
-    errors = {"l1": l1, "l2": l2sq ** 0.5, "normal": normal}
+    return split_values(*(torch.stack(sums).sum(dim=0) / count).tolist(), weights)
+
+
+def split_values(l1: float, l2_squared: float, normal: float, weights: LossWeights) -> dict[str, float]:
+    """A split's errors from its mean L1, L2 squared and Ln over its frames: L2 is the root of the mean, and
+    the total eq. 7 with `weights`."""
+    errors = {"l1": l1, "l2": l2_squared ** 0.5, "normal": normal}
     errors["total"] = weights.l1 * errors["l1"] + weights.l2 * errors["l2"] + weights.normal * errors["normal"]
     return errors
 

@@ -3,7 +3,7 @@
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--settings SETTINGS.json]
         [--html REPORT.html] [--train-log TRAIN.h5] [--scene SCENE.h5] [--renders DIR] [--videos DIR]
         [--export DIR] [--render-frames 3] [--video-frames 120] [--export-frames 60] [--timing-frames 30]
-        [--device cpu] [--threads N] [--quiet]
+        [--device cpu] [--device-cache-gb GB] [--threads N] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (no network), so the network's gain shows. The dataset's task
@@ -19,18 +19,27 @@ The export folder (default `export/`) holds the predicted sequence as OBJ files 
 truth and prediction. A dataset of motion-library windows adds the held-out and test errors per category of the
 library's manifest and per subject, and a dataset that lists sequences dropped on the way adds them with their
 reasons. report.md links all of it; --html writes one self-contained page that embeds it.
+The network runs over every frame a chunk at a time (model.scoring), each chunk reduced to its frames' errors on
+the device: only the frames shown (stills, videos, GLB) are held to the end; eval.h5's predicted positions and the
+OBJ files are written as the chunks come. The frames stay on the device as training keeps them (within
+--device-cache-gb, default half the free memory); a larger dataset is read from disk a chunk at a time, with the
+same arithmetic (model.streaming). A network that reads its own previous output is rolled out over every frame at
+once, from a resident dataset only.
 A failed run leaves nothing behind: folders are filled under temporary names beside their final ones and renamed
 at the end, every file is written atomically. docs/artifacts.md lists what is written. With --settings (a
-scene's resolved settings.json), `evaluation.*` and `device` are the defaults of the flags of the same names.
+scene's resolved settings.json), `evaluation.*`, `training.device_cache_gb` and `device` are the defaults of the
+flags of the same names.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import math
 import os
 import secrets
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
@@ -40,14 +49,13 @@ import torch
 from tqdm import tqdm
 
 from geometry.rigid import apply_rigid_inverse
-from model.autoregressive import reads_previous_output, rollout
-from model.features import FrameStore
 from model.losses import LossWeights
-from model.training import displacement_errors, split_errors
+from model.scoring import Predict, score_frames
+from model.training import Frames
 from model.training_step import LR_SCHEDULES
-from pipeline.artifacts.dataset import (WINDOWS, LearningData, LibraryWindows, load_dataset, read_dropped,
-                                        read_library_windows)
-from pipeline.artifacts.evaluation import GROUPINGS, TERMS, WHO, Evaluation, GroupErrors, write_evaluation
+from pipeline.artifacts.dataset import (WINDOWS, FrameReader, LearningData, LibraryWindows, load_dataset,
+                                        read_dropped, read_library_windows)
+from pipeline.artifacts.evaluation import GROUPINGS, TERMS, WHO, Evaluation, GroupErrors, evaluation_output
 from pipeline.artifacts.model import load_model
 from pipeline.artifacts.scene import read_body, read_torso_transforms
 from pipeline.artifacts.train_log import TrainLog, read_train_log
@@ -55,8 +63,9 @@ from pipeline.core import cli
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import atomic_write, check_same_mesh, write_bytes
 from pipeline.core.torch_setup import configure_torch
-from pipeline.tasks import task_of
-from pipeline.tasks.task import Task
+from pipeline.tasks import streams_frames, task_of
+from pipeline.tasks.scoring import FrameOutputs, evaluation_frames, network_predict
+from pipeline.tasks.task import HostFrames, Task
 from pipeline.tasks.timing import WARMUP_RUNS, pick_frames
 from scenes.body_mesh import body_mesh
 from viz.animation import encode_animation
@@ -73,22 +82,6 @@ SPLIT_NAMES = {"train": "train", "test": "test", "held_out": "held-out"}
 # The group of the frames of sequences that play no motion-library window (motion programs, the settings' test
 # clips), and of windows whose manifest gives no category, in the errors by motion kind.
 NO_WINDOW, NO_CATEGORY = "(no library window)", "(no category)"
-
-
-def infer_all(model, mesh, store: FrameStore, device: torch.device, batch_size: int = 8) -> torch.Tensor:
-    """Predicted displacements of every frame (of a store on `device`); a network that reads its previous
-    output runs each sequence frame after frame from its first, fed its own outputs (model.autoregressive)."""
-    if reads_previous_output(model):
-        return rollout(lambda inputs: model(inputs, mesh), store, batch_size)
-    ids = torch.arange(len(store), device=device)
-    with torch.no_grad():
-        return torch.cat([model(store.batch(ids[i:i + batch_size]), mesh) for i in range(0, len(ids), batch_size)])
-
-
-def per_frame_errors(displacement_error: np.ndarray) -> dict[str, np.ndarray]:
-    """L1 and L2 of each frame from (F, V, 3) position errors."""
-    return {"l1": np.abs(displacement_error).mean(axis=(1, 2)),
-            "l2": np.sqrt(np.square(displacement_error).sum(axis=2).mean(axis=1))}
 
 
 def errors_by_kind(per_frame: dict[str, dict[str, np.ndarray]], sequence: np.ndarray, windows: LibraryWindows,
@@ -227,7 +220,7 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
     evaluation = settings["evaluation"]
     return {"render_frames": evaluation["render_frames"], "video_frames": evaluation["video_frames"],
             "export_frames": evaluation["export_frames"], "timing_frames": evaluation["timing_frames"],
-            "device": settings["device"],
+            "device": settings["device"], "device_cache_gb": settings["training"]["device_cache_gb"],
             "garment": settings["mesh"]["file"] if settings["mesh"]["generator"] == "garment_file" else None}
 
 
@@ -257,12 +250,17 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="eval.h5 without every frame's predicted positions (errors and times only: a grid of "
                              "evaluations at the paper profile would otherwise store 1.8 GB each)")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device-cache-gb", type=float,
+                        help="GiB of frames kept on the device, as training keeps them; a larger dataset is read from "
+                             "disk a chunk at a time (default: half the free memory)")
     cli.add_threads(parser)
     cli.add_quiet(parser)
     args = cli.parse_with_settings(parser, argv, flags_from_settings)
     if args.timing_frames < 1 or args.render_frames < 0 or args.video_frames < 0:
         raise PipelineError("--timing-frames must be >= 1, --render-frames and --video-frames >= 0")
-    report_dir = Path(args.report).parent
+    if args.device_cache_gb is not None and not 0 <= args.device_cache_gb < math.inf:
+        raise PipelineError("--device-cache-gb must be finite and >= 0")
+    report_dir = Path(args.report).parent   # the folders' default home
     folders = {role: (Path(given) if given else report_dir / role, given is not None)
                for role, given in (("renders", args.renders), ("videos", args.videos), ("export", args.export))}
     cli.refuse_aliases({"eval.h5": args.eval, "report": args.report, **({"html": args.html} if args.html else {}),
@@ -271,56 +269,86 @@ def main(argv: Sequence[str] | None = None) -> None:
                         "scene": args.scene, "train log": args.train_log})
     device = configure_torch(args.device, 0, args.threads)
     where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
-    data = load_dataset(args.dataset)
+    stream, n_bytes = streams_frames(args.dataset, args.device_cache_gb, device)
+    data = load_dataset(args.dataset, frames=not stream)
     check_same_mesh(args.operators, args.dataset)   # operators of a moved copy of the mesh have the same faces
     task = task_of(data.task, args.dataset)
     model, mesh, state = load_model(args.model, args.operators, str(device))
     task.check_model(state, args.model, args.dataset)
     if not task.trained_on(model, mesh, data):
         raise PipelineError(f"{args.dataset}: its mesh is not the one the model in {args.model} was trained on")
-    low_positions, low_faces = task.shown_input(data, args.dataset)
+    if stream and not args.quiet:
+        print(f"evaluate: {n_bytes / 2 ** 30:.2f} GiB of frames streamed from {args.dataset} (more than "
+              f"--device-cache-gb or half the free memory)", file=sys.stderr)
+    with contextlib.closing(FrameReader(args.dataset)) if stream else contextlib.nullcontext() as reader:
+        frames = evaluation_frames(task, data, reader, device)
+        predict = network_predict(model, mesh, frames, stream, n_bytes, args.dataset)
+        _evaluate(args, folders, Evaluated(data, task, model, mesh, state, frames, predict,
+                                           task.host_frames(data, args.dataset, reader), device, where))
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluated:
+    """What an evaluation runs on: the dataset (its frames resident or streamed), the model and where it runs."""
+
+    data: LearningData
+    task: Task
+    model: Any
+    mesh: Any
+    state: dict
+    frames: Frames               # on the device: every frame, or a staging area filled from disk
+    predict: Predict
+    host: HostFrames             # the frames on the host, a run at a time
+    device: torch.device
+    where: str                   # the device in words
+
+
+def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> None:
+    """Score every frame a chunk at a time (model.scoring), keeping the predictions of the frames shown and
+    writing eval.h5's and the exports' as they come; then the pictures, videos and reports."""
+    data, task, report_dir = run.data, run.task, Path(args.report).parent
     train_log = read_train_log(args.train_log) if args.train_log else None
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
-    frames = task.frames(data, device)
-    weights = LossWeights(**state["training"]["loss_weights"])
-    predicted_all = infer_all(model, mesh, frames.store, device)   # the network runs once: every split is scored on it
-    splits = {split: torch.as_tensor(ids, device=device) for split, ids in data.splits().items()}
-    errors = {"network": {split: displacement_errors(predicted_all, frames, ids, 8, weights)
-                          for split, ids in splits.items()},
-              "predictor": {split: split_errors(lambda inputs: torch.zeros_like(inputs.positions), frames, ids, 8,
-                                                weights) for split, ids in splits.items()}}
-    displacement = predicted_all.cpu().numpy()
-    del predicted_all
-    steps.update()
-    timed = pick_frames(data.test, args.timing_frames)
-    times = task.time(model, mesh, frames.store, torch.as_tensor(timed, device=device))
-    steps.update()
-    truth = data.predictor + data.targets
-    predicted = data.predictor + displacement
-    per_frame = {"network": per_frame_errors(displacement - data.targets), "predictor": per_frame_errors(-data.targets)}
-    windows = read_library_windows(args.dataset)
-    by_kind = {} if windows is None else errors_by_kind(
-        per_frame, data.sequence, windows, {name: ids for name, ids in data.splits().items() if name != "train"})
+    weights = LossWeights(**run.state["training"]["loss_weights"])
+    n_frames = len(data.sequence)
     # With an unseen motion, half the stills show it.
     n_held = args.render_frames // 2 if len(data.held_out) else 0
     stills = np.concatenate([pick_frames(data.test, args.render_frames - n_held), pick_frames(data.held_out, n_held)])
     clips = video_clips(data, args.video_frames)
     shown = np.unique(np.concatenate([stills, *(clip_frames for _, clip_frames, _, _ in clips)])).astype(np.int64)
-    bodies = body_meshes(args.scene, shown, data.frame, len(data.sequence))
-    comparison = None if len(shown) == 0 else fit_comparison(
-        [low_positions[shown]], [truth[shown]], low_faces, data.faces,
-        [np.linalg.norm(truth[shown] - x[shown], axis=2) for x in (data.predictor, predicted)],
-        input_label=task.input_label, predictor_label=task.predictor_label, truth_label=task.truth_label)
+    n_export = n_frames if args.export_frames <= 0 else min(args.export_frames, n_frames)
+    config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": run.state["spec"]}
+    stored = None if args.no_predictions else (n_frames, len(data.rest_vertices), 3)
+    with staged_folders(folders) as staged, evaluation_output(args.eval, config, stored) as out:
+        objs = staged["export"] / "predicted_obj"
+        outputs = FrameOutputs(run.host, shown, n_export, lambda frame, positions: write_bytes(
+            objs / f"frame_{frame:04d}.obj", obj_bytes(positions, data.faces)), out.write_predicted if stored else None)
+        scores = score_frames(run.predict, run.frames, n_frames, on_chunk=outputs)
+        errors = {who: {split: scores.split(who, ids, weights) for split, ids in data.splits().items()}
+                  for who in WHO}
+        steps.update()
+        timed = pick_frames(data.test, args.timing_frames)
+        times = task.time(run.model, run.mesh, run.frames.all_frames()[0], torch.as_tensor(timed, device=run.device))
+        steps.update()
+        per_frame = scores.per_frame
+        windows = read_library_windows(args.dataset)
+        by_kind = {} if windows is None else errors_by_kind(
+            per_frame, data.sequence, windows, {name: ids for name, ids in data.splits().items() if name != "train"})
+        bodies = body_meshes(args.scene, shown, data.frame, n_frames)
+        kept = [outputs.meshes[frame] for frame in shown]
+        comparison = None if len(shown) == 0 else fit_comparison(
+            [np.stack([m.low for m in kept])], [np.stack([m.truth for m in kept])], run.host.input_faces,
+            data.faces, [np.stack([np.linalg.norm(m.truth - getattr(m, who), axis=1) for m in kept])
+                         for who in ("predictor", "predicted")],
+            input_label=task.input_label, predictor_label=task.predictor_label, truth_label=task.truth_label)
 
-    def frame_meshes(frame: int) -> FrameMeshes:
-        return FrameMeshes(low_positions[frame], data.predictor[frame], truth[frame], predicted[frame],
-                           bodies.get(int(frame)))
+        def frame_meshes(frame: int) -> FrameMeshes:
+            return dataclasses.replace(outputs.meshes[int(frame)], body=bodies.get(int(frame)))
 
-    def frame_title(frame: int) -> str:
-        split = next((SPLIT_NAMES[name] for name, ids in data.splits().items() if frame in ids), "guard")
-        return f"{split} frame {frame}"
+        def frame_title(frame: int) -> str:
+            split = next((SPLIT_NAMES[name] for name, ids in data.splits().items() if frame in ids), "guard")
+            return f"{split} frame {frame}"
 
-    with staged_folders(folders) as staged:
         pictures = []
         for frame in stills:
             image = comparison_image(comparison, frame_meshes(frame), frame_title(frame))
@@ -331,8 +359,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         videos = [(_write_video(staged["videos"] / name, comparison, clip_frames, fps, frame_meshes, frame_title),
                    caption) for name, clip_frames, fps, caption in clips]
         steps.update()
-        exports = _write_exports(staged["export"], args.export_frames, stills[:1], frame_meshes, low_faces,
-                                 data.faces, predicted, task)
+        exports = _write_exports(staged["export"], n_export, stills[:1], frame_meshes, run.host.input_faces,
+                                 data.faces, task)
 
         def final(path: Path) -> Path:
             role = next(role for role, folder in staged.items() if path.is_relative_to(folder))
@@ -349,16 +377,14 @@ def main(argv: Sequence[str] | None = None) -> None:
                 ("the generalisation study (target results/<scene>/study/)", args.study_report),
                 ("the operator comparison, RC, EC, SP and SPD (target results/<scene>/convs/)", args.convs_report))
             if path]
-        sections = _report_sections(args, state, data, errors, times, where, low_positions.shape[1], train_log,
-                                    pictures, plots, videos, files, task,
+        sections = _report_sections(args, run.state, data, errors, times, run.where, run.host.input_vertices,
+                                    train_log, pictures, plots, videos, files, task,
                                     _motion_kind_sections(by_kind, read_dropped(args.dataset), task))
         title = f"Evaluation of {args.model}"
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
-        config = {**{k: v for k, v in vars(args).items() if k != "quiet"}, "model_spec": state["spec"]}
-        write_evaluation(args.eval, config, Evaluation(errors, per_frame, None if args.no_predictions else predicted,
-                                                       times, timed, where, WARMUP_RUNS, state["parameter_count"],
-                                                       trained_frame_count(state["training"], data), by_kind))
+        out.finish(Evaluation(errors, per_frame, None, times, timed, run.where, WARMUP_RUNS,
+                              run.state["parameter_count"], trained_frame_count(run.state["training"], data), by_kind))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:
@@ -380,14 +406,11 @@ def _write_video(stem: Path, comparison: Comparison, frames: np.ndarray, fps: fl
     return path
 
 
-def _write_exports(folder: Path, export_frames: int, glb_frames: np.ndarray,
+def _write_exports(folder: Path, n_export: int, glb_frames: np.ndarray,
                    frame_meshes: Callable[[int], FrameMeshes], low_faces: np.ndarray, faces: np.ndarray,
-                   predicted: np.ndarray, task: Task) -> list[tuple[str, Path]]:
-    """The first `export_frames` (0: all) predicted frames as OBJ, and each of `glb_frames` as a GLB comparison;
-    (label, path) of each."""
-    n_export = len(predicted) if export_frames <= 0 else min(export_frames, len(predicted))
-    for frame in range(n_export):
-        write_bytes(folder / "predicted_obj" / f"frame_{frame:04d}.obj", obj_bytes(predicted[frame], faces))
+                   task: Task) -> list[tuple[str, Path]]:
+    """Each of `glb_frames` as a GLB comparison beside the first `n_export` predicted frames' OBJ files (written
+    as the frames were scored: FrameOutputs); (label, path) of each."""
     exports = [(f"predicted_obj/: predicted positions of frames 0-{n_export - 1} as OBJ", folder / "predicted_obj")]
     for frame in glb_frames:
         meshes = frame_meshes(frame)

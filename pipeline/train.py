@@ -43,7 +43,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -60,7 +59,7 @@ from model.losses import LossWeights
 from model.sampler import Sampler, SampleSettings
 from model.training import CheckpointError, Diverged, TrainSettings, fit, split_batch_size
 from model.training_step import LR_SCHEDULES
-from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, LearningData, frame_bytes, load_dataset,
+from pipeline.artifacts.dataset import (SPLIT_NAMES_TRAINED, FrameReader, LearningData, load_dataset,
                                         read_frame_origins, read_library_windows)
 from pipeline.artifacts.model import read_checkpoint, save_model, write_checkpoint
 from pipeline.artifacts.train_log import write_train_log
@@ -68,7 +67,7 @@ from pipeline.core import cli, gpu_slots
 from pipeline.core.errors import PipelineError
 from pipeline.core.progress import batch_reporter, training_bar
 from pipeline.core.torch_setup import configure_torch
-from pipeline.tasks import task_of
+from pipeline.tasks import streams_frames, task_of
 from pipeline.tasks.task import NetworkRequest
 
 MAX_LR = 1.0       # the schema's training.lr maximum: beyond it Adam's first steps overflow the weights
@@ -135,16 +134,6 @@ def trained_sequences(dataset: str, data: LearningData, ids: np.ndarray) -> dict
     if windows is not None:
         recorded.update(library_files=[windows.file[k] for k in which], subjects=[windows.subject[k] for k in which])
     return recorded
-
-
-def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -> bool:
-    """Whether the dataset's frames (`n_bytes`) stay on the device: within `budget_gb`, or without one within
-    half of what is free (the device's memory, or on the CPU the available RAM): the rest is the network's."""
-    if budget_gb is None:
-        free = (torch.cuda.mem_get_info(device)[0] if device.type == "cuda"
-                else os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        return n_bytes <= free / 2
-    return n_bytes <= budget_gb * 2 ** 30
 
 
 def rank_device(ranks: Ranks, device: str) -> str:
@@ -243,8 +232,7 @@ def train(args: argparse.Namespace, sampling: SampleSettings, checkpoint: Path, 
           ranks: Ranks) -> None:
     """Load, build, fit and (rank 0) write model.pt and train.h5, as `main` checked the arguments."""
     quiet = args.quiet or not ranks.main
-    task_name, n_bytes = frame_bytes(args.dataset)
-    stream = task_of(task_name, args.dataset).streams and not keep_resident(n_bytes, args.device_cache_gb, device)
+    stream, n_bytes = streams_frames(args.dataset, args.device_cache_gb, device)
     data = load_dataset(args.dataset, frames=not stream)
     task = task_of(data.task, args.dataset)
     features = {"inputs": args.inputs, "input_frame": args.input_frame, "output_frame": args.output_frame,

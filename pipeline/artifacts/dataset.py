@@ -376,7 +376,12 @@ class LearningData:
         the upsampling's S x_low, computed here once (every frame's: for the evaluation's renders and exports)."""
         if self.stored_predictor is not None:
             return self.stored_predictor
-        low = self.inputs
+        return self.subdivided(self.inputs)
+
+    def subdivided(self, low: np.ndarray) -> np.ndarray:
+        """S x_low (n, V, 3) float32 of the upsampling's low-res frames `low` (n, V_low, 3) float32, each frame the
+        same bits as its row of `predictor` however many frames go together (the sparse product runs down each
+        column on its own): the evaluation makes a chunk's at a time."""
         flat = self.subdivision.astype(np.float32) @ low.transpose(1, 0, 2).reshape(low.shape[1], -1)
         return np.ascontiguousarray(flat.reshape(len(self.rest_vertices), len(low), 3).transpose(1, 0, 2))
 
@@ -499,14 +504,25 @@ class FrameReader:
         self._low, self._targets = self._file[LOW_POSITIONS], self._file[TARGET]
 
     def __call__(self, first: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.low(first, stop), self.targets(first, stop)
+
+    def low(self, first: int, stop: int) -> np.ndarray:
+        """x_low of the frames [first, stop) alone (the evaluation's S x_low of the frames it keeps)."""
+        return self._read(self._low, first, stop)
+
+    def targets(self, first: int, stop: int) -> np.ndarray:
+        """The targets of the frames [first, stop) alone."""
+        return self._read(self._targets, first, stop)
+
+    def _read(self, dataset: h5py.Dataset, first: int, stop: int) -> np.ndarray:
         try:
-            low, targets = self._low[first:stop], self._targets[first:stop]
+            values = dataset[first:stop]
         except Exception as err:      # h5py raises many types for a damaged file (as open_artifact says)
             raise PipelineError(f"{self.path}: frames {first}-{stop - 1} unreadable ({type(err).__name__})") from None
         with np.errstate(invalid="ignore"):
-            if not (np.all(np.abs(low) <= FLOAT32_MAX) and np.all(np.abs(targets) <= FLOAT32_MAX)):
+            if not np.all(np.abs(values) <= FLOAT32_MAX):
                 raise PipelineError(f"{self.path}: frames {first}-{stop - 1} hold NaN or inf")
-        return low.astype(np.float32, copy=False), targets.astype(np.float32, copy=False)
+        return values.astype(np.float32, copy=False)
 
     def close(self) -> None:
         self._file.close()
@@ -566,11 +582,10 @@ def _read_context(f, n_frames: int) -> FrameContext:
     return FrameContext(gravity, a, b, radius_a, radius_b, frame_time)
 
 
-def read_low_res(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """The low-res positions (F, V_low, 3) float64 and faces int64 the dataset was made from."""
+def read_low_faces(path: str | os.PathLike) -> np.ndarray:
+    """The faces (T_low, 3) int64 of the low-res mesh the dataset was made from (its positions are x_low)."""
     with open_artifact(path) as f:
-        positions = read(f, LOW_POSITIONS, np.float64)
-        return positions, read_indices(f, LOW_FACES, positions.shape[1], shape=(None, 3))
+        return read_indices(f, LOW_FACES, _shape(f, LOW_POSITIONS)[1], shape=(None, 3))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -3,19 +3,22 @@ predicted positions, inference times and, for a dataset of motion-library window
 and per subject (docs/artifacts.md, section "eval.h5")."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
+import h5py
 import numpy as np
 
+from model.scoring import WHO
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import atomic_h5, config_of, open_artifact, read
 
 STAGE = "evaluate"
 BY_KIND = "by_kind"      # errors per motion category and per subject of a dataset with motion-library windows
 GROUPINGS = ("category", "subject")
-WHO, TERMS = ("network", "predictor"), ("l1", "l2")
+TERMS = ("l1", "l2")     # per frame and per group; WHO: the network, its predictor alone
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,7 +39,8 @@ class Evaluation:
     errors: dict[str, dict[str, dict[str, float]]]   # "network"/"predictor" -> split -> term (l1, l2, ...) -> value
     per_frame: dict[str, dict[str, np.ndarray]]      # "network"/"predictor" -> "l1"/"l2" -> (F,) error per frame
     predicted: np.ndarray | None                     # (F, V, 3) predicted high-res positions, dataset's frame;
-                                                     # None: not stored (errors only, for grids of evaluations)
+                                                     # None: not stored (errors only, for grids of evaluations),
+                                                     # or written a run of frames at a time (evaluation_output)
     inference_ms: np.ndarray                         # (T,) ms per timed frame
     inference_frames: np.ndarray                     # (T,) the timed frame ids
     device: str                                      # where it ran, in words (e.g. "cpu, 2 threads")
@@ -48,35 +52,80 @@ class Evaluation:
 
 
 def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
+    """eval.h5 of an evaluation whose predicted positions (if stored) are one array."""
+    stored = evaluation.predicted
+    with evaluation_output(path, config, None if stored is None else stored.shape) as out:
+        if stored is not None:
+            out.write_predicted(0, stored)
+        out.finish(evaluation)
+
+
+@contextlib.contextmanager
+def evaluation_output(path: str | os.PathLike, config: Mapping[str, Any],
+                      predicted_shape: tuple[int, ...] | None) -> Iterator[EvaluationOutput]:
+    """eval.h5 written as the evaluation goes (through h5.atomic_h5: it appears only if the block succeeds):
+    the predicted positions of shape `predicted_shape` (F, V, 3) (None: not stored) a run of frames at a time,
+    as they are made, then the rest (`EvaluationOutput.finish`)."""
     with atomic_h5(path, STAGE, config) as f:
-        for who, splits in evaluation.errors.items():
-            for split, values in splits.items():
-                for term, value in values.items():
-                    f.create_dataset(f"errors/{who}/{split}/{term}", data=np.float64(value))
-        f["errors"].attrs["meaning"] = ("split-wide L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and the training loss's "
-                                        "weighted total; network = predictor + network output, predictor = "
-                                        "Loop-subdivided low-res alone")
-        f["errors"].attrs["unit"] = "scene units (~m); Ln dimensionless"
-        for who, values in evaluation.per_frame.items():
-            for term, per_frame in values.items():
-                f.create_dataset(f"per_frame/{who}_{term}", data=per_frame.astype(np.float64))
-        if evaluation.predicted is not None:
-            f.create_dataset("predicted", data=evaluation.predicted.astype(np.float32))
+        out = EvaluationOutput(f, predicted_shape)
+        yield out
+        if not out.finished:
+            raise RuntimeError(f"{path}: the evaluation was not finished")
+
+
+class EvaluationOutput:
+    """An eval.h5 being written (evaluation_output)."""
+
+    def __init__(self, f: h5py.File, predicted_shape: tuple[int, ...] | None):
+        self._f, self._rows, self.finished = f, 0, False
+        self._frames = None if predicted_shape is None else predicted_shape[0]
+        if predicted_shape is not None:
+            # Contiguous, as one array made it: the rows are written in order, each once.
+            f.create_dataset("predicted", predicted_shape, np.float32)
             f["predicted"].attrs["meaning"] = "predicted high-res positions per frame (F, V, 3), dataset's frame"
-        f.attrs["predictions_stored"] = evaluation.predicted is not None
-        f.create_dataset("inference_ms", data=evaluation.inference_ms)
-        f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
-        f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
-                       warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
-                       trained_frames=evaluation.trained_frames,
-                       timing="input features and network, batch of one frame")
-        for grouping, groups in evaluation.by_kind.items():
-            _write_groups(f, f"{BY_KIND}/{grouping}", groups)
-        if evaluation.by_kind:
-            f[BY_KIND].attrs["meaning"] = ("per grouping (the library's manifest categories, its subjects): the "
-                                           "groups' labels and, per split, each group's frames and the L1 and L2 "
-                                           "of the network and of the predictor alone over them (scene units; NaN: "
-                                           "no frame); gain = predictor / network")
+
+    def write_predicted(self, first: int, positions: np.ndarray) -> None:
+        """The predicted positions (n, V, 3) of the frames [first, first + n), the rows after those written."""
+        if self._frames is None or first != self._rows or first + len(positions) > self._frames:
+            raise ValueError(f"predicted rows {first}-{first + len(positions) - 1} after {self._rows} of "
+                             f"{self._frames} rows")
+        self._f["predicted"][first:first + len(positions)] = positions.astype(np.float32, copy=False)
+        self._rows += len(positions)
+
+    def finish(self, evaluation: Evaluation) -> None:
+        """Everything else the evaluation measured (its `predicted` is not read: the rows written are)."""
+        if self._frames is not None and self._rows != self._frames:
+            raise ValueError(f"{self._rows} of {self._frames} frames' predicted positions written")
+        _write_results(self._f, evaluation, self._frames is not None)
+        self.finished = True
+
+
+def _write_results(f: h5py.File, evaluation: Evaluation, predictions_stored: bool) -> None:
+    for who, splits in evaluation.errors.items():
+        for split, values in splits.items():
+            for term, value in values.items():
+                f.create_dataset(f"errors/{who}/{split}/{term}", data=np.float64(value))
+    f["errors"].attrs["meaning"] = ("split-wide L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and the training loss's "
+                                    "weighted total; network = predictor + network output, predictor = "
+                                    "Loop-subdivided low-res alone")
+    f["errors"].attrs["unit"] = "scene units (~m); Ln dimensionless"
+    for who, values in evaluation.per_frame.items():
+        for term, per_frame in values.items():
+            f.create_dataset(f"per_frame/{who}_{term}", data=per_frame.astype(np.float64))
+    f.attrs["predictions_stored"] = predictions_stored
+    f.create_dataset("inference_ms", data=evaluation.inference_ms)
+    f.create_dataset("inference_frames", data=np.asarray(evaluation.inference_frames, dtype=np.int64))
+    f.attrs.update(device=evaluation.device, inference_ms_median=float(np.median(evaluation.inference_ms)),
+                   warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
+                   trained_frames=evaluation.trained_frames,
+                   timing="input features and network, batch of one frame")
+    for grouping, groups in evaluation.by_kind.items():
+        _write_groups(f, f"{BY_KIND}/{grouping}", groups)
+    if evaluation.by_kind:
+        f[BY_KIND].attrs["meaning"] = ("per grouping (the library's manifest categories, its subjects): the "
+                                       "groups' labels and, per split, each group's frames and the L1 and L2 "
+                                       "of the network and of the predictor alone over them (scene units; NaN: "
+                                       "no frame); gain = predictor / network")
 
 
 def _write_groups(f, where: str, groups: GroupErrors) -> None:

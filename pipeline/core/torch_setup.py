@@ -44,3 +44,13 @@ def set_arithmetic(deterministic: bool, tf32: bool) -> None:
     """
     torch.use_deterministic_algorithms(deterministic)
     torch.backends.cuda.matmul.fp32_precision = "tf32" if tf32 else "ieee"
+
+
+def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -> bool:
+    """Whether a dataset's frames (`n_bytes`) stay on the device: within `budget_gb`, or without one within
+    half of what is free (the device's memory, or on the CPU the available RAM): the rest is the network's."""
+    if budget_gb is None:
+        free = (torch.cuda.mem_get_info(device)[0] if device.type == "cuda"
+                else os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        return n_bytes <= free / 2
+    return n_bytes <= budget_gb * 2 ** 30

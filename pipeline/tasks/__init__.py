@@ -8,8 +8,9 @@ from __future__ import annotations
 import torch
 
 from model.training import Frames
-from pipeline.artifacts.dataset import LearningData
+from pipeline.artifacts.dataset import LearningData, frame_bytes
 from pipeline.core.errors import PipelineError
+from pipeline.core.torch_setup import keep_resident
 from pipeline.tasks.hand import HandTask
 from pipeline.tasks.pca import PcaTask
 from pipeline.tasks.pose import PoseTask
@@ -29,3 +30,11 @@ def task_of(name: str, where: str) -> Task:
 def frames_of(data: LearningData, device: torch.device | str) -> Frames:
     """Every frame of a dataset on `device` as its task's network reads them (Task.frames)."""
     return task_of(data.task, "dataset").frames(data, device)
+
+
+def streams_frames(dataset: str, budget_gb: float | None, device: torch.device) -> tuple[bool, int]:
+    """Whether `train` and `evaluate` read the frames of `dataset` from disk a batch at a time (a task that can,
+    whose frames do not fit `budget_gb`, or half the free memory: keep_resident) rather than holding them on
+    `device`; and the bytes of its frames."""
+    name, n_bytes = frame_bytes(dataset)
+    return task_of(name, dataset).streams and not keep_resident(n_bytes, budget_gb, device), n_bytes

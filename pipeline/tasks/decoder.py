@@ -11,10 +11,11 @@ from model.architecture import ArchitectureError, parse_architecture
 from model.networks import NetworkSpec
 from model.tasks import VectorRegressor, VectorSpec, VectorStore
 from model.training import Frames
-from pipeline.artifacts.dataset import LearningData, SequenceFrames
+from pipeline.artifacts.dataset import FrameReader, LearningData, SequenceFrames
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core.errors import PipelineError
-from pipeline.tasks.task import NetworkKind, NetworkRequest, SequenceRun, Task, Trainable, check_fits, network_of
+from pipeline.tasks.task import (HostFrames, NetworkKind, NetworkRequest, SequenceRun, Task, Trainable, check_fits,
+                                 network_of)
 from pipeline.tasks.timing import time_decoder
 
 
@@ -55,8 +56,12 @@ class DecoderTask(Task):
         # The operators' level 0 is the mesh the decoder writes (load_model checked they are its own).
         return mesh.vertex_counts[0] == data.targets.shape[1]
 
-    def shown_input(self, data: LearningData, dataset: str) -> tuple[np.ndarray, np.ndarray]:
-        return data.predictor, data.faces
+    def host_frames(self, data: LearningData, dataset: str, reader: FrameReader | None) -> HostFrames:
+        """Every frame resident (a decoder task's dataset is never streamed); the first panel is the predictor."""
+        def predictor(first: int, stop: int) -> np.ndarray:
+            return data.predictor[first:stop]
+        return HostFrames(data.faces, data.targets.shape[1], predictor, predictor,
+                          lambda first, stop: data.targets[first:stop])
 
     def time(self, model, mesh, store, ids: torch.Tensor):
         return time_decoder(model, mesh, store, ids)

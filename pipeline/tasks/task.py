@@ -23,7 +23,7 @@ from model.mesh_hierarchy import MeshHierarchy
 from model.networks import MeshNetwork, NetworkSpec, build_network
 from model.regressors import Regressor
 from model.training import Frames
-from pipeline.artifacts.dataset import DatasetLayout, LearningData, SequenceFrames, TaskLayout
+from pipeline.artifacts.dataset import DatasetLayout, FrameReader, LearningData, SequenceFrames, TaskLayout
 from pipeline.artifacts.scene import MannequinFrames
 from pipeline.artifacts.subdiv import Subdivision
 from pipeline.core.errors import PipelineError
@@ -66,6 +66,22 @@ class DatasetRequest:
     runs: Callable[[], Iterable[SequenceRun]]     # every sequence's run, in dataset order, read afresh per call
     shared_scene: Path | None                     # the first sequence's scene.h5 (skeleton, skinning)
     components: int | None                        # --components (PCA)
+
+
+# Frames [first, stop) of a dataset -> one array per frame.
+FrameRun = Callable[[int, int], np.ndarray]
+
+
+@dataclasses.dataclass(frozen=True)
+class HostFrames:
+    """A dataset's frames on the host as the evaluation stores, exports and shows them, a run of frames at a time
+    (from memory, or from disk for a dataset too large for it): never every frame at once."""
+
+    input_faces: np.ndarray     # (T_in, 3) faces of a picture's first panel: what the network is given, as a mesh
+    input_vertices: int         # its vertices
+    inputs: FrameRun            # (n, V_in, 3) its positions
+    predictor: FrameRun         # (n, V, 3) float32 what the displacement is added to: LearningData.predictor's rows
+    targets: FrameRun           # (n, V, 3) float32 x_high - predictor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,8 +176,9 @@ class Task(abc.ABC):
         """Whether `model` (on its operators' levels `mesh`) was trained on `data`'s mesh."""
 
     @abc.abstractmethod
-    def shown_input(self, data: LearningData, dataset: str) -> tuple[np.ndarray, np.ndarray]:
-        """Positions (F, V, 3) and faces of a picture's first panel: what the network is given, as a mesh."""
+    def host_frames(self, data: LearningData, dataset: str, reader: FrameReader | None) -> HostFrames:
+        """The frames of `data` (read from `dataset`) on the host, from `data` or, for a dataset loaded without
+        its frames (load_dataset(frames=False)), through `reader`."""
 
     @abc.abstractmethod
     def time(self, model: Regressor, mesh: MeshHierarchy, store, ids: torch.Tensor) -> InferenceTimes:

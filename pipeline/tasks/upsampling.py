@@ -11,11 +11,11 @@ from model.features import FrameStore, Subdivider
 from model.streaming import FrameSource, StreamedFrames
 from model.networks import NetworkSpec
 from model.training import Frames
-from pipeline.artifacts.dataset import FrameReader, LearningData, SequenceFrames, read_low_res
+from pipeline.artifacts.dataset import FrameReader, LearningData, SequenceFrames, read_low_faces
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.core.config import feature_spec
-from pipeline.tasks.task import (DatasetRequest, NetworkKind, NetworkRequest, SequenceRun, Task, Trainable,
-                                 check_fits, network_of)
+from pipeline.tasks.task import (DatasetRequest, HostFrames, NetworkKind, NetworkRequest, SequenceRun, Task,
+                                 Trainable, check_fits, network_of)
 from pipeline.tasks.timing import time_inference
 
 BLOCK_FRAMES = 32        # frames whose targets are made at once (9 MB of float64 S x_low at 11,719 vertices)
@@ -86,8 +86,12 @@ class UpsamplingTask(Task):
     def trained_on(self, model, mesh, data: LearningData) -> bool:
         return np.array_equal(model.features.faces.cpu().numpy(), data.faces)
 
-    def shown_input(self, data: LearningData, dataset: str) -> tuple[np.ndarray, np.ndarray]:
-        return read_low_res(dataset)
+    def host_frames(self, data: LearningData, dataset: str, reader: FrameReader | None) -> HostFrames:
+        low = reader.low if reader is not None else lambda first, stop: data.inputs[first:stop]
+        return HostFrames(read_low_faces(dataset), data.subdivision.shape[1],
+                          lambda first, stop: low(first, stop).astype(np.float64),
+                          lambda first, stop: data.subdivided(low(first, stop)),
+                          reader.targets if reader is not None else lambda first, stop: data.targets[first:stop])
 
     def time(self, model, mesh, store, ids: torch.Tensor):
         return time_inference(model, mesh, store, ids)

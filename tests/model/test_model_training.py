@@ -12,7 +12,7 @@ from model.features import FrameStore
 from model.losses import LossWeights
 from model.networks import NetworkSpec, build_network
 import model.training
-from model.training import CheckpointError, Frames, TrainSettings, displacement_errors, fit, split_errors
+from model.training import CheckpointError, Frames, TrainSettings, fit, split_errors
 from model.training_step import learning_rate, set_learning_rate
 from model_meshes import identity_subdivider
 
@@ -125,21 +125,6 @@ def test_split_errors_match_numpy(grid):
     # L2 over the whole split, not a mean of per-batch L2s
     assert np.isclose(errors["l2"], np.sqrt((difference ** 2).sum(-1).mean()), rtol=1e-5)
     assert np.isclose(errors["total"], errors["l1"] + 2 * errors["l2"], rtol=1e-6)
-
-
-def test_errors_of_displacements_predicted_once_equal_split_errors(grid):
-    """The evaluate stage runs the network once over every frame and scores each split on those displacements:
-    the same figures as predicting batch by batch, whatever the batch sizes."""
-    _, frames = _problem(grid)
-    predict = lambda inputs: 0.01 * torch.sin(7 * inputs.positions) + 0.002 * inputs.positions ** 2   # noqa: E731
-    everything = predict(frames.store.batch(torch.arange(len(frames.store))))
-    weights = LossWeights(1.0, 2.0, 0.3)
-    for ids in (torch.tensor([0, 2, 3, 5, 6]), torch.tensor([4]), torch.arange(len(frames.store))):
-        expected = split_errors(predict, frames, ids, batch_size=2, weights=weights)
-        got = displacement_errors(everything, frames, ids, batch_size=3, weights=weights)
-        assert got.keys() == expected.keys()
-        for name in expected:
-            assert got[name] == pytest.approx(expected[name], rel=1e-6), name
 
 
 def test_no_op_of_a_training_step_reads_uninitialised_memory(grid):

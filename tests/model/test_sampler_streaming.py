@@ -1,6 +1,8 @@
 """Issue 35, item 4: S x_low computed on the device (model.features.Subdivider) against scipy; the sampler of a share
 of the training frames (model.sampler); training streamed a batch at a time (model.streaming) against training
-with every frame resident, bit for bit on the CPU, and resumed from a checkpoint mid-cycle of the sampler."""
+with every frame resident, bit for bit on the CPU, and resumed from a checkpoint mid-cycle of the sampler; a trained
+network scored over every frame a chunk at a time (model.scoring, the evaluate stage), resident or streamed, against
+the training's split errors."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,7 +18,9 @@ from model.features import FrameStore, Subdivider, previous_frames
 from model.networks import NetworkSpec, build_network
 from model.sampler import Sampler, SampleSettings
 from model.streaming import FrameSource, StreamedFrames
-from model.training import Frames, TrainSettings, fit, split_batch_size
+from model.losses import LossWeights
+from model.scoring import score_frames
+from model.training import Frames, TrainSettings, fit, split_batch_size, split_errors
 from model_meshes import build_hierarchy, grid_mesh
 
 N_FRAMES = 40
@@ -187,3 +191,58 @@ def test_the_test_frames_an_epoch_scores_are_all_of_them_or_an_even_spread_of_th
     assert chosen[0] == many[0] and chosen[-1] == many[-1] and bool(torch.isin(chosen, many).all())
     gaps = torch.diff(chosen) // 2
     assert gaps.min() >= 2 and gaps.max() <= 4                                     # evenly spread, ~3 apart
+
+
+def _network(sheet, frames: Frames):
+    """A network (normalised on the first 30 frames) and what model.scoring calls to predict a chunk with it."""
+    model = _model(sheet, frames, torch.arange(30))
+    return model, lambda ids, inputs: model(inputs, sheet[-1])
+
+
+@pytest.mark.parametrize("chunk", [3, N_FRAMES])
+def test_frame_scores_give_the_split_errors_of_every_split_and_the_per_frame_errors(sheet, chunk):
+    """model.scoring's split figures against model.training.split_errors over the whole split (its definitions:
+    positions S x_low + displacement, L2 over every frame together, Ln, the weighted total), whatever the chunk;
+    they differ by the order of float32 sums alone (a frame's mean, then a mean of frames in float64): rtol 1e-5.
+    The per-frame L1 and L2 of the displacement error against numpy in float64."""
+    frames = _frames(sheet, streamed=False)
+    model, predict = _network(sheet, frames)
+    weights = LossWeights(1.0, 0.5, 0.2)
+    scores = score_frames(predict, frames, N_FRAMES, chunk)
+    for ids in (np.array([5, 13, 31]), np.arange(30), np.arange(N_FRAMES)):
+        tensor = torch.as_tensor(ids)
+        for who, expected in (("network", split_errors(lambda inputs: model(inputs, sheet[-1]), frames, tensor, 8,
+                                                        weights)),
+                              ("predictor", split_errors(lambda inputs: torch.zeros_like(inputs.positions), frames,
+                                                          tensor, 8, weights))):
+            got = scores.split(who, ids, weights)
+            assert got.keys() == expected.keys()
+            for term in expected:
+                assert got[term] == pytest.approx(expected[term], rel=1e-5, abs=1e-12), (who, term)
+    with torch.no_grad():
+        displacement = model(frames.store.batch(torch.arange(N_FRAMES)), sheet[-1]).double().numpy()
+    for who, error in (("network", displacement - sheet[3]), ("predictor", -sheet[3].astype(np.float64))):
+        np.testing.assert_allclose(scores.per_frame[who]["l1"], np.abs(error).mean(axis=(1, 2)), rtol=1e-5)
+        np.testing.assert_allclose(scores.per_frame[who]["l2"], np.sqrt(np.square(error).sum(2).mean(1)), rtol=1e-5)
+
+
+def test_a_streamed_scoring_is_the_resident_one_bit_for_bit_each_chunk_handed_over_once(sheet):
+    """The same chunks of the same frames, resident or read from disk into the staging area (model.streaming):
+    the same predictions and scores, bit for bit on the CPU; every frame in exactly one chunk, in order."""
+    runs = {}
+    for streamed in (False, True):
+        frames = _frames(sheet, streamed)
+        _, predict = _network(sheet, frames)
+        chunks = []
+        scores = score_frames(predict, frames, N_FRAMES, 6,
+                              lambda ids, displacement: chunks.append((ids, displacement.clone())))
+        runs[streamed] = scores, chunks
+    (resident, kept), (streamed, read) = runs[False], runs[True]
+    assert [len(ids) for ids, _ in kept] == [6] * 6 + [4]
+    assert np.array_equal(np.concatenate([ids for ids, _ in kept]), np.arange(N_FRAMES))
+    for (ids, displacement), (other_ids, other) in zip(kept, read, strict=True):
+        assert np.array_equal(ids, other_ids) and torch.equal(displacement, other)
+    for who in ("network", "predictor"):
+        assert np.array_equal(resident.terms[who], streamed.terms[who])
+        for term in ("l1", "l2"):
+            assert np.array_equal(resident.per_frame[who][term], streamed.per_frame[who][term])

@@ -141,3 +141,11 @@ def test_a_network_fed_its_previous_output_trains_evaluates_by_rollout_and_is_no
     lines = capsys.readouterr().err.strip().splitlines()
     assert exit_info.value.code == 2 and len(lines) == 1 and "previous output" in lines[0]
     assert not (tmp_path / "model.pt").exists()
+    # Rolled out over every frame at once: nor is it evaluated on a streamed dataset.
+    with pytest.raises(SystemExit) as exit_info:
+        stage(evaluate.main, sheets / "dataset.h5", sheets / "operators.h5", out / "model.pt", tmp_path / "eval.h5",
+              tmp_path / "report.md", "--device-cache-gb", "0", "--timing-frames", "1", "--quiet")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(lines) == 1
+    assert "previous output" in lines[0] and "--device-cache-gb room for" in lines[0]
+    assert not (tmp_path / "eval.h5").exists() and not (tmp_path / "export").exists()
