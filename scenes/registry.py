@@ -1,7 +1,8 @@
 """Scene assembly: resolved settings (pipeline.core.config) -> the typed parts of a scene (scenes.scene), made by the
 builders registered for the settings' `mesh.generator`: what every sequence shares (`build_rest`) and one
-sequence (`build_scene`). A new scene kind (the hand) is one builder module and one entry here. A garment from a
-file comes dressed (pipeline/dress.py: its settle is a simulation, which no library here runs) and is passed in."""
+sequence (`build_scene`). A new cloth scene kind is one builder module and one entry here; the hand, whose data
+are no cloth runs, is made by its own stage (pipeline/hand_scene.py). A garment from a file comes dressed
+(pipeline/dress.py: its settle is a simulation, which no library here runs) and is passed in."""
 from __future__ import annotations
 
 from typing import Callable, NamedTuple
