@@ -26,7 +26,7 @@ import warp as wp
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
 from sim.solver import Solver, UnstableSimulation
-from sim.xpbd import body_contact, contact_sweep, kernels, self_contact
+from sim.xpbd import block_frame, body_contact, contact_sweep, kernels, self_contact
 from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
 from sim.xpbd.model import ClothModel
 
@@ -99,6 +99,18 @@ def cuda_sweep_lanes(vertices: int) -> int:
         lanes *= 2
     return lanes
 
+def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
+    """"block" where the model's frame is stepped in one launch (settings.frame_kernel "block", or "auto" on
+    CUDA, and the cloth fits a block: no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices),
+    else "sweeps". The CPU keeps the sweep kernels by default: its launches cost little next to the exhaustive
+    self-contact search of a block."""
+    wanted = model.settings.frame_kernel
+    fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
+    if fits and (wanted == "block" or (wanted == "auto" and device.is_cuda)):
+        return "block"
+    return "sweeps"
+
+
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
 # watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
@@ -120,11 +132,14 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     with body collision, the capsules' end points (B, N, 2, 3). `sweep_lanes` threads share a vertex in each Jacobi
     sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics, depends on it);
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
+    `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; settings
+    `frame_kernel` and block_fits decide), else "sweeps"; `block_threads` threads share a world's vertices there
+    (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the CPU).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
                  initial_positions: np.ndarray | None = None, contact_capacity: int = CONTACT_CAPACITY,
-                 sweep_lanes: int | None = None):
+                 sweep_lanes: int | None = None, block_threads: int | None = None):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         if initial_inputs.pin_targets is not None:
@@ -174,11 +189,31 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
+        self.frame_kernel = frame_kernel_of(model, self.device)
+        if self.frame_kernel == "block":
+            self._block_frame_arrays(block_threads)
+        elif block_threads is not None:
+            raise ValueError("block_threads applies to a frame stepped in one block (frame_kernel 'block') only")
         self.frames_stepped_again = 0      # frames whose self-contact lists overflowed (the log says how many)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
             arr(x0, wp.vec3), self._zeros(worlds * n, wp.vec3), worlds)
         self._graph = None
+
+    def _block_frame_arrays(self, threads: int | None) -> None:
+        """The threads of a world's block, and the structs of every substep and sweep as device arrays (the block
+        kernel reads them in turn, the same structs the sweep kernels are launched with)."""
+        if not self.device.is_cuda:
+            threads = 1 if threads is None else threads
+            if threads != 1:
+                raise ValueError(f"block_threads must be 1 on the CPU (a block is one thread), got {threads!r}")
+        elif threads is None:
+            threads = min(block_frame.MAX_BLOCK_THREADS, 32 * math.ceil(self.world_vertices / 32))
+        elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
+            raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
+        self.block_threads = threads
+        self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
+        self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
         """`value` of shape (B, *shape) (or `shape` with one world) as rows world after world, (B shape[0], ...)."""
@@ -440,7 +475,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         if self.device.is_cuda:
             if self._graph is None:
                 # compile before capture: no JIT inside a graph
-                for module in (kernels, body_contact, self_contact, contact_sweep):
+                for module in (kernels, body_contact, self_contact, contact_sweep, block_frame):
                     wp.load_module(module, device=self.device)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
@@ -458,6 +493,12 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                                 (self._saved_lists, self.contacts.vertex_contacts),
                                 (self._saved_count, self.contacts.vertex_count)):
                 wp.copy(saved, live)
+        if self.frame_kernel == "block":
+            wp.launch_tiled(block_frame.step_frame, dim=[self.worlds], block_dim=self.block_threads,
+                            device=self.device,
+                            inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
+                                    self.contacts, self.capsules, int(s.body_collision), int(s.self_collision)])
+            return
         n = self.state.positions.shape[0]
         dev = self.device
         collide = s.body_collision or s.self_collision

@@ -1,0 +1,117 @@
+"""A whole frame of the XPBD cloth solver in one kernel launch: world w is thread block w, whose threads share the
+world's vertices (and triangles) and meet at a block barrier between the steps that read what others wrote.
+
+A small cloth is launch-bound in the sweep kernels (`sim.xpbd.solver`: ~600 graph nodes a frame at 8 x 75, ~2 µs
+each on an H100, whatever the mesh size); here a sweep costs one barrier. Each step is the sweep path's per-vertex
+(per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
+`body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, an exhaustive search of the
+world's triangles whose boxes overlap the vertex's box: the candidates the BVH query finds, listed in the same
+sorted order, `self_contact.sort_face_list`), the Jacobi sweeps (`contact_sweep.swept_vertex`,
+`kernels.distance_correction`) and the substep's end (`body_contact.finish_vertex`, `kernels.store_state`). So with
+one lane a vertex the arithmetic is the sweep path's (bit for bit on the CPU, where a block is one thread).
+Positions stay in global memory: a block's writes before a barrier are visible to the block after it, and a small
+cloth's arrays stay in the SM's L1/L2. The harmonic projection (a reduction over the world) is not done here: a
+high-res run keeps the sweep kernels.
+"""
+from __future__ import annotations
+
+import warp as wp
+
+# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
+wp.set_module_options({"fast_math": True})
+
+from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
+from sim.xpbd.contact_sweep import swept_vertex
+from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
+                              predict_vertex, store_state)
+from sim.xpbd.self_contact import (SelfContacts, end_search, face_bounds, list_candidate, search_box,
+                                   sort_face_list, start_search)
+
+# The most threads a block (one world) runs: the kernel is compiled for it (__launch_bounds__, which caps its
+# registers at 64 a thread), and a block of fewer threads takes several vertices a thread.
+MAX_BLOCK_THREADS = 1024
+# The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
+# kernels, which spread a sweep over the whole GPU.
+MAX_BLOCK_VERTICES = 4096
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __syncthreads();
+#endif
+""")
+def block_barrier():
+    """Every thread of the block waits here until all have arrived, and sees their writes before it (CUDA); on
+    the CPU a block is one thread, which needs no barrier."""
+    ...
+
+
+@wp.func
+def boxes_overlap(lower: wp.vec3, upper: wp.vec3, box_lower: wp.vec3, box_upper: wp.vec3) -> bool:
+    """The BVH query's box test (Warp's intersect_aabb_aabb: closed boxes), so the search finds its hits."""
+    return not (lower[0] > box_upper[0] or lower[1] > box_upper[1] or lower[2] > box_upper[2]
+                or upper[0] < box_lower[0] or upper[1] < box_lower[1] or upper[2] < box_lower[2])
+
+
+@wp.func
+def search_own_world(i: int, sub: Substep, sc: SelfContacts, overflow_flag: int):
+    """find_self_contacts of vertex i, every triangle of its world tested against its box in id order (the BVH
+    path's candidates are those same triangles: contact_side rejects other worlds')."""
+    search = start_search(i, sub, sc)
+    if sub.inv_mass[i] > 0.0:
+        lower, upper = search_box(i, sub, sc)
+        for t in range(search.own_faces[0], search.own_faces[1]):
+            if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
+                search = list_candidate(i, t, search, sub, sc, overflow_flag)
+    end_search(i, search, sc)
+
+
+@wp.kernel(launch_bounds=MAX_BLOCK_THREADS)
+def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
+               sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, capsules: Capsules, body_collision: int,
+               self_collision: int):
+    """Every substep of a frame for world `world` (launch_tiled over the worlds): the launches of
+    ClothSolver._launch_frame without harmonic projection, each a loop of the block's threads over the world's
+    vertices or triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs
+    the sweep kernels are launched with, one per substep and per iteration."""
+    world, thread = wp.tid()
+    threads = wp.block_dim()
+    n = substeps[0].world_vertices
+    first, last = world * n, (world + 1) * n
+    collide = body_collision != 0 or self_collision != 0
+    overflow_flag = substeps.shape[0]
+    for s in range(substeps.shape[0]):
+        sub = substeps[s]
+        for i in range(first + thread, last, threads):
+            if body_collision != 0:
+                predict_near_body(i, sub, pins, capsules)
+            else:
+                sub.x[i] = predict_vertex(i, sub, pins)
+        block_barrier()
+        if self_collision != 0:
+            faces = sc.world_faces
+            for t in range(world * faces + thread, (world + 1) * faces, threads):
+                face_bounds(t, sub.x, sub.x_prev, sc)
+            block_barrier()
+            for i in range(first + thread, last, threads):
+                search_own_world(i, sub, sc, overflow_flag)
+            block_barrier()
+            for t in range(world * faces + thread, (world + 1) * faces, threads):
+                sort_face_list(t, sc)
+            block_barrier()
+        for k in range(sweeps.shape[0]):
+            sweep = sweeps[k]
+            for i in range(first + thread, last, threads):
+                if collide:
+                    sweep.x_out[i] = swept_vertex(i, 0, 1, sub, constraints, sweep, sc, capsules)
+                else:
+                    sweep.x_out[i] = sweep.x_in[i] + distance_correction(i, sweep.x_in[i], sub, constraints, sweep,
+                                                                         0, 1)
+            block_barrier()
+        # A vertex's end of the substep and next prediction read and write its own entries only: no barrier.
+        solved = sweeps[sweeps.shape[0] - 1].x_out
+        for i in range(first + thread, last, threads):
+            if collide:
+                finish_vertex(i, sub, solved, capsules, 1)
+            else:
+                store_state(i, solved[i], sub)
