@@ -12,10 +12,13 @@ own). `--contacts` adds the low-res batches with body and self collision each sw
 cost). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
 by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
 not installed). `--lanes 1,4` times each B with those threads per vertex in the sweeps (ClothSolver's
-sweep_lanes; default: the solver's). Usage:
+sweep_lanes; default: the solver's). `--frame-kernels sweeps,block` times each B with each way of launching a
+frame (settings.frame_kernel: a kernel per sweep, or the frame in one launch of a block per world where the cloth
+fits, sim/xpbd/block_frame.py: the low-res pants; default: auto, the solver's choice); each row names the one
+that ran and its speed over the sweeps of the same B. Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
-      [--contacts] [--peer newton] [--lanes 1,4] [--out table.md]
+      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block] [--out table.md]
 """
 from __future__ import annotations
 
@@ -190,6 +193,7 @@ def main():
     parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
                         "collision switched off")
     parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
+    parser.add_argument("--frame-kernels", default="auto", help="ways to launch a frame, e.g. sweeps,block")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -199,8 +203,11 @@ def main():
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
     lane_counts = [int(lanes) for lanes in args.lanes.split(",")] if args.lanes else [None]
-    rows = ["| level | V | B | lanes | ms per batch frame | cloth-frames/s | x first row |",
-            "|---|---|---|---|---|---|---|"]
+    # Lanes are the sweeps' threads a vertex: the one-block frame runs once a B.
+    variants = [(lanes, kernel) for kernel in args.frame_kernels.split(",")
+                for lanes in (lane_counts if kernel != "block" else [None])]
+    rows = ["| level | V | B | frame kernel | lanes / threads | ms per batch frame | cloth-frames/s | x first row | "
+            "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
         vertices, faces = levels[level]
@@ -213,14 +220,19 @@ def main():
                                     n_frames)
                 goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
-            for lanes in lane_counts:
-                solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds,
-                                     constraint, goals, start, lanes)
+            sweeps_ms = None
+            for lanes, kernel in variants:
+                solver = make_solver(vertices, faces, dataclasses.replace(settings, frame_kernel=kernel), args.device,
+                                     pins, capsules, radii, worlds, constraint, goals, start, lanes)
+                if kernel != "auto" and solver.frame_kernel != kernel:
+                    continue   # the cloth does not fit a block
                 ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
                 rate = worlds * 1e3 / ms
                 base = base or rate
-                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.sweep_lanes} | {ms:.2f} | {rate:.0f} | "
-                            f"{rate / base:.1f} |")
+                sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
+                threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block"
+                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.frame_kernel} | {threads} | {ms:.2f} | "
+                            f"{rate:.0f} | {rate / base:.1f} | {f'{sweeps_ms / ms:.2f}' if sweeps_ms else '-'} |")
                 print(rows[-1], flush=True)
                 if args.profile and worlds == batches[-1]:
                     profiles += [f"\n{level}, B = {worlds}, {solver.sweep_lanes} lanes: one frame's kernels (eager "

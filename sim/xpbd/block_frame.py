@@ -6,7 +6,8 @@ each on an H100, whatever the mesh size); here a sweep costs one barrier. Each s
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
 `body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, an exhaustive search of the
 world's triangles whose boxes overlap the vertex's box: the candidates the BVH query finds, listed in the same
-sorted order, `self_contact.sort_face_list`), the Jacobi sweeps (`contact_sweep.swept_vertex`,
+sorted order, `self_contact.sort_face_list`; the triangles are tested a chunk of CHUNK_FACES consecutive ids at
+a time, a chunk's box first), the Jacobi sweeps (`contact_sweep.swept_vertex`,
 `kernels.distance_correction`) and the substep's end (`body_contact.finish_vertex`, `kernels.store_state`). So with
 one lane a vertex the arithmetic is the sweep path's (bit for bit on the CPU, where a block is one thread).
 Positions stay in global memory: a block's writes before a barrier are visible to the block after it, and a small
@@ -33,6 +34,20 @@ MAX_BLOCK_THREADS = 1024
 # The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
+# The search tests the box of this many consecutive triangles before testing theirs: a mesh's ids are close in
+# space, so a vertex's box meets few chunks (the pants of 3.7k vertices: 7.2k triangles a vertex became ~230
+# chunks and the triangles of the few its box meets). A chunk's box holds its triangles' boxes (min and max are
+# exact), so every triangle whose box meets the vertex's is still tested: the candidates are the same.
+CHUNK_FACES = 32
+
+
+@wp.struct
+class FaceChunks:
+    """The box of each chunk of CHUNK_FACES consecutive triangles of a world (the last may hold fewer), world after
+    world: world w's chunks are rows w C .. w C + C - 1."""
+    lower: wp.array(dtype=wp.vec3)
+    upper: wp.array(dtype=wp.vec3)
+    per_world: int                    # C
 
 
 @wp.func_native("""
@@ -54,22 +69,41 @@ def boxes_overlap(lower: wp.vec3, upper: wp.vec3, box_lower: wp.vec3, box_upper:
 
 
 @wp.func
-def search_own_world(i: int, sub: Substep, sc: SelfContacts, overflow_flag: int):
-    """find_self_contacts of vertex i, every triangle of its world tested against its box in id order (the BVH
-    path's candidates are those same triangles: contact_side rejects other worlds')."""
+def chunk_bounds(c: int, world: int, sc: SelfContacts, chunks: FaceChunks):
+    """The box of chunk c (a row of `chunks`) of `world`, from its triangles' face_bounds boxes."""
+    start = world * sc.world_faces + (c - world * chunks.per_world) * CHUNK_FACES
+    end = wp.min(start + CHUNK_FACES, (world + 1) * sc.world_faces)
+    lower = sc.face_lower[start]
+    upper = sc.face_upper[start]
+    for t in range(start + 1, end):
+        lower = wp.min(lower, sc.face_lower[t])
+        upper = wp.max(upper, sc.face_upper[t])
+    chunks.lower[c] = lower
+    chunks.upper[c] = upper
+
+
+@wp.func
+def search_own_world(i: int, sub: Substep, sc: SelfContacts, chunks: FaceChunks, overflow_flag: int):
+    """find_self_contacts of vertex i, every triangle of its world whose box meets the vertex's listed (the BVH
+    path's candidates are those same triangles: contact_side rejects other worlds'), the chunks' boxes tested
+    first."""
     search = start_search(i, sub, sc)
     if sub.inv_mass[i] > 0.0:
         lower, upper = search_box(i, sub, sc)
-        for t in range(search.own_faces[0], search.own_faces[1]):
-            if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
-                search = list_candidate(i, t, search, sub, sc, overflow_flag)
+        world = i // sc.world_vertices
+        for c in range(world * chunks.per_world, (world + 1) * chunks.per_world):
+            if boxes_overlap(lower, upper, chunks.lower[c], chunks.upper[c]):
+                start = world * sc.world_faces + (c - world * chunks.per_world) * CHUNK_FACES
+                for t in range(start, wp.min(start + CHUNK_FACES, search.own_faces[1])):
+                    if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
+                        search = list_candidate(i, t, search, sub, sc, overflow_flag)
     end_search(i, search, sc)
 
 
 @wp.kernel(launch_bounds=MAX_BLOCK_THREADS)
 def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
-               sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, capsules: Capsules, body_collision: int,
-               self_collision: int):
+               sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
+               body_collision: int, self_collision: int):
     """Every substep of a frame for world `world` (launch_tiled over the worlds): the launches of
     ClothSolver._launch_frame without harmonic projection, each a loop of the block's threads over the world's
     vertices or triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs
@@ -93,8 +127,11 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 face_bounds(t, sub.x, sub.x_prev, sc)
             block_barrier()
+            for c in range(world * chunks.per_world + thread, (world + 1) * chunks.per_world, threads):
+                chunk_bounds(c, world, sc, chunks)
+            block_barrier()
             for i in range(first + thread, last, threads):
-                search_own_world(i, sub, sc, overflow_flag)
+                search_own_world(i, sub, sc, chunks, overflow_flag)
             block_barrier()
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 sort_face_list(t, sc)

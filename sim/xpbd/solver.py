@@ -201,8 +201,9 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self._graph = None
 
     def _block_frame_arrays(self, threads: int | None) -> None:
-        """The threads of a world's block, and the structs of every substep and sweep as device arrays (the block
-        kernel reads them in turn, the same structs the sweep kernels are launched with)."""
+        """The threads of a world's block, the boxes of its search's chunks of triangles, and the structs of every
+        substep and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels
+        are launched with)."""
         if not self.device.is_cuda:
             threads = 1 if threads is None else threads
             if threads != 1:
@@ -212,6 +213,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
             raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
         self.block_threads = threads
+        chunks = block_frame.FaceChunks()
+        chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
+        rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1
+        chunks.lower, chunks.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
+        self._face_chunks = chunks
         self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
         self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
 
@@ -497,7 +503,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             wp.launch_tiled(block_frame.step_frame, dim=[self.worlds], block_dim=self.block_threads,
                             device=self.device,
                             inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
-                                    self.contacts, self.capsules, int(s.body_collision), int(s.self_collision)])
+                                    self.contacts, self._face_chunks, self.capsules, int(s.body_collision),
+                                    int(s.self_collision)])
             return
         n = self.state.positions.shape[0]
         dev = self.device
