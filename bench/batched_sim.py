@@ -15,10 +15,12 @@ not installed). `--lanes 1,4` times each B with those threads per vertex in the 
 sweep_lanes; default: the solver's). `--frame-kernels sweeps,block` times each B with each way of launching a
 frame (settings.frame_kernel: a kernel per sweep, or the frame in one launch of a block per world where the cloth
 fits, sim/xpbd/block_frame.py: the low-res pants; default: auto, the solver's choice); each row names the one
-that ran and its speed over the sweeps of the same B. Usage:
+that ran and its speed over the sweeps of the same B; `--block-threads 512,1024` times the block with those
+threads a world (default: the solver's, one vertex a thread up to 1024). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
-      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block] [--out table.md]
+      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block] [--block-threads 512,1024]
+      [--out table.md]
 """
 from __future__ import annotations
 
@@ -43,6 +45,7 @@ from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 from sim.xpbd.clearance import SubdividedOutsideBody
+from sim.xpbd.solver import frame_kernel_of
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
@@ -97,13 +100,14 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
 
 
 def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start,
-                lanes=None):
+                lanes=None, block_threads=None):
     """The solver of a batch of `worlds` (with the harmonic constraint: starting at `start`, held to `goals`)."""
     body = settings.body_collision
     model = ClothModel(vertices, faces, settings, pins, harmonic=constraint, capsule_radii=radii if body else None)
     inputs = FrameInputs(harmonic_target=None if constraint is None else goals[0],
                          capsules=capsules[:worlds, 0] if body else None)
-    return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes)
+    return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes,
+                       block_threads=block_threads)
 
 
 def frame_inputs(f, worlds, targets, capsules, goals, body=True):
@@ -194,6 +198,7 @@ def main():
                         "collision switched off")
     parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
     parser.add_argument("--frame-kernels", default="auto", help="ways to launch a frame, e.g. sweeps,block")
+    parser.add_argument("--block-threads", default="", help="threads a world in the block frame, e.g. 512,1024")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -203,9 +208,11 @@ def main():
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
     lane_counts = [int(lanes) for lanes in args.lanes.split(",")] if args.lanes else [None]
-    # Lanes are the sweeps' threads a vertex: the one-block frame runs once a B.
-    variants = [(lanes, kernel) for kernel in args.frame_kernels.split(",")
-                for lanes in (lane_counts if kernel != "block" else [None])]
+    # (lanes, frame kernel, block threads): lanes are the sweeps' threads a vertex, block threads the block's.
+    block_threads = [int(n) for n in args.block_threads.split(",")] if args.block_threads else [None]
+    variants = [(lanes, kernel, threads) for kernel in args.frame_kernels.split(",")
+                for lanes in (lane_counts if kernel != "block" else [None])
+                for threads in (block_threads if kernel == "block" else [None])]
     rows = ["| level | V | B | frame kernel | lanes / threads | ms per batch frame | cloth-frames/s | x first row | "
             "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|"]
     profiles = []
@@ -221,11 +228,16 @@ def main():
                 goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
             sweeps_ms = None
-            for lanes, kernel in variants:
-                solver = make_solver(vertices, faces, dataclasses.replace(settings, frame_kernel=kernel), args.device,
-                                     pins, capsules, radii, worlds, constraint, goals, start, lanes)
-                if kernel != "auto" and solver.frame_kernel != kernel:
+            for lanes, kernel, threads in variants:
+                variant = dataclasses.replace(settings, frame_kernel=kernel)
+                model_fits = kernel != "block" or frame_kernel_of(ClothModel(vertices, faces, variant, pins,
+                                                                             capsule_radii=radii,
+                                                                             harmonic=constraint),
+                                                                  wp.get_device(args.device)) == "block"
+                if not model_fits:
                     continue   # the cloth does not fit a block
+                solver = make_solver(vertices, faces, variant, args.device, pins, capsules, radii, worlds, constraint,
+                                     goals, start, lanes, threads)
                 ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
                 rate = worlds * 1e3 / ms
                 base = base or rate

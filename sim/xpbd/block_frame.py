@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import warp as wp
 
-# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
-wp.set_module_options({"fast_math": True})
+# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function). No
+# adjoint: nothing differentiates a frame, and the kernel's backward pass would double its compile time.
+wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
 from sim.xpbd.contact_sweep import swept_vertex

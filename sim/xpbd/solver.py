@@ -480,9 +480,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                # compile before capture: no JIT inside a graph
-                for module in (kernels, body_contact, self_contact, contact_sweep, block_frame):
+                # compile before capture: no JIT inside a graph (the block kernel's variant for its block size)
+                for module in (kernels, body_contact, self_contact, contact_sweep):
                     wp.load_module(module, device=self.device)
+                if self.frame_kernel == "block":
+                    wp.load_module(block_frame, device=self.device, block_dim=self.block_threads)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
                 self._graph = capture.graph
