@@ -242,7 +242,7 @@ def main():
                 rate = worlds * 1e3 / ms
                 base = base or rate
                 sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
-                threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block"
+                threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block{', shared' if solver.block_shared else ''}"
                 rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.frame_kernel} | {threads} | {ms:.2f} | "
                             f"{rate:.0f} | {rate / base:.1f} | {f'{sweeps_ms / ms:.2f}' if sweeps_ms else '-'} |")
                 print(rows[-1], flush=True)

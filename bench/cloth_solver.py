@@ -129,7 +129,7 @@ def garment_rows(case: str, args) -> list[str]:
 def row(case, level, vertices, k, device, solver, name, ms, baseline, sweeps_ms) -> str:
     """A table row: the run's lanes (the sweeps') or block threads, ms a frame, cloth-frames/s (one cloth), the
     ratio to the mesh's first row and the speed over the sweeps of the same variant (when timed before it)."""
-    threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block"
+    threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block{', shared' if solver.block_shared else ''}"
     over_sweeps = f"{sweeps_ms / ms:.2f}" if sweeps_ms else "-"
     return (f"| {case} | {level} | {vertices} | {k} | {device} | {solver.frame_kernel} | {threads} | {name} | "
             f"{ms:.2f} | {1e3 / ms:.0f} | {ms / baseline:.2f} | {over_sweeps} |")

@@ -10,8 +10,11 @@ sorted order, `self_contact.sort_face_list`; the triangles are tested a chunk of
 a time, a chunk's box first), the Jacobi sweeps (`contact_sweep.swept_vertex`,
 `kernels.distance_correction`) and the substep's end (`body_contact.finish_vertex`, `kernels.store_state`). So with
 one lane a vertex the arithmetic is the sweep path's (bit for bit on the CPU, where a block is one thread).
-Positions stay in global memory: a block's writes before a barrier are visible to the block after it, and a small
-cloth's arrays stay in the SM's L1/L2. The harmonic projection (a reduction over the world) is not done here: a
+The sweeps' positions live in shared memory where the world fits (SHARED_VERTICES; a sweep's gather is a chain of
+dependent loads, each ~30 cycles there against several hundred from L2, where the last sweep's writes went); a
+larger world's stay in global memory (a block's writes before a barrier are visible to the block after it). The
+functions are unchanged either way: they index the Jacobi sweep's x_in and x_out, which then view shared memory.
+The harmonic projection (a reduction over the world) is not done here: a
 high-res run keeps the sweep kernels.
 """
 from __future__ import annotations
@@ -35,6 +38,9 @@ MAX_BLOCK_THREADS = 1024
 # The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
+# The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of vec3,
+# 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
+SHARED_VERTICES = 1536
 # The search tests the box of this many consecutive triangles before testing theirs: a mesh's ids are close in
 # space, so a vertex's box meets few chunks (the pants of 3.7k vertices: 7.2k triangles a vertex became ~230
 # chunks and the triangles of the few its box meets). A chunk's box holds its triangles' boxes (min and max are
@@ -60,6 +66,39 @@ def block_barrier():
     """Every thread of the block waits here until all have arrived, and sees their writes before it (CUDA); on
     the CPU a block is one thread, which needs no barrier."""
     ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+    __shared__ wp::vec3 buffer[2 * {SHARED_VERTICES}];
+    if (in_shared) {
+        wp::array_t<wp::vec3> view = fallback;
+        view.data = buffer + half * {SHARED_VERTICES} - first;
+        return view;
+    }
+#endif
+    return fallback;
+""".replace("{SHARED_VERTICES}", str(SHARED_VERTICES)))
+def shared_positions(fallback: wp.array(dtype=wp.vec3), half: int, first: int,
+                     in_shared: int) -> wp.array(dtype=wp.vec3):
+    """With in_shared (CUDA), a view of half `half` (0 or 1) of the block's shared buffer indexed by the world's
+    vertex ids (`first`, the world's first, is its first entry); else `fallback`, the global buffer."""
+    ...
+
+
+@wp.func
+def in_buffers(sweep: JacobiSweep, k: int, even: wp.array(dtype=wp.vec3),
+               odd: wp.array(dtype=wp.vec3)) -> JacobiSweep:
+    """Sweep k reading from and writing to `even` and `odd` in turn (k even: from `even`), as the solver's sweeps
+    ping-pong between the state's positions and a work array."""
+    moved = sweep
+    if k % 2 == 0:
+        moved.x_in = even
+        moved.x_out = odd
+    else:
+        moved.x_in = odd
+        moved.x_out = even
+    return moved
 
 
 @wp.func
@@ -104,17 +143,21 @@ def search_own_world(i: int, sub: Substep, sc: SelfContacts, chunks: FaceChunks,
 @wp.kernel(launch_bounds=MAX_BLOCK_THREADS)
 def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
                sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
-               body_collision: int, self_collision: int):
+               body_collision: int, self_collision: int, in_shared: int):
     """Every substep of a frame for world `world` (launch_tiled over the worlds): the launches of
     ClothSolver._launch_frame without harmonic projection, each a loop of the block's threads over the world's
     vertices or triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs
-    the sweep kernels are launched with, one per substep and per iteration."""
+    the sweep kernels are launched with, one per substep and per iteration; with in_shared their positions
+    ping-pong in shared memory instead of the state's positions and the work array."""
     world, thread = wp.tid()
     threads = wp.block_dim()
     n = substeps[0].world_vertices
     first, last = world * n, (world + 1) * n
     collide = body_collision != 0 or self_collision != 0
     overflow_flag = substeps.shape[0]
+    iterations = sweeps.shape[0]
+    even = shared_positions(sweeps[0].x_in, 0, first, in_shared)
+    odd = shared_positions(sweeps[0].x_out, 1, first, in_shared)
     for s in range(substeps.shape[0]):
         sub = substeps[s]
         for i in range(first + thread, last, threads):
@@ -122,6 +165,7 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
                 predict_near_body(i, sub, pins, capsules)
             else:
                 sub.x[i] = predict_vertex(i, sub, pins)
+            even[i] = sub.x[i]   # the first sweep's input (the same array, without in_shared)
         block_barrier()
         if self_collision != 0:
             faces = sc.world_faces
@@ -137,8 +181,8 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 sort_face_list(t, sc)
             block_barrier()
-        for k in range(sweeps.shape[0]):
-            sweep = sweeps[k]
+        for k in range(iterations):
+            sweep = in_buffers(sweeps[k], k, even, odd)
             for i in range(first + thread, last, threads):
                 if collide:
                     sweep.x_out[i] = swept_vertex(i, 0, 1, sub, constraints, sweep, sc, capsules)
@@ -147,7 +191,7 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
                                                                          0, 1)
             block_barrier()
         # A vertex's end of the substep and next prediction read and write its own entries only: no barrier.
-        solved = sweeps[sweeps.shape[0] - 1].x_out
+        solved = in_buffers(sweeps[iterations - 1], iterations - 1, even, odd).x_out
         for i in range(first + thread, last, threads):
             if collide:
                 finish_vertex(i, sub, solved, capsules, 1)

@@ -134,7 +134,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
     `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; settings
     `frame_kernel` and block_fits decide), else "sweeps"; `block_threads` threads share a world's vertices there
-    (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the CPU).
+    (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the CPU), its sweeps'
+    positions in shared memory where the world fits (`block_shared`).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
@@ -213,6 +214,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
             raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
         self.block_threads = threads
+        # The sweeps' positions in shared memory (CUDA) where the world fits; on the CPU a block is one thread.
+        self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
         chunks = block_frame.FaceChunks()
         chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
         rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1
@@ -506,7 +509,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                             device=self.device,
                             inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
                                     self.contacts, self._face_chunks, self.capsules, int(s.body_collision),
-                                    int(s.self_collision)])
+                                    int(s.self_collision), int(self.block_shared)])
             return
         n = self.state.positions.shape[0]
         dev = self.device

@@ -66,7 +66,7 @@ def close_to(reference, x):
 
 def test_contacts_step_as_the_sweeps_bit_for_bit():
     block, solver = contact_scene("cpu", frame_kernel="block")
-    assert solver.frame_kernel == "block" and solver.block_threads == 1
+    assert solver.frame_kernel == "block" and solver.block_threads == 1 and not solver.block_shared
     assert solver.contacts.vertex_count.numpy().max() > 0 and (solver.capsules.push.numpy() > 0).any()
     sweeps, solver = contact_scene("cpu", frame_kernel="sweeps")
     assert solver.frame_kernel == "sweeps"
@@ -159,10 +159,13 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
 
 @CUDA
 @pytest.mark.parametrize("threads", [None, 32, 1])
-def test_cuda_block_agrees_with_the_cpu(threads):
+@pytest.mark.parametrize("shared", [True, False])
+def test_cuda_block_agrees_with_the_cpu(threads, shared, monkeypatch):
+    if not shared:   # the sweeps' positions in global memory, as a world too large for shared memory has them
+        monkeypatch.setattr(block_frame, "SHARED_VERTICES", 0)
     cpu, _ = contact_scene("cpu", frame_kernel="block")
     cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
-    assert solver.frame_kernel == "block"
+    assert solver.frame_kernel == "block" and solver.block_shared == shared
     assert solver.block_threads == (threads or 32 * -(-solver.world_vertices // 32))
     close_to(cpu, cuda)
     again, _ = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
