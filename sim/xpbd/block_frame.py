@@ -140,7 +140,9 @@ def search_own_world(i: int, sub: Substep, sc: SelfContacts, chunks: FaceChunks,
     end_search(i, search, sc)
 
 
-@wp.kernel(launch_bounds=MAX_BLOCK_THREADS)
+# No grid-stride loop: each thread is one lane of one world's block for the whole frame (a thread looping over
+# several would meet the barriers out of step).
+@wp.kernel(launch_bounds=MAX_BLOCK_THREADS, grid_stride=False)
 def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
                sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
                body_collision: int, self_collision: int, in_shared: int):
