@@ -213,8 +213,8 @@ def main():
     variants = [(lanes, kernel, threads) for kernel in args.frame_kernels.split(",")
                 for lanes in (lane_counts if kernel != "block" else [None])
                 for threads in (block_threads if kernel == "block" else [None])]
-    rows = ["| level | V | B | frame kernel | lanes / threads | ms per batch frame | cloth-frames/s | x first row | "
-            "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| level | V | B | launch | ms per batch frame | cloth-frames/s | x first row | speed over sweeps |",
+            "|---|---|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
         vertices, faces = levels[level]
@@ -242,12 +242,11 @@ def main():
                 rate = worlds * 1e3 / ms
                 base = base or rate
                 sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
-                threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block{', shared' if solver.block_shared else ''}"
-                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.frame_kernel} | {threads} | {ms:.2f} | "
+                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.launch_summary()} | {ms:.2f} | "
                             f"{rate:.0f} | {rate / base:.1f} | {f'{sweeps_ms / ms:.2f}' if sweeps_ms else '-'} |")
                 print(rows[-1], flush=True)
                 if args.profile and worlds == batches[-1]:
-                    profiles += [f"\n{level}, B = {worlds}, {solver.sweep_lanes} lanes: one frame's kernels (eager "
+                    profiles += [f"\n{level}, B = {worlds}, {solver.launch_summary()}: one frame's kernels (eager "
                                  "launches)", "| kernel | launches | ms | share |", "|---|---|---|---|",
                                  *kernel_profile(solver, goals, targets, capsules)]
                 del solver

@@ -127,11 +127,10 @@ def garment_rows(case: str, args) -> list[str]:
 
 
 def row(case, level, vertices, k, device, solver, name, ms, baseline, sweeps_ms) -> str:
-    """A table row: the run's lanes (the sweeps') or block threads, ms a frame, cloth-frames/s (one cloth), the
-    ratio to the mesh's first row and the speed over the sweeps of the same variant (when timed before it)."""
-    threads = solver.sweep_lanes if solver.frame_kernel == "sweeps" else f"{solver.block_threads} a block{', shared' if solver.block_shared else ''}"
+    """A table row: how the frame was launched, ms a frame, cloth-frames/s (one cloth), the ratio to the mesh's
+    first row and the speed over the sweeps of the same variant (when timed before it)."""
     over_sweeps = f"{sweeps_ms / ms:.2f}" if sweeps_ms else "-"
-    return (f"| {case} | {level} | {vertices} | {k} | {device} | {solver.frame_kernel} | {threads} | {name} | "
+    return (f"| {case} | {level} | {vertices} | {k} | {device} | {solver.launch_summary()} | {name} | "
             f"{ms:.2f} | {1e3 / ms:.0f} | {ms / baseline:.2f} | {over_sweeps} |")
 
 
@@ -196,8 +195,8 @@ def main():
     parser.add_argument("--frame-kernels", default="", help="ways to launch a frame, e.g. sweeps,block")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
-    rows = ["| mesh | level | V | K | device | frame kernel | lanes / threads | variant | ms/frame | cloth-frames/s | "
-            "x first row | speed over sweeps |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| mesh | level | V | K | device | launch | variant | ms/frame | cloth-frames/s | x first row | "
+            "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in args.cases.split(","):
         rows += garment_rows(case, args) if case in GARMENTS else flag_rows(case, args)
     table = "\n".join(rows)

@@ -4,10 +4,11 @@ A frame of length dt is split into `substeps`; each substep predicts positions, 
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
 and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.body_contact`
 and `sim.xpbd.contact_sweep` (contacts fused into them) plus, for self-collision, a broad phase once per substep
-(`sim.xpbd.self_contact`). On CUDA the whole frame is
-captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
-arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the solver
-makes the state it steps.
+(`sim.xpbd.self_contact`). A cloth that fits a thread block (the low-res run) may instead step the whole frame in
+one launch, a block per world (`sim.xpbd.block_frame`: the same functions; frame_kernel_of). On CUDA the whole
+frame is captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in
+device arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the
+solver makes the state it steps.
 
 A solver steps `worlds` independent copies of the cloth at once (B sequences of one garment, each with its own
 pins, body motion and harmonic targets): the kernels run over the worlds' vertices one after the other (see
@@ -99,6 +100,7 @@ def cuda_sweep_lanes(vertices: int) -> int:
         lanes *= 2
     return lanes
 
+
 def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
     """"block" where the model's frame is stepped in one launch (settings.frame_kernel "block", or "auto" on
     CUDA, and the cloth fits a block: no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices),
@@ -132,10 +134,10 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     with body collision, the capsules' end points (B, N, 2, 3). `sweep_lanes` threads share a vertex in each Jacobi
     sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics, depends on it);
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
-    `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; settings
-    `frame_kernel` and block_fits decide), else "sweeps"; `block_threads` threads share a world's vertices there
-    (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the CPU), its sweeps'
-    positions in shared memory where the world fits (`block_shared`).
+    `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; the
+    settings' `frame_kernel` and the cloth decide: frame_kernel_of), else "sweeps"; `block_threads` threads share
+    a world's vertices there (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the
+    CPU), its sweeps' positions in shared memory where the world fits (`block_shared`).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
@@ -154,6 +156,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             raise ValueError(f"sweep_lanes must be 1, 2, 4, 8 or 16 on CUDA (threads of a warp per vertex) and 1 on "
                              f"the CPU, got {sweep_lanes!r}")
         self.sweep_lanes = sweep_lanes
+        self.frame_kernel = frame_kernel_of(model, self.device)
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
         s = model.settings
@@ -190,7 +193,6 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
-        self.frame_kernel = frame_kernel_of(model, self.device)
         if self.frame_kernel == "block":
             self._block_frame_arrays(block_threads)
         elif block_threads is not None:
@@ -223,6 +225,12 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self._face_chunks = chunks
         self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
         self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
+
+    def launch_summary(self) -> str:
+        """How a frame is launched, in words (benches and logs): the sweeps' lanes, or the block's threads."""
+        if self.frame_kernel == "sweeps":
+            return f"sweeps, {self.sweep_lanes} lane(s) a vertex"
+        return f"a block a world, {self.block_threads} thread(s)" + (", shared memory" if self.block_shared else "")
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
         """`value` of shape (B, *shape) (or `shape` with one world) as rows world after world, (B shape[0], ...)."""
@@ -407,10 +415,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         sc.world_vertices, sc.world_faces = n, len(faces)
         sc.lattice = math.ceil(self.worlds ** (1 / 3) - 1e-9)
         sc.spacing = spacing
-        x = self.state.positions
-        wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
-        self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
-        sc.face_bvh = self._face_bvh.id
+        if self.frame_kernel == "sweeps":   # the block frame searches its world's triangles without a tree
+            x = self.state.positions
+            wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
+            self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
+            sc.face_bvh = self._face_bvh.id
         return sc
 
     def _size_contact_lists(self, sc: self_contact.SelfContacts, capacity: int, vertices: int) -> None:
