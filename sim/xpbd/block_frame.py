@@ -42,9 +42,10 @@ MAX_BLOCK_VERTICES = 4096
 # 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
 SHARED_VERTICES = 1536
 # The search tests the box of this many consecutive triangles before testing theirs: a mesh's ids are close in
-# space, so a vertex's box meets few chunks (the pants of 3.7k vertices: 7.2k triangles a vertex became ~230
-# chunks and the triangles of the few its box meets). A chunk's box holds its triangles' boxes (min and max are
-# exact), so every triangle whose box meets the vertex's is still tested: the candidates are the same.
+# space, so a vertex's box meets few chunks (the 3.7k-vertex pants hanging: 225 chunks of its 7,176 triangles, a
+# vertex's box meeting ~10 and at most 26, so ~540 boxes tested instead of 7,176; the paper's 757-vertex pants: ~6
+# of 46). A chunk's box holds its triangles' boxes (min and max are exact), so every triangle whose box meets the
+# vertex's is still tested: the candidates are the same.
 CHUNK_FACES = 32
 
 
