@@ -61,11 +61,14 @@ class FaceChunks:
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
     __syncthreads();
+#else
+    WP_TILE_SYNC();
 #endif
 """)
 def block_barrier():
-    """Every thread of the block waits here until all have arrived, and sees their writes before it (CUDA); on
-    the CPU a block is one thread, which needs no barrier."""
+    """Every thread of the block waits here until all have arrived, and sees their writes before it. On the CPU
+    a block is one thread (nothing to wait for), or with warp.config.enable_cpu_blocks as many fibers, which take
+    turns at the barriers (what the tests use to check the barriers without a GPU)."""
     ...
 
 

@@ -136,8 +136,9 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
     `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; the
     settings' `frame_kernel` and the cloth decide: frame_kernel_of), else "sweeps"; `block_threads` threads share
-    a world's vertices there (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; always 1 on the
-    CPU), its sweeps' positions in shared memory where the world fits (`block_shared`).
+    a world's vertices there (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; 1 on the CPU, where
+    more take turns as fibers with warp.config.enable_cpu_blocks and are 1 without), its sweeps' positions in
+    shared memory where the world fits (`block_shared`, CUDA).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
@@ -207,12 +208,9 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         """The threads of a world's block, the boxes of its search's chunks of triangles, and the structs of every
         substep and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels
         are launched with)."""
-        if not self.device.is_cuda:
-            threads = 1 if threads is None else threads
-            if threads != 1:
-                raise ValueError(f"block_threads must be 1 on the CPU (a block is one thread), got {threads!r}")
-        elif threads is None:
-            threads = min(block_frame.MAX_BLOCK_THREADS, 32 * math.ceil(self.world_vertices / 32))
+        if threads is None:   # the CPU runs a block as one thread (Warp's fibers only with enable_cpu_blocks)
+            threads = min(block_frame.MAX_BLOCK_THREADS, 32 * math.ceil(self.world_vertices / 32)) \
+                if self.device.is_cuda else 1
         elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
             raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
         self.block_threads = threads
