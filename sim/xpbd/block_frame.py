@@ -14,8 +14,7 @@ The sweeps' positions live in shared memory where the world fits (SHARED_VERTICE
 dependent loads, each ~30 cycles there against several hundred from L2, where the last sweep's writes went); a
 larger world's stay in global memory (a block's writes before a barrier are visible to the block after it). The
 functions are unchanged either way: they index the Jacobi sweep's x_in and x_out, which then view shared memory.
-The harmonic projection (a reduction over the world) is not done here: a
-high-res run keeps the sweep kernels.
+The harmonic projection (a reduction over the world) is not done here: a high-res run keeps the sweep kernels.
 """
 from __future__ import annotations
 
@@ -38,8 +37,8 @@ MAX_BLOCK_THREADS = 1024
 # The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
-# The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of vec3,
-# 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
+# The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of
+# vec3, 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
 SHARED_VERTICES = 1536
 # The search tests the box of this many consecutive triangles before testing theirs: a mesh's ids are close in
 # space, so a vertex's box meets few chunks (the 3.7k-vertex pants hanging: 225 chunks of its 7,176 triangles, a
