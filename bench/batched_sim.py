@@ -12,10 +12,15 @@ own). `--contacts` adds the low-res batches with body and self collision each sw
 cost). `--peer newton` adds, per level and B, the same cloth hanging from its pins without body or contact, stepped
 by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py; one line instead where Newton is
 not installed). `--lanes 1,4` times each B with those threads per vertex in the sweeps (ClothSolver's
-sweep_lanes; default: the solver's). Usage:
+sweep_lanes; default: the solver's). `--frame-kernels sweeps,block` times each B with each way of launching a
+frame (settings.frame_kernel: a kernel per sweep, or the frame in one launch of a block per world where the cloth
+fits, sim/xpbd/block_frame.py: the low-res pants; default: auto, the solver's choice); each row names the one
+that ran and its speed over the sweeps of the same B; `--block-threads 512,1024` times the block with those
+threads a world (default: the solver's, one vertex a thread up to 1024). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
-      [--contacts] [--peer newton] [--lanes 1,4] [--out table.md]
+      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block] [--block-threads 512,1024]
+      [--out table.md]
 """
 from __future__ import annotations
 
@@ -40,6 +45,7 @@ from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 from sim.xpbd.clearance import SubdividedOutsideBody
+from sim.xpbd.solver import frame_kernel_of
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
 
@@ -94,13 +100,14 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
 
 
 def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start,
-                lanes=None):
+                lanes=None, block_threads=None):
     """The solver of a batch of `worlds` (with the harmonic constraint: starting at `start`, held to `goals`)."""
     body = settings.body_collision
     model = ClothModel(vertices, faces, settings, pins, harmonic=constraint, capsule_radii=radii if body else None)
     inputs = FrameInputs(harmonic_target=None if constraint is None else goals[0],
                          capsules=capsules[:worlds, 0] if body else None)
-    return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes)
+    return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes,
+                       block_threads=block_threads)
 
 
 def frame_inputs(f, worlds, targets, capsules, goals, body=True):
@@ -190,6 +197,8 @@ def main():
     parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
                         "collision switched off")
     parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
+    parser.add_argument("--frame-kernels", default="auto", help="ways to launch a frame, e.g. sweeps,block")
+    parser.add_argument("--block-threads", default="", help="threads a world in the block frame, e.g. 512,1024")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -199,8 +208,13 @@ def main():
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
     lane_counts = [int(lanes) for lanes in args.lanes.split(",")] if args.lanes else [None]
-    rows = ["| level | V | B | lanes | ms per batch frame | cloth-frames/s | x first row |",
-            "|---|---|---|---|---|---|---|"]
+    # (lanes, frame kernel, block threads): lanes are the sweeps' threads a vertex, block threads the block's.
+    block_threads = [int(n) for n in args.block_threads.split(",")] if args.block_threads else [None]
+    variants = [(lanes, kernel, threads) for kernel in args.frame_kernels.split(",")
+                for lanes in (lane_counts if kernel != "block" else [None])
+                for threads in (block_threads if kernel == "block" else [None])]
+    rows = ["| level | V | B | launch | ms per batch frame | cloth-frames/s | x first row | speed over sweeps |",
+            "|---|---|---|---|---|---|---|---|"]
     profiles = []
     for level in args.levels.split(","):
         vertices, faces = levels[level]
@@ -213,17 +227,26 @@ def main():
                                     n_frames)
                 goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
-            for lanes in lane_counts:
-                solver = make_solver(vertices, faces, settings, args.device, pins, capsules, radii, worlds,
-                                     constraint, goals, start, lanes)
+            sweeps_ms = None
+            for lanes, kernel, threads in variants:
+                variant = dataclasses.replace(settings, frame_kernel=kernel)
+                model_fits = kernel != "block" or frame_kernel_of(ClothModel(vertices, faces, variant, pins,
+                                                                             capsule_radii=radii,
+                                                                             harmonic=constraint),
+                                                                  wp.get_device(args.device)) == "block"
+                if not model_fits:
+                    continue   # the cloth does not fit a block
+                solver = make_solver(vertices, faces, variant, args.device, pins, capsules, radii, worlds, constraint,
+                                     goals, start, lanes, threads)
                 ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
                 rate = worlds * 1e3 / ms
                 base = base or rate
-                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.sweep_lanes} | {ms:.2f} | {rate:.0f} | "
-                            f"{rate / base:.1f} |")
+                sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
+                rows.append(f"| {level} | {len(vertices)} | {worlds} | {solver.launch_summary()} | {ms:.2f} | "
+                            f"{rate:.0f} | {rate / base:.1f} | {f'{sweeps_ms / ms:.2f}' if sweeps_ms else '-'} |")
                 print(rows[-1], flush=True)
                 if args.profile and worlds == batches[-1]:
-                    profiles += [f"\n{level}, B = {worlds}, {solver.sweep_lanes} lanes: one frame's kernels (eager "
+                    profiles += [f"\n{level}, B = {worlds}, {solver.launch_summary()}: one frame's kernels (eager "
                                  "launches)", "| kernel | launches | ms | share |", "|---|---|---|---|",
                                  *kernel_profile(solver, goals, targets, capsules)]
                 del solver

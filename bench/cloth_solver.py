@@ -5,14 +5,22 @@ graph). Each row's ratio is against the first variant of the same mesh and devic
 flags the stretch-only run, so the price of bending and of the harmonic constraint is visible; for the garments
 (`pants`, `tshirt`: a low-res garment and its Loop subdivision, worn by the mannequin dancing) the stretch-only run
 too, then the price of bending ("no collision"), of the body and of self-collision. `--lanes 1,4` times each
-CUDA run with those threads per vertex in the sweeps (ClothSolver's sweep_lanes; default: the solver's). Usage:
-  python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,tshirt] [--frames 10] [--warmup 3]
-  [--substeps 8] [--iterations 75] [--lanes 1,4] [--out table.md]
+CUDA run with those threads per vertex in the sweeps (ClothSolver's sweep_lanes; default: the solver's).
+`--frame-kernels sweeps,block` times each run with each way of launching a frame (settings.frame_kernel: a kernel
+per sweep, or the whole frame in one launch of a block per world where the cloth fits, sim/xpbd/block_frame.py;
+default: auto, the solver's choice); each row names the one that ran, its cloth-frames/s and its speed over the
+sweeps of the same variant. `pants-paper` is the paper profile's low-res pants (max_edge 0.08, 757 vertices).
+Usage:
+  python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,pants-paper,tshirt] [--frames 10]
+  [--warmup 3] [--substeps 8] [--iterations 75] [--lanes 1,4] [--frame-kernels sweeps,block] [--out table.md]
 e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
+and the one-block frame against the sweeps: python bench/cloth_solver.py --devices cuda:0 --cases pants-paper
+  --frame-kernels sweeps,block --skip-high
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -32,8 +40,8 @@ from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmo
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
-# Garment max_edge: ~3.5k vertices low-res, ~14k after one level of Loop subdivision.
-GARMENTS = {"pants": 0.035, "tshirt": 0.03}
+# Garment and max_edge: ~3.5k vertices low-res, ~14k after one level of Loop subdivision; the paper profile's pants.
+GARMENTS = {"pants": ("pants", 0.035), "tshirt": ("tshirt", 0.03), "pants-paper": ("pants", 0.08)}
 
 
 def build(max_edge: float):
@@ -58,14 +66,15 @@ def time_run(vertices, faces, settings, device, pins, frames, warmup, lanes, har
         solver.step(solver.state, FrameInputs(pin_targets=pin_targets, harmonic_target=target))
         solver.state.positions.numpy()  # the positions a stage stores each frame; also synchronises the device
         times.append((time.perf_counter() - start) * 1e3)
-    return float(np.median(times[warmup:])), solver.sweep_lanes
+    return float(np.median(times[warmup:])), solver
 
 
 def garment_inputs(kind: str, n_frames: int):
     """The garment (low-res and one Loop level finer), its pinned attachment vertices and, per frame, their targets
     and the capsules of the mannequin dancing (no settling: the dance fades in over the first 10 frames)."""
     skel = default_skeleton()
-    garment = make_garment(kind, skel, max_edge=GARMENTS[kind])
+    name, max_edge = GARMENTS[kind]
+    garment = make_garment(name, skel, max_edge=max_edge)
     S, high_faces = loop_subdivide(garment.vertices, garment.faces, levels=1)
     state = body_state(skel, make_motion("dance", n_frames, settle_frames=0, blend_frames=10))
     a, b, ra, rb = capsules_world(skel, state.transforms)
@@ -88,7 +97,7 @@ def time_garment(vertices, faces, settings, device, pins, targets, capsules, rad
         solver.step(solver.state, FrameInputs(pin_targets=targets[f], capsules=capsules[f] if body else None))
         solver.state.positions.numpy()
         times.append((time.perf_counter() - start) * 1e3)
-    return float(np.median(times[warmup:])), solver.sweep_lanes
+    return float(np.median(times[warmup:])), solver
 
 
 def garment_rows(case: str, args) -> list[str]:
@@ -96,21 +105,37 @@ def garment_rows(case: str, args) -> list[str]:
     rows = []
     for device in args.devices.split(","):
         for level, (verts, faces) in levels.items():
-            if level == "high" and device == "cpu" and args.skip_cpu_high:
+            if skipped(level, device, args):
                 continue
             base = dict(substeps=args.substeps, iterations=args.iterations)
             baseline = None
             for name, switches in (("stretch only", dict(bending=False)), ("no collision", {}),
                                    ("body", dict(body_collision=True)),
                                    ("body+self", dict(body_collision=True, self_collision=True))):
-                for lanes in lane_counts(device, args):
-                    ms, used = time_garment(verts, faces, SolverSettings(**base, **switches), device, pins, targets,
-                                      capsules, radii, args.frames, args.warmup, lanes)
+                sweeps_ms = None
+                for lanes, kernel in run_variants(device, args):
+                    settings = SolverSettings(**base, **switches, frame_kernel=kernel)
+                    ms, solver = time_garment(verts, faces, settings, device, pins, targets, capsules, radii,
+                                              args.frames, args.warmup, lanes)
+                    if kernel != "auto" and solver.frame_kernel != kernel:
+                        continue   # the cloth does not fit a block
                     baseline = baseline or ms
-                    rows.append(f"| {case} | {level} | {len(verts)} | - | {device} | {used} | {name} | "
-                                f"{ms:.2f} | {ms / baseline:.2f} |")
+                    sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
+                    rows.append(row(case, level, len(verts), "-", device, solver, name, ms, baseline, sweeps_ms))
                     print(rows[-1], flush=True)
     return rows
+
+
+def row(case, level, vertices, k, device, solver, name, ms, baseline, sweeps_ms) -> str:
+    """A table row: how the frame was launched, ms a frame, cloth-frames/s (one cloth), the ratio to the mesh's
+    first row and the speed over the sweeps of the same variant (when timed before it)."""
+    over_sweeps = f"{sweeps_ms / ms:.2f}" if sweeps_ms else "-"
+    return (f"| {case} | {level} | {vertices} | {k} | {device} | {solver.launch_summary()} | {name} | "
+            f"{ms:.2f} | {1e3 / ms:.0f} | {ms / baseline:.2f} | {over_sweeps} |")
+
+
+def skipped(level: str, device: str, args) -> bool:
+    return level == "high" and (args.skip_high or (device == "cpu" and args.skip_cpu_high))
 
 
 def flag_rows(case: str, args) -> list[str]:
@@ -123,7 +148,7 @@ def flag_rows(case: str, args) -> list[str]:
     rows = []
     for device in args.devices.split(","):
         for level, (verts, faces) in (("low", (low, low_faces)), ("high", (high, high_faces))):
-            if level == "high" and device == "cpu" and args.skip_cpu_high:
+            if skipped(level, device, args):
                 continue
             pins = first_row_pins(verts, "xy", "top_edge")
             base = dict(substeps=args.substeps, iterations=args.iterations)
@@ -134,20 +159,26 @@ def flag_rows(case: str, args) -> list[str]:
                                  (harmonic_constraint(basis, mass, pins), basis, mass)))
             baseline = None
             for name, settings, harmonic in variants:
-                for lanes in lane_counts(device, args):
-                    ms, used = time_run(verts, faces, settings, device, pins, args.frames, args.warmup, lanes, harmonic)
+                sweeps_ms = None
+                for lanes, kernel in run_variants(device, args):
+                    ms, solver = time_run(verts, faces, dataclasses.replace(settings, frame_kernel=kernel), device,
+                                          pins, args.frames, args.warmup, lanes, harmonic)
+                    if kernel != "auto" and solver.frame_kernel != kernel:
+                        continue   # the cloth does not fit a block
                     baseline = baseline or ms
-                    rows.append(f"| {case} | {level} | {len(verts)} | {k if harmonic else '-'} | {device} | "
-                                f"{used} | {name} | {ms:.2f} | {ms / baseline:.2f} |")
+                    sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
+                    rows.append(row(case, level, len(verts), k if harmonic else "-", device, solver, name, ms,
+                                    baseline, sweeps_ms))
                     print(rows[-1], flush=True)
     return rows
 
 
-def lane_counts(device: str, args) -> list[int | None]:
-    """The sweep_lanes values to time on `device` (None: the solver's default; the CPU takes 1 only)."""
-    if not args.lanes or not device.startswith("cuda"):
-        return [None]
-    return [int(lanes) for lanes in args.lanes.split(",")]
+def run_variants(device: str, args) -> list[tuple[int | None, str]]:
+    """The (sweep_lanes, frame_kernel) pairs to time on `device`: each of --lanes (None: the solver's default; the
+    CPU takes 1 only) with the sweeps, or alone with auto, then the one-block frame if --frame-kernels asks."""
+    lanes = [int(n) for n in args.lanes.split(",")] if args.lanes and device.startswith("cuda") else [None]
+    kernels = args.frame_kernels.split(",") if args.frame_kernels else ["auto"]
+    return [(n, kernel) for kernel in kernels for n in (lanes if kernel != "block" else [None])]
 
 
 def main():
@@ -159,11 +190,13 @@ def main():
     parser.add_argument("--substeps", type=int, default=8)
     parser.add_argument("--iterations", type=int, default=75)
     parser.add_argument("--skip-cpu-high", action="store_true", help="skip high-res runs on the CPU (slow)")
+    parser.add_argument("--skip-high", action="store_true", help="skip high-res runs on every device")
     parser.add_argument("--lanes", default="", help="CUDA threads per vertex in the sweeps, e.g. 1,4")
+    parser.add_argument("--frame-kernels", default="", help="ways to launch a frame, e.g. sweeps,block")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
-    rows = ["| mesh | level | V | K | device | lanes | variant | ms/frame | x first row |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| mesh | level | V | K | device | launch | variant | ms/frame | cloth-frames/s | x first row | "
+            "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in args.cases.split(","):
         rows += garment_rows(case, args) if case in GARMENTS else flag_rows(case, args)
     table = "\n".join(rows)

@@ -160,10 +160,11 @@ def tangle_check(rest: np.ndarray, faces: np.ndarray):
 
 
 def frame_work(solver: ClothSolver) -> str:
-    """What one frame of one world costs, for the log (the schema bounds substeps and iterations)."""
+    """What one frame of one world costs and how it is launched, for the log (the schema bounds substeps and
+    iterations)."""
     s = solver.model.settings
     return (f"{s.substeps} substeps x {s.iterations} iterations over {solver.world_vertices:,} vertices and "
-            f"{solver.n_constraints:,} constraints")
+            f"{solver.n_constraints:,} constraints ({solver.launch_summary()})")
 
 
 def contact_growth(solver: ClothSolver) -> str:

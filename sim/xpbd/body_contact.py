@@ -236,7 +236,12 @@ def predict_with_body(sub: Substep, pins: PinDrive, capsules: Capsules):
     limb that moves farther than its radius in a substep still meets the cloth on its front side. The first
     WATCHED capsules within `reach` of the result are watched in the iterations (a list, not a mask, so that an
     iteration costs nothing for the many vertices far from the body); finish_substep checks them all."""
-    i = wp.tid()
+    predict_near_body(wp.tid(), sub, pins, capsules)
+
+
+@wp.func
+def predict_near_body(i: int, sub: Substep, pins: PinDrive, capsules: Capsules):
+    """predict_with_body of vertex i."""
     xi = predict_vertex(i, sub, pins)
     near = int(0)
     watched = int(0)
@@ -273,7 +278,12 @@ def finish_substep(sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Ca
     a capsule it was far from at the prediction, the harmonic projection may have moved it since the last sweep,
     and friction slides it along one capsule's tangent plane, which may enter a neighbouring capsule. Then
     store_state."""
-    i = wp.tid()
+    finish_vertex(wp.tid(), sub, x_solved, capsules, with_friction)
+
+
+@wp.func
+def finish_vertex(i: int, sub: Substep, x_solved: wp.array(dtype=wp.vec3), capsules: Capsules, with_friction: int):
+    """finish_substep of vertex i."""
     xi = x_solved[i]
     if sub.inv_mass[i] > 0.0:
         first = first_capsule(i, sub, capsules)

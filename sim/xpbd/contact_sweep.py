@@ -20,12 +20,22 @@ from sim.xpbd.self_contact import SelfContacts, contact_multiplier, contact_tria
 @wp.kernel
 def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, sc: SelfContacts,
                           capsules: Capsules, lanes: int):
-    """One Jacobi sweep: distance constraints (distance_correction) and self-contacts gathered from x_in, then
-    projection out of the capsules. Empty contact lists and no watched capsule leave exactly x_in + distance
-    correction, as solve_distance_constraints computes it. Launched over n * lanes threads (kernels.lane_sum): a
-    lane takes every lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane
-    writes the result."""
+    """One Jacobi sweep (swept_vertex), launched over n * lanes threads (kernels.lane_sum): a lane takes every
+    lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane writes the
+    result."""
     i, lane = lane_of(wp.tid(), lanes)
+    x_new = swept_vertex(i, lane, lanes, sub, constraints, sweep, sc, capsules)
+    if lane == 0:
+        sweep.x_out[i] = x_new
+
+
+@wp.func
+def swept_vertex(i: int, lane: int, lanes: int, sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep,
+                 sc: SelfContacts, capsules: Capsules) -> wp.vec3:
+    """Vertex i after one Jacobi sweep: distance constraints (distance_correction) and self-contacts gathered from
+    x_in, then projection out of the capsules. Empty contact lists and no watched capsule leave exactly x_in +
+    distance correction, as solve_distance_constraints computes it. This lane's share of the sums; the capsules
+    (which add to the vertex's push) in lane 0 alone, whose result is the one to store."""
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
     xi = x_in[i]
@@ -69,4 +79,5 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
     if lane == 0:
-        sweep.x_out[i] = push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
+        return push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
+    return xi + dx

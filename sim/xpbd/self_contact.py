@@ -193,9 +193,14 @@ def world_offset(w: int, sc: SelfContacts) -> wp.vec3:
 
 @wp.kernel
 def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts):
-    """Box of every triangle's projection_box at the substep start and at the prediction, padded by `reach` and
+    """Every triangle's box (face_bounds)."""
+    face_bounds(wp.tid(), x, x_prev, sc)
+
+
+@wp.func
+def face_bounds(t: int, x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts):
+    """Box of triangle t's projection_box at the substep start and at the prediction, padded by `reach` and
     placed at its world's offset; empties the triangle's contact list."""
-    t = wp.tid()
     tri = sc.faces[t]
     lo, hi = projection_box(x[tri[0]], x[tri[1]], x[tri[2]])
     lo_start, hi_start = projection_box(x_prev[tri[0]], x_prev[tri[1]], x_prev[tri[2]])
@@ -207,34 +212,13 @@ def contact_bounds(x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), 
 
 @wp.kernel
 def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
-    """Contact lists: vertex i queries the triangle BVH with its swept box and lists each candidate triangle t,
-    and adds itself to t's list (a slot taken with an integer atomic; sort_face_lists then restores a fixed order).
-    A pair already in contact in the previous substep keeps its side, so a vertex that the iterations left a little
-    on the wrong side of the plane is pushed back rather than through. Each list is sorted by triangle, so the
-    lists are deterministic and independent of the tree. A full list drops the rest and raises the world's
-    flags[w, overflow_flag] to the room the fullest list needed (the solver then grows the lists to that at once
-    and steps the frame again). Pinned vertices list nothing: they take no correction and move no triangle. Runs after the prediction: x holds the
-    predictions, x_prev the substep's start positions."""
+    """Contact lists: vertex i queries the triangle BVH with its swept box (search_box) and lists each candidate
+    triangle t (list_candidate). Runs after the prediction: x holds the predictions, x_prev the substep's start
+    positions."""
     i = wp.tid()
-    x = sub.x
-    x_prev = sub.x_prev
-    count = int(0)
-    wanted = int(0)     # candidates found, listed or not
-    sc.corner_count[i] = 0  # sort_face_lists counts the lists of i's triangles (a later launch)
+    search = start_search(i, sub, sc)
     if sub.inv_mass[i] > 0.0:
-        n_old = sc.vertex_count[i]
-        for a in range(n_old):
-            sc.previous[i, a] = sc.vertex_contacts[i, a]
-        neighbors = neighbor_list()
-        first = sc.edge_offsets[i]
-        n_neighbors = sc.edge_offsets[i + 1] - first
-        for a in range(n_neighbors):
-            neighbors[a] = sc.vertex_neighbors[first + a]
-        world = i // sc.world_vertices
-        own_faces = wp.vec2i(world * sc.world_faces, (world + 1) * sc.world_faces)
-        offset = world_offset(world, sc)
-        lower = wp.min(x_prev[i], x[i]) + offset
-        upper = wp.max(x_prev[i], x[i]) + offset
+        lower, upper = search_box(i, sub, sc)
         # The traversal first, collecting up to HIT_BATCH hits, then the tests of those hits: the two loops
         # interleaved made a warp's threads wait on each other's tests mid-traversal (on an H100 the search took
         # 0.37 ms a substep for the pants, of which the traversal alone is 0.08). A vertex with more hits traverses
@@ -258,28 +242,86 @@ def find_self_contacts(sub: Substep, sc: SelfContacts, overflow_flag: int):
                 seen += 1
             done += n_hits
             for h in range(n_hits):
-                t = hits[h]
-                side = contact_side(i, neighbors, n_neighbors, own_faces, t, x, x_prev, sc)
-                if side != 0:
-                    for a in range(n_old):
-                        if wp.abs(sc.previous[i, a]) == t + 1:
-                            side = wp.sign(sc.previous[i, a])
-                    wanted += 1
-                    slot = sc.face_contacts.shape[1]
-                    need = wanted       # the vertex's list full: the room it would have needed
-                    if count < sc.vertex_contacts.shape[1]:
-                        slot = wp.atomic_add(sc.face_count, t, 1)
-                        need = slot + 1
-                    if slot < sc.face_contacts.shape[1]:
-                        sc.vertex_contacts[i, count] = side * (t + 1)
-                        sc.face_contacts[t, slot] = side * (i + 1)
-                        count += 1
-                    else:
-                        wp.atomic_max(sub.flags, world, overflow_flag, need)
-    # Triangles in id order rather than the tree's: the sums of the iterations then do not depend on the BVH, so a
-    # world stepped in a batch (one tree over all worlds) moves exactly as when stepped alone.
-    sort_list(sc.vertex_contacts, i, count)
-    sc.vertex_count[i] = count
+                search = list_candidate(i, hits[h], search, sub, sc, overflow_flag)
+    end_search(i, search, sc)
+
+
+@wp.struct
+class Search:
+    """One vertex's search in progress: its mesh neighbours (a local copy: contact_side runs for every candidate),
+    the range of triangle ids of its world, how many entries its list had in the previous substep, how many it
+    has now and how many candidates were found, listed or not."""
+    neighbors: neighbor_list
+    n_neighbors: int
+    own_faces: wp.vec2i
+    n_old: int
+    count: int
+    wanted: int
+
+
+@wp.func
+def start_search(i: int, sub: Substep, sc: SelfContacts) -> Search:
+    """Vertex i's search, started: its previous list kept in `previous` (a pair already in contact in the previous
+    substep keeps its side, so a vertex that the iterations left a little on the wrong side of the plane is pushed
+    back rather than through), its neighbours and world read, its corner count zeroed (sort_face_list counts the
+    lists of i's triangles, after every vertex's search). Pinned vertices list nothing: they take no correction
+    and move no triangle."""
+    search = Search()
+    sc.corner_count[i] = 0
+    if sub.inv_mass[i] > 0.0:
+        search.n_old = sc.vertex_count[i]
+        for a in range(search.n_old):
+            sc.previous[i, a] = sc.vertex_contacts[i, a]
+        first = sc.edge_offsets[i]
+        search.n_neighbors = sc.edge_offsets[i + 1] - first
+        for a in range(search.n_neighbors):
+            search.neighbors[a] = sc.vertex_neighbors[first + a]
+        world = i // sc.world_vertices
+        search.own_faces = wp.vec2i(world * sc.world_faces, (world + 1) * sc.world_faces)
+    return search
+
+
+@wp.func
+def search_box(i: int, sub: Substep, sc: SelfContacts):
+    """Vertex i's box from its start to its prediction at its world's offset: its candidates are the triangles
+    whose face_bounds box overlaps it."""
+    offset = world_offset(i // sc.world_vertices, sc)
+    return wp.min(sub.x_prev[i], sub.x[i]) + offset, wp.max(sub.x_prev[i], sub.x[i]) + offset
+
+
+@wp.func
+def list_candidate(i: int, t: int, search: Search, sub: Substep, sc: SelfContacts, overflow_flag: int) -> Search:
+    """Triangle t, whose box overlaps vertex i's: if contact_side makes the pair a candidate, vertex i lists it and
+    adds itself to t's list (a slot taken with an integer atomic; sort_face_list then restores a fixed order). A
+    full list drops the rest and raises the world's flags[w, overflow_flag] to the room the fullest list needed
+    (the solver then grows the lists to that at once and steps the frame again)."""
+    side = contact_side(i, search.neighbors, search.n_neighbors, search.own_faces, t, sub.x, sub.x_prev, sc)
+    if side != 0:
+        for a in range(search.n_old):
+            if wp.abs(sc.previous[i, a]) == t + 1:
+                side = wp.sign(sc.previous[i, a])
+        search.wanted += 1
+        slot = sc.face_contacts.shape[1]
+        need = search.wanted       # the vertex's list full: the room it would have needed
+        if search.count < sc.vertex_contacts.shape[1]:
+            slot = wp.atomic_add(sc.face_count, t, 1)
+            need = slot + 1
+        if slot < sc.face_contacts.shape[1]:
+            sc.vertex_contacts[i, search.count] = side * (t + 1)
+            sc.face_contacts[t, slot] = side * (i + 1)
+            search.count += 1
+        else:
+            wp.atomic_max(sub.flags, i // sc.world_vertices, overflow_flag, need)
+    return search
+
+
+@wp.func
+def end_search(i: int, search: Search, sc: SelfContacts):
+    """Vertex i's list stored. Triangles in id order rather than the tree's: the sums of the iterations then do
+    not depend on the BVH, so a world stepped in a batch (one tree over all worlds) moves exactly as when stepped
+    alone, and an exhaustive search (sim.xpbd.block_frame) lists what the tree's does."""
+    sort_list(sc.vertex_contacts, i, search.count)
+    sc.vertex_count[i] = search.count
 
 
 @wp.kernel
@@ -304,9 +346,14 @@ def sort_list(lists: wp.array2d(dtype=int), row: int, n: int):
 
 @wp.kernel
 def sort_face_lists(sc: SelfContacts):
-    """Sort each triangle's list by vertex, so that the iterations sum the corrections in an order that does not
+    """Every triangle's list sorted (sort_face_list)."""
+    sort_face_list(wp.tid(), sc)
+
+
+@wp.func
+def sort_face_list(t: int, sc: SelfContacts):
+    """Sort triangle t's list by vertex, so that the iterations sum the corrections in an order that does not
     depend on which thread took which slot; count the entries at each corner (an integer sum: deterministic)."""
-    t = wp.tid()
     n = wp.min(sc.face_count[t], sc.face_contacts.shape[1])
     sc.face_count[t] = n
     sort_list(sc.face_contacts, t, n)

@@ -33,12 +33,20 @@ class SolverSettings:
                                          # 0: friction and clearance after the last projection only
     frame_end_rounds: int = 0            # more such rounds after a frame's last substep only, where the frame is
                                          # stored (the alternation converges linearly; a round is 4 launches)
+    frame_kernel: str = "auto"           # "auto": on CUDA a cloth that fits one thread block (no harmonic
+                                         # constraint, at most block_frame.MAX_BLOCK_VERTICES vertices) steps a
+                                         # frame in one launch, a block per world (sim.xpbd.block_frame); else,
+                                         # and always on the CPU, the sweep kernels. "sweeps": the sweep kernels
+                                         # always; "block": the one launch wherever the cloth fits, the CPU too
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
         if self.harmonic_every not in ("iteration", "substep"):
             raise ValueError(f"solver setting 'harmonic_every' must be 'iteration' or 'substep', got "
                              f"{self.harmonic_every!r}")
+        if self.frame_kernel not in ("auto", "block", "sweeps"):
+            raise ValueError(f"solver setting 'frame_kernel' must be 'auto', 'block' or 'sweeps', got "
+                             f"{self.frame_kernel!r}")
         not_finite = [name for name, value in vars(self).items()
                       if not isinstance(value, str) and not np.all(np.isfinite(value))]
         if not_finite:

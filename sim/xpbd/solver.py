@@ -4,10 +4,11 @@ A frame of length dt is split into `substeps`; each substep predicts positions, 
 over the distance constraints (and, for a high-res run, projects onto the harmonic constraint after each sweep),
 and derives velocities. With body or self-collision on, the same steps use the kernels of `sim.xpbd.body_contact`
 and `sim.xpbd.contact_sweep` (contacts fused into them) plus, for self-collision, a broad phase once per substep
-(`sim.xpbd.self_contact`). On CUDA the whole frame is
-captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in device
-arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the solver
-makes the state it steps.
+(`sim.xpbd.self_contact`). A cloth that fits a thread block (the low-res run) may instead step the whole frame in
+one launch, a block per world (`sim.xpbd.block_frame`: the same functions; frame_kernel_of). On CUDA the whole
+frame is captured once as a graph and replayed; per-frame inputs (pin targets, harmonic targets, capsules) live in
+device arrays that are overwritten before each replay. The graph holds the state's arrays too, which is why the
+solver makes the state it steps.
 
 A solver steps `worlds` independent copies of the cloth at once (B sequences of one garment, each with its own
 pins, body motion and harmonic targets): the kernels run over the worlds' vertices one after the other (see
@@ -26,7 +27,7 @@ import warp as wp
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
 from sim.solver import Solver, UnstableSimulation
-from sim.xpbd import body_contact, contact_sweep, kernels, self_contact
+from sim.xpbd import block_frame, body_contact, contact_sweep, kernels, self_contact
 from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
 from sim.xpbd.model import ClothModel
 
@@ -99,6 +100,19 @@ def cuda_sweep_lanes(vertices: int) -> int:
         lanes *= 2
     return lanes
 
+
+def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
+    """"block" where the model's frame is stepped in one launch (settings.frame_kernel "block", or "auto" on
+    CUDA, and the cloth fits a block: no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices),
+    else "sweeps". The CPU keeps the sweep kernels by default: its launches cost little next to the exhaustive
+    self-contact search of a block."""
+    wanted = model.settings.frame_kernel
+    fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
+    if fits and (wanted == "block" or (wanted == "auto" and device.is_cuda)):
+        return "block"
+    return "sweeps"
+
+
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
 # watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
@@ -120,11 +134,16 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     with body collision, the capsules' end points (B, N, 2, 3). `sweep_lanes` threads share a vertex in each Jacobi
     sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics, depends on it);
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
+    `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; the
+    settings' `frame_kernel` and the cloth decide: frame_kernel_of), else "sweeps"; `block_threads` threads share
+    a world's vertices there (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; 1 on the CPU, where
+    more take turns as fibers with warp.config.enable_cpu_blocks and are 1 without), its sweeps' positions in
+    shared memory where the world fits (`block_shared`, CUDA).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
                  initial_positions: np.ndarray | None = None, contact_capacity: int = CONTACT_CAPACITY,
-                 sweep_lanes: int | None = None):
+                 sweep_lanes: int | None = None, block_threads: int | None = None):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         if initial_inputs.pin_targets is not None:
@@ -138,6 +157,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             raise ValueError(f"sweep_lanes must be 1, 2, 4, 8 or 16 on CUDA (threads of a warp per vertex) and 1 on "
                              f"the CPU, got {sweep_lanes!r}")
         self.sweep_lanes = sweep_lanes
+        self.frame_kernel = frame_kernel_of(model, self.device)
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
         s = model.settings
@@ -174,11 +194,41 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         diagonal = float(np.linalg.norm(np.ptp(rest_vertices, axis=0)))
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
+        if self.frame_kernel == "block":
+            self._block_frame_arrays(block_threads)
+        elif block_threads is not None:
+            raise ValueError("block_threads applies to a frame stepped in one block (frame_kernel 'block') only")
         self.frames_stepped_again = 0      # frames whose self-contact lists overflowed (the log says how many)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
             arr(x0, wp.vec3), self._zeros(worlds * n, wp.vec3), worlds)
         self._graph = None
+
+    def _block_frame_arrays(self, threads: int | None) -> None:
+        """The threads of a world's block, the boxes of its search's chunks of triangles, and the structs of every
+        substep and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels
+        are launched with)."""
+        if threads is None:   # the CPU runs a block as one thread (Warp's fibers only with enable_cpu_blocks)
+            threads = min(block_frame.MAX_BLOCK_THREADS, 32 * math.ceil(self.world_vertices / 32)) \
+                if self.device.is_cuda else 1
+        elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
+            raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
+        self.block_threads = threads
+        # The sweeps' positions in shared memory (CUDA) where the world fits; on the CPU a block is one thread.
+        self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
+        chunks = block_frame.FaceChunks()
+        chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
+        rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1
+        chunks.lower, chunks.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
+        self._face_chunks = chunks
+        self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
+        self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
+
+    def launch_summary(self) -> str:
+        """How a frame is launched, in words (benches and logs): the sweeps' lanes, or the block's threads."""
+        if self.frame_kernel == "sweeps":
+            return f"sweeps, {self.sweep_lanes} lane(s) a vertex"
+        return f"a block a world, {self.block_threads} thread(s)" + (", shared memory" if self.block_shared else "")
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
         """`value` of shape (B, *shape) (or `shape` with one world) as rows world after world, (B shape[0], ...)."""
@@ -363,10 +413,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         sc.world_vertices, sc.world_faces = n, len(faces)
         sc.lattice = math.ceil(self.worlds ** (1 / 3) - 1e-9)
         sc.spacing = spacing
-        x = self.state.positions
-        wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
-        self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
-        sc.face_bvh = self._face_bvh.id
+        if self.frame_kernel == "sweeps":   # the block frame searches its world's triangles without a tree
+            x = self.state.positions
+            wp.launch(self_contact.contact_bounds, dim=n_faces, device=self.device, inputs=[x, x, sc])
+            self._face_bvh = wp.Bvh(sc.face_lower, sc.face_upper, constructor="sah")
+            sc.face_bvh = self._face_bvh.id
         return sc
 
     def _size_contact_lists(self, sc: self_contact.SelfContacts, capacity: int, vertices: int) -> None:
@@ -439,9 +490,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.flags.zero_()
         if self.device.is_cuda:
             if self._graph is None:
-                # compile before capture: no JIT inside a graph
+                # compile before capture: no JIT inside a graph (the block kernel's variant for its block size)
                 for module in (kernels, body_contact, self_contact, contact_sweep):
                     wp.load_module(module, device=self.device)
+                if self.frame_kernel == "block":
+                    wp.load_module(block_frame, device=self.device, block_dim=self.block_threads)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
                 self._graph = capture.graph
@@ -458,6 +511,13 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                                 (self._saved_lists, self.contacts.vertex_contacts),
                                 (self._saved_count, self.contacts.vertex_count)):
                 wp.copy(saved, live)
+        if self.frame_kernel == "block":
+            wp.launch_tiled(block_frame.step_frame, dim=[self.worlds], block_dim=self.block_threads,
+                            device=self.device,
+                            inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
+                                    self.contacts, self._face_chunks, self.capsules, int(s.body_collision),
+                                    int(s.self_collision), int(self.block_shared)])
+            return
         n = self.state.positions.shape[0]
         dev = self.device
         collide = s.body_collision or s.self_collision

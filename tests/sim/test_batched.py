@@ -6,14 +6,9 @@ import warp as wp
 
 from geometry.harmonics import harmonic_basis
 from geometry.loop_subdivision import loop_subdivide
-from scenes.capsules import capsules_world
-from scenes.garments import make_garment
 from scenes.grid import first_row_pins, grid_cloth
-from scenes.kinematics import rest_transforms
-from scenes.motion import body_state, make_motion
-from scenes.skeleton import default_skeleton
-from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation, harmonic_constraint
+from tests.sim.cloth_checks import coarse_pants_drives, run_worlds
 
 FRAMES = 12
 MOTIONS = ("karate", "walk", "rest")
@@ -21,32 +16,11 @@ MOTIONS = ("karate", "walk", "rest")
 
 @pytest.fixture(scope="module")
 def pants_drives():
-    """Coarse pants on the mannequin and, per motion, the capsules and attachment-pin targets of every frame."""
-    skel = default_skeleton()
-    garment = make_garment("pants", skel, max_edge=0.1)
-    ids = garment.attachment
-    drives = []
-    for kind in MOTIONS:
-        state = body_state(skel, make_motion(kind, FRAMES + 1, settle_frames=0, blend_frames=4))
-        a, b, ra, rb = capsules_world(skel, state.transforms)
-        targets = linear_blend_skinning(garment.vertices[ids], garment.attachment_part[:, None],
-                                        np.ones((len(ids), 1)), rest_transforms(skel), state.transforms)
-        drives.append((np.stack([a, b], axis=2), targets))
-    radii = np.stack([ra[0], rb[0]], axis=1)
-    return garment, ids, radii, drives
+    return coarse_pants_drives(FRAMES, MOTIONS)
 
 
 def run(garment, ids, radii, drives, settings, device="cpu"):
-    """(B, FRAMES, V, 3) positions of len(drives) worlds stepped together."""
-    capsules = np.stack([c for c, _ in drives])
-    targets = np.stack([t for _, t in drives])
-    solver = ClothSolver(ClothModel(garment.vertices, garment.faces, settings, ids, capsule_radii=radii), device,
-                         worlds=len(drives), initial_inputs=FrameInputs(capsules=capsules[:, 0]))
-    frames = []
-    for f in range(1, FRAMES + 1):
-        solver.step(solver.state, FrameInputs(pin_targets=targets[:, f], capsules=capsules[:, f]))
-        frames.append(solver.state.read_world_positions())
-    return np.stack(frames, axis=1), solver
+    return run_worlds(garment, ids, radii, drives, settings, FRAMES, device)
 
 
 @pytest.mark.parametrize("self_collision, spacing", [(True, 8.0), (True, 0.0), (False, 8.0)])
@@ -121,9 +95,11 @@ def test_per_world_inputs_are_checked(pants_drives):
 
 
 @pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
-def test_a_cuda_batch_agrees_with_cuda_alone(pants_drives):
+@pytest.mark.parametrize("frame_kernel", ["sweeps", "block"])
+def test_a_cuda_batch_agrees_with_cuda_alone(pants_drives, frame_kernel):
     garment, ids, radii, drives = pants_drives
-    settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
+    settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True,
+                              frame_kernel=frame_kernel)
     batch, _ = run(garment, ids, radii, drives, settings, "cuda:0")
     for w in range(len(drives)):
         alone, _ = run(garment, ids, radii, drives[w:w + 1], settings, "cuda:0")

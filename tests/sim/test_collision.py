@@ -17,6 +17,7 @@ from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
 from sim.xpbd import self_contact
 from sim.xpbd.kernels import Substep
 from sim.xpbd.self_contact import SelfContacts, contact_side, neighbor_list
+from tests.sim.cloth_checks import contact_scene, stacked_sheets
 
 THICKNESS = SolverSettings().collision_thickness
 SELF_THICKNESS = SolverSettings().self_thickness
@@ -196,16 +197,6 @@ def test_karate_at_one_substep_stays_finite():
 # Self-contact
 
 
-def stacked_sheets():
-    """A 0.5 x 0.5 sheet pinned along its border, and a smaller free one 3 cm above it."""
-    bottom, bottom_faces = grid_cloth(0.5, 0.5, 0.06, plane="xz", origin=(-0.25, 1.0, -0.25))
-    top, top_faces = grid_cloth(0.4, 0.4, 0.06, plane="xz", origin=(-0.2, 1.03, -0.2))
-    vertices = np.concatenate([bottom, top])
-    faces = np.concatenate([bottom_faces, top_faces + len(bottom)])
-    border = np.flatnonzero(np.isclose(np.abs(bottom[:, 0]), 0.25) | np.isclose(np.abs(bottom[:, 2]), 0.25))
-    return vertices, faces, border, len(bottom), bottom_faces
-
-
 @pytest.mark.parametrize("self_collision", [True, False])
 def test_a_sheet_falling_onto_another_stays_on_top(self_collision):
     vertices, faces, pins, n_bottom, bottom_faces = stacked_sheets()
@@ -266,24 +257,6 @@ def test_collision_switches_change_nothing_without_contact():
         np.testing.assert_array_equal(x, runs[False, False])
 
 
-def contact_scene(device, sweep_lanes=None):
-    """Stacked sheets draped over a capsule that moves: body contact, friction and self-contact all active."""
-    vertices, faces, _, _, _ = stacked_sheets()
-    radii = np.array([[0.08, 0.06]])
-
-    def capsule(frame):
-        return np.array([[[-0.3, 0.9 + 0.002 * frame, 0.0], [0.3, 0.9, 0.01 * frame]]])
-
-    settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True)
-    solver = ClothSolver(ClothModel(vertices, faces, settings, np.zeros(0, int), capsule_radii=radii), device,
-                         initial_inputs=FrameInputs(capsules=capsule(0)), sweep_lanes=sweep_lanes)
-    positions = []
-    for frame in range(1, 31):
-        solver.step(solver.state, FrameInputs(capsules=capsule(frame)))
-        positions.append(solver.state.read_positions())
-    return np.array(positions), solver
-
-
 def test_runs_on_cpu_are_deterministic_with_contacts():
     first, solver = contact_scene("cpu")
     counts = solver.contacts.vertex_count.numpy()
@@ -300,13 +273,13 @@ def test_cuda_graph_agrees_with_cpu(lanes):
     # size after 5 frames, 1e-4 after 10, a few % after 30, with the same trees and contact order on both). So:
     # close agreement at first, the same contact physics throughout.
     cpu, _ = contact_scene("cpu")
-    cuda, solver = contact_scene("cuda:0", lanes)
-    assert solver.sweep_lanes == lanes
+    cuda, solver = contact_scene("cuda:0", lanes, frame_kernel="sweeps")
+    assert solver.sweep_lanes == lanes and solver.frame_kernel == "sweeps"
     size = np.ptp(cpu[0], axis=0).max()
     error = np.abs(cpu - cuda).max(axis=(1, 2)) / size
     assert error[:5].max() < 1e-5
     np.testing.assert_allclose(cuda.mean(axis=1), cpu.mean(axis=1), atol=0.02 * size)
-    again, _ = contact_scene("cuda:0", lanes)
+    again, _ = contact_scene("cuda:0", lanes, frame_kernel="sweeps")
     np.testing.assert_array_equal(again, cuda)  # deterministic on the GPU too: no float atomics
 
 

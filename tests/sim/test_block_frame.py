@@ -1,0 +1,231 @@
+"""A frame stepped in one launch, a thread block per world (sim.xpbd.block_frame), against the sweep kernels: the
+same per-vertex functions in the same order, so on the CPU (a block is one thread) every position agrees bit for
+bit, contacts, pins, friction, several worlds and the overflow's second stepping included. On CUDA a block's
+threads share its vertices (one a thread, or many with few threads) and the sums round as the sweep kernels' do
+with one lane, but FMA contraction may differ between the two kernels, and contact decisions amplify the last
+bit: the CUDA tests hold the block to the CPU as test_collision.test_cuda_graph_agrees_with_cpu holds the sweeps
+(1e-5 of the cloth's size over the first 5 frames, 3 for the dancing pants, the mean within 2 % throughout) and
+to itself exactly."""
+import warnings
+
+import numpy as np
+import pytest
+import warp as wp
+
+from geometry.harmonics import harmonic_basis
+from scenes.grid import first_row_pins, grid_cloth
+from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation,
+                      harmonic_constraint)
+from sim.xpbd import block_frame
+from tests.sim.cloth_checks import coarse_pants_drives, contact_scene, run_worlds
+
+CUDA = pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
+FRAMES = 8
+MOTIONS = ("karate", "walk", "rest")
+
+
+@pytest.fixture(scope="module")
+def pants_drives():
+    return coarse_pants_drives(FRAMES, MOTIONS)
+
+
+def pants_run(pants_drives, frame_kernel, device="cpu", worlds=slice(None), **solver):
+    """The coarse pants, body and self-collision, pinned at the waist, one world a motion (or those `worlds`)."""
+    garment, ids, radii, drives = pants_drives
+    settings = SolverSettings(substeps=2, iterations=10, body_collision=True, self_collision=True,
+                              frame_kernel=frame_kernel)
+    return run_worlds(garment, ids, radii, drives[worlds], settings, FRAMES, device, **solver)
+
+
+def folding_run(frame_kernel, device="cpu", frames=40, **solver):
+    """A grid pinned along its middle whose halves swing down and meet face to face (self-contact, no body): the
+    positions of every frame, the solver and the most contacts a vertex listed at a frame's end."""
+    rest, faces = grid_cloth(0.3, 0.4, 0.04, plane="xz", origin=(-0.15, 1.0, -0.2))
+    hinge = np.flatnonzero(np.isclose(rest[:, 2], 0.0))
+    settings = SolverSettings(substeps=4, iterations=20, self_collision=True, damping=0.5, frame_kernel=frame_kernel)
+    solver = ClothSolver(ClothModel(rest, faces, settings, hinge), device, **solver)
+    positions, contacts = [], 0
+    for _ in range(frames):
+        solver.step(solver.state, FrameInputs(pin_targets=rest[hinge]))
+        positions.append(solver.state.read_positions())
+        contacts = max(contacts, int(solver.contacts.vertex_count.numpy().max()))
+    return np.array(positions), solver, contacts
+
+
+def close_to(reference, x, early=5):
+    """The CUDA tolerance of the module docstring (`early` frames held to 1e-5)."""
+    size = np.ptp(reference[0].reshape(-1, 3), axis=0).max()
+    error = np.abs(reference - x).reshape(len(x), -1).max(axis=1) / size
+    assert error[:early].max() < 1e-5, error[:early]
+    np.testing.assert_allclose(x.reshape(len(x), -1, 3).mean(axis=1), reference.reshape(len(x), -1, 3).mean(axis=1),
+                               atol=0.02 * size)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# CPU: bit for bit
+
+
+def test_contacts_step_as_the_sweeps_bit_for_bit():
+    block, solver = contact_scene("cpu", frame_kernel="block")
+    assert solver.frame_kernel == "block" and solver.block_threads == 1 and not solver.block_shared
+    assert solver.contacts.vertex_count.numpy().max() > 0 and (solver.capsules.push.numpy() > 0).any()
+    sweeps, solver = contact_scene("cpu", frame_kernel="sweeps")
+    assert solver.frame_kernel == "sweeps"
+    np.testing.assert_array_equal(block, sweeps)
+
+
+def test_worlds_of_pants_step_as_the_sweeps_and_as_alone(pants_drives):
+    """Three worlds, each its own motion (pins and body), in one launch; a world stepped alone is block 0 of a
+    launch of one, and moves as it does as block 1 of three."""
+    block, solver = pants_run(pants_drives, "block")
+    assert solver.frame_kernel == "block" and solver.contacts.vertex_count.numpy().max() > 0
+    sweeps, _ = pants_run(pants_drives, "sweeps")
+    np.testing.assert_array_equal(block, sweeps)
+    alone, _ = pants_run(pants_drives, "block", worlds=slice(1, 2))
+    np.testing.assert_array_equal(block[1], alone[0])
+    assert np.abs(block[0] - block[1]).max() > 0.01   # the worlds do differ
+
+
+def test_a_grid_folding_onto_itself_steps_as_the_sweeps():
+    block, _, contacts = folding_run("block")
+    assert contacts > 0
+    sweeps, _, _ = folding_run("sweeps")
+    np.testing.assert_array_equal(block, sweeps)
+
+
+def hanging_run(hanging_cloth, frame_kernel, bending=True, **solver):
+    """Two worlds of the hanging cloth (no contacts), their pins swung differently: the positions after 10 frames
+    (`solver`: more of ClothSolver's arguments; the sweeps take no block_threads)."""
+    rest, faces, pins = hanging_cloth
+    settings = SolverSettings(substeps=3, iterations=15, bending=bending, frame_kernel=frame_kernel)
+    solver = ClothSolver(ClothModel(rest, faces, settings, pins), "cpu", worlds=2,
+                         **(solver if frame_kernel == "block" else {}))
+    for f in range(10):
+        swing = np.array([0.05 * np.sin(f / 3), 0.0, 0.02 * f])
+        solver.step(solver.state, FrameInputs(pin_targets=np.stack([rest[pins], rest[pins] + swing])))
+    return solver.state.read_positions()
+
+
+@pytest.mark.parametrize("bending", [True, False])
+def test_a_hanging_cloth_without_contacts_steps_as_the_sweeps(hanging_cloth, bending):
+    np.testing.assert_array_equal(hanging_run(hanging_cloth, "block", bending),
+                                  hanging_run(hanging_cloth, "sweeps", bending))
+
+
+def test_full_lists_grow_and_the_frame_is_stepped_again():
+    """The overflow flag of the block's search: lists with room for 2 grow and the frame is stepped again, ending
+    where the sweeps with room to spare end."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        small, solver = contact_scene("cpu", frame_kernel="block", contact_capacity=2)
+    assert solver.frames_stepped_again >= 1 and solver.contacts.vertex_contacts.shape[1] > 2
+    roomy, _ = contact_scene("cpu", frame_kernel="sweeps", contact_capacity=64)
+    np.testing.assert_array_equal(small, roomy)
+
+
+@pytest.mark.parametrize("threads", [7, 64, 1024])
+def test_threads_of_a_block_meet_at_the_barriers(threads, monkeypatch, pants_drives, hanging_cloth):
+    """Warp's CPU blocks (fibers that take turns at the barriers): a block of 7 threads (several vertices each, the
+    last ones fewer), 64, or more threads than vertices (idle ones still meet every barrier) steps as the sweeps,
+    with contacts and without. A missing barrier lets a thread run into the next step before the others wrote what
+    it reads (the sweeps' and the sorted lists' barriers and, without self-contact, the prediction's are caught so;
+    the search's boxes, padded, hide a stale box for a while)."""
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    block, solver = contact_scene("cpu", frame_kernel="block", block_threads=threads)
+    assert solver.block_threads == threads
+    np.testing.assert_array_equal(block, contact_scene("cpu", frame_kernel="sweeps")[0])
+    block, _ = pants_run(pants_drives, "block", block_threads=threads)
+    np.testing.assert_array_equal(block, pants_run(pants_drives, "sweeps")[0])
+    np.testing.assert_array_equal(*(hanging_run(hanging_cloth, frame_kernel, block_threads=threads)
+                                    for frame_kernel in ("block", "sweeps")))
+
+
+def test_a_blow_up_names_its_world():
+    rest, faces = grid_cloth(0.2, 0.2, 0.1, plane="xz")
+    settings = SolverSettings(max_speed=1.0, frame_kernel="block")
+    solver = ClothSolver(ClothModel(rest, faces, settings, np.zeros(0, int)), "cpu", worlds=3)
+    velocities = np.zeros((3 * len(rest), 3))
+    velocities[2 * len(rest):] = [0.0, 5.0, 0.0]
+    solver.state.write_velocities(velocities)
+    with pytest.raises(UnstableSimulation, match="world 2, substep 0"):
+        solver.step(solver.state)
+
+
+def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
+    rest, faces = grid_cloth(0.4, 0.4, 0.1, plane="xy", origin=(0, 1, 0))
+    pins = first_row_pins(rest, "xy", "corners")
+
+    def kernel(frame_kernel, harmonic=None, **solver):
+        model = ClothModel(rest, faces, SolverSettings(frame_kernel=frame_kernel), pins, harmonic=harmonic)
+        return ClothSolver(model, "cpu", **solver).frame_kernel
+
+    assert SolverSettings().frame_kernel == "auto"
+    assert kernel("auto") == "sweeps"            # the CPU's default
+    assert kernel("block") == "block" and kernel("sweeps") == "sweeps"
+    basis, _, mass = harmonic_basis(rest, faces, 3)
+    harmonic = harmonic_constraint(basis, mass, pins)
+    assert kernel("block", harmonic) == "sweeps"  # the harmonic projection needs the sweep kernels
+    monkeypatch.setattr(block_frame, "MAX_BLOCK_VERTICES", len(rest) - 1)
+    assert kernel("block") == "sweeps"            # too large for a block
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="block_threads must be 1 to 1024"):
+        kernel("block", block_threads=0)
+    with pytest.raises(ValueError, match="block_threads applies"):
+        kernel("sweeps", block_threads=1)
+    with pytest.raises(ValueError, match="frame_kernel"):
+        SolverSettings(frame_kernel="graph")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# CUDA: one vertex a thread, several, one thread a block; one world and three
+
+
+@CUDA
+@pytest.mark.parametrize("threads", [None, 32, 1])
+@pytest.mark.parametrize("shared", [True, False])
+def test_cuda_block_agrees_with_the_cpu(threads, shared, monkeypatch):
+    if not shared:   # the sweeps' positions in global memory, as a world too large for shared memory has them
+        monkeypatch.setattr(block_frame, "SHARED_VERTICES", 0)
+    cpu, _ = contact_scene("cpu", frame_kernel="block")
+    cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
+    assert solver.frame_kernel == "block" and solver.block_shared == shared
+    assert solver.block_threads == (threads or 32 * -(-solver.world_vertices // 32))
+    close_to(cpu, cuda)
+    again, _ = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
+    np.testing.assert_array_equal(again, cuda)   # deterministic: integer atomics only, lists sorted
+    sweeps, _ = contact_scene("cuda:0", 1, frame_kernel="sweeps")
+    close_to(sweeps, cuda)
+
+
+@CUDA
+@pytest.mark.parametrize("threads", [None, 32])
+def test_cuda_worlds_of_pants_agree_with_the_cpu(pants_drives, threads):
+    cpu, _ = pants_run(pants_drives, "block")
+    cuda, solver = pants_run(pants_drives, "block", "cuda:0", block_threads=threads)
+    assert solver.frame_kernel == "block"
+    for w in range(len(MOTIONS)):
+        close_to(cpu[w], cuda[w], early=3)   # karate amplifies a last bit sooner than the sheets do
+    alone, _ = pants_run(pants_drives, "block", "cuda:0", worlds=slice(2, 3), block_threads=threads)
+    np.testing.assert_array_equal(cuda[2], alone[0])
+
+
+@CUDA
+def test_cuda_folding_grid_agrees_with_the_cpu():
+    cpu, _, _ = folding_run("block")
+    cuda, solver, contacts = folding_run("block", "cuda:0")
+    assert solver.frame_kernel == "block" and contacts > 0
+    close_to(cpu, cuda)
+
+
+@CUDA
+def test_cuda_full_lists_grow_and_the_frame_is_stepped_again():
+    small, solver = contact_scene("cuda:0", frame_kernel="block", contact_capacity=2)
+    assert solver.frames_stepped_again >= 1
+    roomy, _ = contact_scene("cuda:0", frame_kernel="block", contact_capacity=64)
+    np.testing.assert_array_equal(small, roomy)
+
+
+@CUDA
+def test_cuda_chooses_the_block_by_default():
+    _, solver = contact_scene("cuda:0")
+    assert solver.frame_kernel == "block"
