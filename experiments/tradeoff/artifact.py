@@ -15,11 +15,17 @@ from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
 STRING_COLUMNS = ("method", "network", "harmonic_every")
+# The learned path with the fused bf16 network (model.fused_network, CUDA) in place of the fp32 one: its ms, its
+# error against the fp32 network (largest |difference| over the largest fp32 displacement), the row's total and
+# speedup with it.
+FUSED_COLUMNS = ("ms_net_fused", "fused_error", "ms_total_fused", "speedup_fused")
 INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "params")
 FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net",
-                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup")
+                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup", *FUSED_COLUMNS)
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
-NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout")     # NaN: the scene has no held-out motion
+# NaN: the scene has no held-out motion (l1_heldout, l2_heldout); no fused network timed (the fused columns: a
+# CPU timing, where the fused network does not run, or a row without a network)
+NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout", *FUSED_COLUMNS)
 TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 # `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
 # alone, or a high-res run of another budget or harmonic schedule than the scene's.
@@ -57,7 +63,9 @@ def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tr
         f.attrs.update(device=table.device, threads=table.threads, sim_high_batch=table.sim_high_batch,
                        reference_substeps=ref.substeps, reference_iterations=ref.iterations,
                        reference_harmonic_every=ref.harmonic_every,
-                       error_unit="scene units (~m); the report shows x 1e-3", time_unit="ms per frame")
+                       error_unit="scene units (~m); the report shows x 1e-3", time_unit="ms per frame",
+                       fused_columns=f"{', '.join(FUSED_COLUMNS)}: the learned path with the fused bf16 network; "
+                                     f"NaN: not timed (a CPU timing: it runs on CUDA only; a row without a network)")
 
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:

@@ -237,25 +237,40 @@ def networks_of(budget: Budget) -> list[Network]:
     return [*budget.evals, *filter(None, [budget.matched])]
 
 
+@dataclasses.dataclass(frozen=True)
+class NetworkMs:
+    """A model's median ms per frame on the fp32 deployment path and, where it was timed (CUDA), the fused bf16
+    network's and its error against the fp32 path (pipeline.tasks.timing); NaN: not timed."""
+    fp32: float
+    fused: float = np.nan
+    fused_error: float = np.nan
+
+
+NOT_TIMED = NetworkMs(0.0)      # a row without a network: nothing to time, no fused network
+
+
 def make_row(method: str, network: str, substeps: int, iterations: int, trained_substeps: int, params: int,
-             errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: float,
+             errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: NetworkMs,
              ms_sim_high: float, harmonic_every: str = "", ms_sim_high_run: float = 0.0) -> dict[str, Any]:
     """One row of tradeoff.h5 (COLUMNS) from a method's errors (split -> l1, l2; no held_out: NaN) and times (a
     high-res row's own solve in ms_sim_high_run, the reference's in ms_sim_high): ms_total is the sum of the
-    row's parts, speedup the reference high-res ms over it."""
-    total = ms_sim_low + ms_subdiv + ms_net + ms_sim_high_run
+    row's parts, speedup the reference high-res ms over it; the same with the fused bf16 network in place of the
+    fp32 one (NaN where it was not timed)."""
+    total = ms_sim_low + ms_subdiv + ms_net.fp32 + ms_sim_high_run
+    total_fused = ms_sim_low + ms_subdiv + ms_net.fused + ms_sim_high_run
     held_out = errors.get("held_out", {})
     return {"method": method, "network": network, "harmonic_every": harmonic_every, "substeps": substeps,
             "iterations": iterations, "trained_substeps": trained_substeps, "params": params,
             "l1_test": errors["test"]["l1"], "l2_test": errors["test"]["l2"],
             "l1_heldout": held_out.get("l1", np.nan), "l2_heldout": held_out.get("l2", np.nan),
-            "ms_sim_low": ms_sim_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net, "ms_sim_high_run": ms_sim_high_run,
-            "ms_total": total,
-            "ms_sim_high": ms_sim_high, "speedup": ms_sim_high / total}
+            "ms_sim_low": ms_sim_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net.fp32, "ms_sim_high_run": ms_sim_high_run,
+            "ms_total": total, "ms_sim_high": ms_sim_high, "speedup": ms_sim_high / total,
+            "ms_net_fused": ms_net.fused, "fused_error": ms_net.fused_error, "ms_total_fused": total_fused,
+            "speedup_fused": ms_sim_high / total_fused}
 
 
 def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low: float, ms_subdiv: float,
-                ms_sim_high: float, ms_net: Mapping[str, float]) -> list[dict[str, Any]]:
+                ms_sim_high: float, ms_net: Mapping[str, NetworkMs]) -> list[dict[str, Any]]:
     """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched one; `ms_net`
     by model path), then Loop subdivision alone (the predictor of the budget's dataset)."""
     rows = []
@@ -268,15 +283,17 @@ def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low
                              read_errors(network.eval)["network"], ms_sim_low, ms_subdiv, ms_net[network.model],
                              ms_sim_high))
     rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, iterations, 0, 0,
-                         read_errors(budget.evals[0].eval)["predictor"], ms_sim_low, ms_subdiv, 0.0, ms_sim_high))
+                         read_errors(budget.evals[0].eval)["predictor"], ms_sim_low, ms_subdiv, NOT_TIMED,
+                         ms_sim_high))
     return rows
 
 
 def time_networks(networks: Sequence[Network], dataset: str, operators: str, device: torch.device,
-                  frames: int) -> dict[str, float]:
-    """Median ms per frame of each distinct model on the deployment path (pipeline.tasks.timing), one model
-    after another in this one process, on `frames` test frames of the dataset; each model's parameter count
-    checked against its evaluation's (an evaluation of another network would pair its errors with these ms)."""
+                  frames: int) -> dict[str, NetworkMs]:
+    """Median ms per frame of each distinct model on the deployment path (pipeline.tasks.timing: fp32 and, on
+    CUDA, the fused bf16 network with its error against fp32), one model after another in this one process, on
+    `frames` test frames of the dataset; each model's parameter count checked against its evaluation's (an
+    evaluation of another network would pair its errors with these ms)."""
     data = load_dataset(dataset)
     store = frames_of(data, device).store
     ids = torch.as_tensor(pick_frames(data.test, frames), device=device)
@@ -289,7 +306,9 @@ def time_networks(networks: Sequence[Network], dataset: str, operators: str, dev
         if state["parameter_count"] != evaluated:
             raise PipelineError(f"{network.eval}: the evaluation of a network of {evaluated:,} parameters, but "
                                 f"{network.model} has {state['parameter_count']:,}: not that model's evaluation")
-        ms[network.model] = float(np.median(time_inference(model, mesh, store, ids)))
+        times = time_inference(model, mesh, store, ids)
+        ms[network.model] = NetworkMs(float(np.median(times))) if times.fused is None else NetworkMs(
+            float(np.median(times)), float(np.median(times.fused.ms)), times.fused.error)
         del model
     return ms
 
@@ -299,7 +318,8 @@ def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequenc
     """A cheaper high-res run as a row: its errors against the reference runs, its solve as the whole time."""
     ms, _ = per_sequence_ms(run.timed)
     return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, 0, 0,
-                    high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, 0.0, ms_sim_high, run.harmonic_every,
+                    high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, NOT_TIMED, ms_sim_high,
+                    run.harmonic_every,
                     ms_sim_high_run=ms)
 
 
