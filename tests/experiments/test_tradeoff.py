@@ -220,7 +220,7 @@ def test_a_dataset_without_test_frames_is_refused(tmp_path):
 
 
 def table(rows, reference=REFERENCE):
-    return table_of(rows, "cpu, 2 threads", 2, 1, reference)
+    return table_of(rows, "cpu, 2 threads", 2, reference)
 
 
 def learned(n, trained, l1, total, network="RC9 x0.25"):
@@ -251,13 +251,13 @@ def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_meth
     written = table(rows)
     write_tradeoff(tmp_path / "t.h5", {}, written)
     back = read_tradeoff(tmp_path / "t.h5")
-    assert (back.device, back.threads, back.sim_high_batch, back.reference) == ("cpu, 2 threads", 2, 1, REFERENCE)
+    assert (back.device, back.threads, back.reference) == ("cpu, 2 threads", 2, REFERENCE)
     for name in COLUMNS:
         np.testing.assert_array_equal(back.columns[name], written.columns[name])
     assert np.isnan(back.columns["l1_heldout"][0]) and back.columns["method"].tolist() == [LEARNED, LOOP]
 
     def broken(**columns):
-        write_tradeoff(tmp_path / "bad.h5", {}, Tradeoff({**written.columns, **columns}, "cpu", 1, 1, REFERENCE))
+        write_tradeoff(tmp_path / "bad.h5", {}, Tradeoff({**written.columns, **columns}, "cpu", 1, REFERENCE))
         return tmp_path / "bad.h5"
 
     with pytest.raises(PipelineError, match="one value per row"):
@@ -329,6 +329,15 @@ def test_without_the_dataset_or_the_operators_the_networks_cannot_be_timed_a_usa
     with pytest.raises(SystemExit) as exit_:
         main(["subdiv.h5", str(tmp_path / "t.h5"), str(tmp_path / "p.png"), str(tmp_path / "r.md"),
               "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5", "e.pt",
-              *[word for pair in given.items() for word in pair]])
+              "--solve-timing", "s.h5", "l.h5", *[word for pair in given.items() for word in pair]])
     assert exit_.value.code == 2 and f"required: {missing}" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_without_the_settings_the_solvers_cannot_be_timed_a_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["subdiv.h5", str(tmp_path / "t.h5"), str(tmp_path / "p.png"), str(tmp_path / "r.md"),
+              "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5", "e.pt",
+              "--solve-timing", "s.h5", "l.h5", "--dataset", "d.h5", "--operators", "o.h5"])
+    assert exit_.value.code == 2 and "--settings is required" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
