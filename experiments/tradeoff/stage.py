@@ -217,13 +217,13 @@ def _high_res_key(group: list[str], flag: str) -> tuple[int, int, str]:
 def parse_high_res(groups_: list[list[str]], reference: Reference,
                    timing: Sequence[list[str]] = ()) -> list[HighResRun]:
     """The --high-res runs in the order given, each timed by its --high-res-timing runs if any (else by its own);
-    the scene's own budget and schedule is the reference, refused."""
+    the scene's own budget and schedule is the ground truth, refused."""
     runs: dict[tuple[int, int, str], list[str]] = {}
     for group in groups_:
         key = _high_res_key(group, "--high-res")
         if key == (reference.substeps, reference.iterations, reference.harmonic_every):
             raise PipelineError(f"--high-res {' '.join(group[:3])}: that is the scene's own high-res run, the "
-                                f"reference (its timing is --sim-high-timing)")
+                                f"ground truth (--sim-high)")
         if key in runs:
             raise PipelineError(f"--high-res {' '.join(group[:3])}: given twice")
         runs[key] = group[3:]

@@ -293,7 +293,7 @@ def test_the_grid_is_in_budget_order_with_each_budgets_evaluations_in_the_order_
     (["1", "10", "substep"], "SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH"),
     (["1", "0", "substep", "h.h5"], "ITERATIONS must be a positive integer"),
     (["1", "10", "sometimes", "h.h5"], "SCHEDULE must be one of iteration, substep"),
-    (["4", "30", "substep", "h.h5"], "the scene's own high-res run, the reference")])
+    (["4", "30", "substep", "h.h5"], "the scene's own high-res run, the ground truth")])
 def test_bad_high_res_runs_are_refused(group, message):
     with pytest.raises(PipelineError, match=message):
         parse_high_res([group], REFERENCE)
