@@ -346,7 +346,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("plot", help="pareto.png to write")
     parser.add_argument("report", help="report.md to write")
     parser.add_argument("--sim-high", nargs="+", required=True, metavar="SIM_HIGH.h5",
-                        help="the scene's high-res runs, one per sequence in the dataset's order (the reference)")
+                        help="the scene's high-res runs, one per sequence in the dataset's order (the ground "
+                             "truth)")
     parser.add_argument("--point", nargs="+", action="append", required=True, metavar="SUBSTEPS SIM_LOW.h5",
                         help="a low-res budget and its runs (the first's frames time Loop subdivision)")
     parser.add_argument("--eval", nargs=3, action="append", required=True,
@@ -393,7 +394,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     cli.refuse_aliases({"TRADEOFF.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
                        {"SUBDIV.h5": args.subdiv, "DATASET.h5": args.dataset, "OPERATORS.h5": args.operators,
                         **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
-                        **{f"--solve-timing {i}": p for i, p in enumerate([*args.solve_timing, *(args.settled or [])])},
+                        **{f"--solve-timing {i}": p
+                           for i, p in enumerate([*args.solve_timing, *(args.settled or [])])},
                         **{f"budget {b.substeps} file {i}": p for b in grid
                            for i, p in enumerate([*b.low_runs, *(x for n in networks_of(b) for x in (n.eval, n.model))])},
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p

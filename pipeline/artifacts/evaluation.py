@@ -18,8 +18,8 @@ from pipeline.core.h5 import atomic_h5, config_of, open_artifact, read
 STAGE = "evaluate"
 BY_KIND = "by_kind"      # errors per motion category and per subject of a dataset with motion-library windows
 GROUPINGS = ("category", "subject")
-TERMS = ("l1", "l2")
-FUSED_MS = "inference_ms_fused"      # the fused bf16 network's times, written where it was timed (CUDA)     # per frame and per group; WHO: the network, its predictor alone
+TERMS = ("l1", "l2")     # per frame and per group; WHO: the network, its predictor alone
+FUSED_MS = "inference_ms_fused"      # the fused bf16 network's times, written where it was timed (CUDA)
 
 
 @dataclasses.dataclass(frozen=True)
