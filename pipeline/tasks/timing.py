@@ -5,6 +5,7 @@ on CUDA, beside what a user deploys there: the fused bf16 network (model.fused_n
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import time
 from typing import Callable
 
@@ -67,7 +68,8 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
     """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
     of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
-    on the same frames, eager PyTorch; on CUDA also the fused bf16 network (`FusedTiming`), replayed the same way."""
+    on the same frames, eager PyTorch; on CUDA (with Triton) also the fused bf16 network (`FusedTiming`), replayed
+    the same way."""
     sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
 
     def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
@@ -91,7 +93,7 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
     times = deployed_ms.view(InferenceTimes)
     times.eager, times.path = eager_ms, f"{path}; within {_relative(got, expected):.0e} of the eager output"
     times.fused = None
-    if ids.is_cuda:
+    if ids.is_cuda and importlib.util.find_spec("triton") is not None:    # PyTorch's CUDA builds bring Triton
         with _bf16_sums_in_fp32():
             fused, fused_path = _deployed(FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device),
                                           store, ids, FUSED_PATH)

@@ -282,7 +282,7 @@ def test_the_solver_kind_is_optional_and_names_a_registered_solver(tmp_path):
     from pipeline.core.errors import PipelineError
     from pipeline.solvers import registry, xpbd
     settings = resolve_scene(CONFIG, "patch", "cpu")
-    assert "kind" not in settings["solver"] and registry.level_names() == ["low", "high"]
+    assert "kind" not in settings["solver"] and registry.level_names() == ["low", "high", "free"]
     named = dict(settings, solver=dict(settings["solver"], kind="xpbd"))
     for path, written in (("absent.json", settings), ("named.json", named)):
         write_settings(written, tmp_path / path)
