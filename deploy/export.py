@@ -189,20 +189,15 @@ def _fused_package(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp
 
     on_device = {name: value.to(device) for name, value in example.items()}
     fused = FastUpsampler(FastRegressor(model, mesh, torch.bfloat16, fused=True), subdivision).to(device).eval()
-    matmul = torch.backends.cuda.matmul
-    before, matmul.allow_bf16_reduced_precision_reduction = matmul.allow_bf16_reduced_precision_reduction, False
-    try:        # bf16 GEMMs with fp32 split-K sums, as timed (pipeline.tasks.timing); the package keeps the choice
-        with tempfile.TemporaryDirectory() as folder:
-            path = aoti_compile_and_package(_exported(fused, on_device), package_path=f"{folder}/{FUSED_PACKAGE}")
-            compiled = aoti_load_package(path)
-            package = Path(path).read_bytes()
-    finally:
-        matmul.allow_bf16_reduced_precision_reduction = before
+    with tempfile.TemporaryDirectory() as folder:     # the package checked as loaded back from its file
+        path = aoti_compile_and_package(_exported(fused, on_device), package_path=f"{folder}/{FUSED_PACKAGE}")
+        compiled = aoti_load_package(path)
 
-    def run(**inputs: torch.Tensor) -> torch.Tensor:
-        with torch.no_grad():
-            return compiled(**{name: value.to(device) for name, value in inputs.items()}).cpu()
-    difference = _within(check(run), FUSED_TOLERANCE, "the fused package")
+        def run(**inputs: torch.Tensor) -> torch.Tensor:
+            with torch.no_grad():
+                return compiled(**{name: value.to(device) for name, value in inputs.items()}).cpu()
+        difference = _within(check(run), FUSED_TOLERANCE, "the fused package")
+        package = Path(path).read_bytes()
     return package, {"package": FUSED_PACKAGE, "device": "cuda", "gpu": torch.cuda.get_device_name(device),
                      "network": "model.fused_network: bf16 hidden layers, fp32 first and last convolutions",
                      "max_difference_vs_eager": difference, "tolerance": FUSED_TOLERANCE,
