@@ -32,7 +32,8 @@ TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 LEARNED, LOOP, HIGH_RES = "learned", "loop", "high_res"
 METHODS = (LEARNED, LOOP, HIGH_RES)
 NO_NETWORK = "none"      # `network` of a row without one
-SIM_HIGH_MEANING = ("the high-res solver at the reference budget with body and self collision, not held to a "
+SIM_HIGH_MEANING = ("the high-res solver at the reference budget with the scene's physics (body and self collision "
+                    "where it has them), not held to a "
                     "low-res run (the paper's reference), one sequence alone, timed in the stage's job beside the "
                     "learned path's low-res solve, Loop subdivision and network")
 

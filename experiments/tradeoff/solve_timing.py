@@ -1,8 +1,9 @@
 """The solvers' ms a frame as the trade-off stage measures them, in its own job beside the networks, so that a
 speedup's two sides share the device, the process and its load: each low-res budget's run of one sequence and the
-free high-res run of it (pipeline.solvers.xpbd's `free` level: body and self collision, not held to the low-res run:
-the paper's reference), each a solver world alone, stepped over every frame of the sequence as the simulate stage
-steps it (the step and the read-back of the positions, synchronised), the positions not kept."""
+free high-res run of it (pipeline.solvers.xpbd's `free` level: the scene's physics, body and self collision where
+it has them, not held to the low-res run: the paper's reference), each a solver world alone, stepped over every
+frame of the sequence as the simulate stage steps it (the step and the read-back of the positions, synchronised),
+the positions not kept."""
 from __future__ import annotations
 
 import dataclasses

@@ -427,6 +427,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         f.write(tradeoff_plot(labels(table), table.columns["ms_total"], errors,
                               {split: pareto_front(table.columns["ms_total"], e) for split, e in errors.items()},
                               groups(table), ms_high, f"high-res reference, free ({reference.substeps} x "
-                              f"{reference.iterations}, body and self collision)"))
+                              f"{reference.iterations}, not held to a low-res run)"))
     write_report(Path(args.report), Path(args.plot), scene_report, table, os.getloadavg())
 

@@ -7,9 +7,10 @@ runs it makes of a sequence (LEVELS):
   5, Kavan et al. 2011; projected once a substep by default, `high_res.harmonic_every`), starting at S x_low of
   frame 0. Its per-sequence work outside the solver (the harmonic targets before stepping, the residual's
   products while the device steps on) runs on the job's threads, a sequence each;
-- `free`: the high-res run without that constraint, from the same start: body and self collision alone, the
-  paper's high-res reference (a simulation that replaces the learned path, not one held to a low-res run). Its
-  harmonic residual says how far it drifts from the low-res run; the trade-off times it (experiments.tradeoff).
+- `free`: the high-res run without that constraint, from the same start: the scene's physics alone (body and self
+  collision where it has them), the paper's high-res reference (a simulation that replaces the learned path, not
+  one held to a low-res run). Its harmonic residual says how far it drifts from the low-res run; the trade-off
+  times it (experiments.tradeoff).
 Several sequences of one garment are one batch, a solver world each. A motion library's window starts at both
 levels from the cloth that the scene's settle sequence left (the last frame of that sequence's run at the same
 level, the stage's --settled), not from the rest shape: the settle at rest is the same for every window.
