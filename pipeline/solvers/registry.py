@@ -24,7 +24,8 @@ def solver_level(settings: dict, level: str, source: str) -> Level:
     a level that is not there."""
     kind = settings["solver"].get("kind", DEFAULT_KIND)
     if kind not in KINDS:
-        raise PipelineError(f"{source}: solver.kind '{kind}' is not a solver kind (known: {', '.join(KINDS)})")
+        raise PipelineError(f"{source}: solver.kind '{kind}' is not a kind the simulate stage steps (it steps: "
+                            f"{', '.join(KINDS)}; a hand scene's fem runs through pipeline.hand_simulate)")
     if level not in KINDS[kind]:
         raise PipelineError(f"{source}: the {kind} solver makes no '{level}' run (its runs: "
                             f"{', '.join(KINDS[kind])})")
