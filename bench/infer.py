@@ -13,7 +13,9 @@ fast-bf16-graph, fast-compiled, fast-bf16-compiled-graph (the fast network throu
 max-autotune on CUDA; minutes of compiling per size), fused, fused-graph, fused-bf16, fused-bf16-graph (CUDA:
 model/fused_network.py, Triton kernels tuned on the first call, each convolution in the form its rule picks),
 fused-gather-bf16-graph (every convolution a gather-GEMM, the form before products-first), exported (the torch.export
-program of deploy/export.py, loaded back: net is not separate there), exported-graph. Graph modes copy each
+program of deploy/export.py, loaded back: net is not separate there), exported-graph, exported-fused (CUDA: the
+export's AOTInductor package of the fused bf16 path, loaded back with aoti_load_package, as deploy/runner.py --fused
+runs it). Graph modes copy each
 call's inputs into the graph's static buffers inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
 (positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
@@ -28,14 +30,16 @@ import argparse
 import io
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from torch._inductor import aoti_load_package
 from torch.export.passes import move_to_device_pass
 
-from deploy.export import PROGRAM, export_upsampler, sample_inputs
+from deploy.export import FUSED_PACKAGE, PROGRAM, export_upsampler, sample_inputs
 from geometry.loop_subdivision import loop_subdivide
 from meshops import build_operators
 from model.feature_regressor import FeatureRegressor, FeatureSpec
@@ -68,7 +72,8 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-bf16-graph": ("fused", torch.bfloat16, True, False, False),
          "fused-gather-bf16-graph": ("fused-gather", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
-         "exported-graph": ("exported", torch.float32, True, False, False)}
+         "exported-graph": ("exported", torch.float32, True, False, False),
+         "exported-fused": ("exported-fused", torch.bfloat16, False, False, False)}
 # Paper Table 3, "DL + SubD" ms on an RTX 2080 Ti, by high-res vertex count.
 PAPER_MS = {4063: {"RC13": 9.4, "RC9": 5.7, "RC9x/2": 3.7, "RC9x/4": 2.2},
             8654: {"RC13": 17.6, "RC9": 10.2, "RC9x/2": 5.9, "RC9x/4": 3.4},
@@ -138,6 +143,13 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
     net is None where it is not separate."""
     kind, dtype, _, _, compiled = MODES[mode]
     names = list(inputs)
+    if kind == "exported-fused":
+        files = export_upsampler(model, mesh, subdivision, faces, frame_time=1 / 60, fused_device=str(device))
+        package = Path(tempfile.mkdtemp()) / FUSED_PACKAGE
+        package.write_bytes(files[FUSED_PACKAGE])
+        compiled = aoti_load_package(str(package))
+        fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
+        return None, lambda *x: fast.subdivide(x[0]), lambda *x: compiled(**dict(zip(names, x)))
     if kind == "exported":
         files = export_upsampler(model, mesh, subdivision, faces, frame_time=1 / 60)
         program = torch.export.load(io.BytesIO(files[PROGRAM]))
@@ -198,7 +210,7 @@ def main() -> None:
     if device.type == "cuda" and not torch.cuda.is_available():
         sys.exit(f"error: device '{args.device}' requested but torch finds no CUDA device")
     unknown = [m for m in modes if m not in MODES]
-    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] or MODES[m][0].startswith("fused")
+    if unknown or (device.type != "cuda" and any(MODES[m][2] or MODES[m][3] or "fused" in MODES[m][0]
                                                  for m in modes)):
         sys.exit(f"error: --modes {args.modes}: modes are {', '.join(MODES)}; graph, tf32 and fused ones need "
                  f"CUDA")

@@ -1,7 +1,7 @@
 """Upsample low-res cloth frames with an exported upsampler, using torch and numpy only (no project code).
 
-    python runner.py EXPORT_DIR INPUT [INPUT ...] --out OUT [--device cpu|cuda] [--threads N] [--batch 16]
-        [--gravity X,Y,Z | --gravity GRAVITY.npy] [--capsules CAPSULES.npz] [--frame-time SECONDS]
+    python runner.py EXPORT_DIR INPUT [INPUT ...] --out OUT [--device cpu|cuda] [--fused] [--threads N]
+        [--batch 16] [--gravity X,Y,Z | --gravity GRAVITY.npy] [--capsules CAPSULES.npz] [--frame-time SECONDS]
 
 EXPORT_DIR is a folder written by `python -m pipeline.export_model` (this script is copied into it). INPUTs are the
 low-res frames of one sequence in time order: .npy arrays of shape (V_low, 3) or (F, V_low, 3), or .obj files of
@@ -16,6 +16,11 @@ the training data's, from the manifest). Frames go through the program --batch a
 
 The program is loaded with torch.export.load only after checking that nothing in it would be unpickled (every
 tensor stored raw, no example inputs, no compiled code): a .pt2 from elsewhere is refused, never executed.
+
+--fused (with --device cuda) runs instead the export's AOTInductor package of the fused bf16 network, if it was
+exported on CUDA (upsampler.json's `fused`): native code compiled at export for that GPU and torch version, loaded
+with torch._inductor.aoti_load_package. Compiled code cannot be checked the way the program is: run only packages
+you exported yourself.
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from torch.export.passes import move_to_device_pass
 
 FORMAT = "trimesh-cnn/deployed-1"
 PROGRAM, LOW_FACES, HIGH_FACES = "upsampler.pt2", "low_faces.npy", "high_faces.npy"
+FUSED_PACKAGE = "upsampler_fused_cuda.pt2"      # the AOTInductor package of an export made on CUDA
 INPUTS = ("low_positions", "low_previous", "low_before_previous", "capsule_a", "capsule_b", "radius_a", "radius_b",
           "gravity", "frame_time")
 
@@ -62,8 +68,9 @@ def check_no_pickle(path: Path) -> None:
         raise RunnerError(f"{path}: not a torch.export program ({type(err).__name__})") from None
 
 
-def load_export(folder: Path, device: str):
-    """The program (as a callable module on `device`), its manifest and the low- and high-res faces."""
+def load_export(folder: Path, device: str, fused: bool = False):
+    """The program (as a callable module on `device`; with `fused`, the fused package's compiled model), its
+    manifest and the low- and high-res faces."""
     try:
         manifest = json.loads((folder / "upsampler.json").read_text())
     except (OSError, ValueError) as err:
@@ -76,19 +83,45 @@ def load_export(folder: Path, device: str):
         valid = False
     if not valid:
         raise RunnerError(f"{folder}: upsampler.json is not a {FORMAT} manifest")
-    check_no_pickle(folder / PROGRAM)
-    try:
-        program = torch.export.load(folder / PROGRAM)
-        if device != "cpu":
-            program = move_to_device_pass(program, device)
-    except Exception as err:  # torch raises many types for a damaged archive or one of another torch version
-        raise RunnerError(f"{folder / PROGRAM}: cannot be loaded by torch {torch.__version__} on {device} "
-                          f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
+    module = load_fused(folder, manifest, device) if fused else load_program(folder / PROGRAM, device)
     try:
         low_faces, high_faces = (np.load(folder / name, allow_pickle=False) for name in (LOW_FACES, HIGH_FACES))
     except (OSError, ValueError) as err:
         raise RunnerError(f"{folder}: unreadable faces ({err})") from None
-    return program.module(), manifest, low_faces, high_faces
+    return module, manifest, low_faces, high_faces
+
+
+def _unloadable(path: Path, device: str, err: Exception) -> RunnerError:
+    return RunnerError(f"{path}: cannot be loaded by torch {torch.__version__} on {device} "
+                       f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
+
+
+def load_program(path: Path, device: str):
+    """The torch.export program at `path`, checked for pickled payloads, as a callable module on `device`."""
+    check_no_pickle(path)
+    try:
+        program = torch.export.load(path)
+        if device != "cpu":
+            program = move_to_device_pass(program, device)
+    except Exception as err:  # torch raises many types for a damaged archive or one of another torch version
+        raise _unloadable(path, device, err) from None
+    return program.module()
+
+
+def load_fused(folder: Path, manifest: dict, device: str):
+    """The export's AOTInductor package of the fused network (compiled code: trusted, not checked), callable
+    with the program's inputs as keywords; RunnerError for an export without one or a device that is not CUDA."""
+    if not isinstance(manifest.get("fused"), dict) or not device.startswith("cuda"):
+        raise RunnerError(f"{folder}: --fused runs the fused package of an export made on CUDA, on --device cuda "
+                          f"(this export has {'one' if manifest.get('fused') else 'none'})")
+    path = folder / FUSED_PACKAGE
+    try:
+        # Imported here: the CPU path needs no compiler runtime.
+        from torch._inductor import aoti_load_package
+        index = torch.device(device).index
+        return aoti_load_package(str(path), device_index=-1 if index is None else index)
+    except Exception as err:  # a package of another GPU, torch version or a damaged one
+        raise _unloadable(path, device, err) from None
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -210,6 +243,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("inputs", type=Path, nargs="+", help="low-res frames: .npy or .obj, in time order")
     parser.add_argument("--out", type=Path, required=True, help=".npy (F, V_high, 3) or .obj")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--fused", action="store_true",
+                        help="run the fused bf16 package (an export made on CUDA; --device cuda) instead of the "
+                             "program")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--batch", type=int, default=16, help="frames per call")
     parser.add_argument("--gravity", help="X,Y,Z or a .npy (F, 3): gravity's direction (default 0,-1,0)")
@@ -220,7 +256,7 @@ def main(argv: list[str] | None = None) -> None:
         raise RunnerError("--out must end in .npy or .obj, and --batch be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
-    module, manifest, low_faces, high_faces = load_export(args.export, args.device)
+    module, manifest, low_faces, high_faces = load_export(args.export, args.device, args.fused)
     frames = read_frames(args.inputs, low_faces, manifest["n_low_vertices"])
     names = [item["name"] for item in manifest["inputs"]]
     high = upsample(module, program_inputs(names, frames, args, manifest), len(frames), args.batch, args.device)

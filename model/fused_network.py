@@ -10,7 +10,8 @@ launches (model.triton_conv):
   gather-GEMM: the table's neighbour rows are loaded straight into the matmul's tiles, never
   written out; an unpooling (or a chain of them) is a 1-wide row map the gather reads through; a concatenation is
   a second input segment filling the next weight rows; the conv's epilogue adds the bias and, when a norm reads
-  the output, the per-channel sums of it and of its square (atomics into one buffer).
+  the output, the per-channel sums of it and of its square (atomics into the conv's own zeroed (B, 2, N) buffer:
+  each launcher is a functional custom operator, so that torch.export and AOTInductor take the network whole).
 * **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
   the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
   averaged or maxed) is folded into the same kind of launch.
@@ -313,45 +314,46 @@ class FusedNetwork(nn.Module):
                                          torch.as_tensor(map_rows, dtype=torch.int32).contiguous())
         self.register_buffer("affine", torch.cat([input_offset.detach().float().cpu(),
                                                   1.0 / input_scale.detach().float().cpu()]))
-        widths = [launch.weight.shape[1] if isinstance(launch, FusedConv) and launch.stats else 0
-                  for launch in self.plan]
-        self.sums_offsets = np.concatenate([[0], np.cumsum(widths)]).tolist()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not (x.is_cuda or os.environ.get("TRITON_INTERPRET") == "1"):
             raise ValueError("the fused network runs on CUDA (FastNetwork is the CPU path)")
-        # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install.
-        from model.triton_conv import Sums, few_channel_conv, fused_conv, gather_sum, prepare
+        # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install. Each
+        # launcher is a custom operator (torch.library.triton_op), so torch.export keeps it and AOTInductor
+        # compiles its kernels (deploy/export.py).
+        from model.triton_conv import few_channel_conv, fused_conv, gather_sum, prepare
 
-        batch, total = x.shape[0], self.sums_offsets[-1]
-        # One buffer for every norm's sums, zeroed once a frame: one memset node in a captured graph.
-        sums = torch.zeros(batch * 2 * total + 1, device=x.device, dtype=torch.float32)
-        sums_at = lambda index: Sums(sums[self.sums_offsets[index]:], 2 * total, total)  # noqa: E731
         outputs: list[torch.Tensor] = []
+        sums: dict[int, torch.Tensor] = {}        # a normed conv's index -> its output's sums (B, 2, N)
         source_of = lambda index: x.float().contiguous() if index == NETWORK_INPUT else outputs[index]  # noqa: E731
         for index, launch in enumerate(self.plan):
             if isinstance(launch, Prepare):
                 outputs.append(prepare(source_of(launch.source), getattr(self, f"rows_{index}_0", None),
-                                       sums_at(launch.source) if launch.normalize else None, self.dtype,
+                                       sums[launch.source] if launch.normalize else None, self.dtype,
                                        self.pool_max))
                 continue
             segments = [(source_of(segment.source), getattr(self, f"rows_{index}_{number}", None))
                         for number, segment in enumerate(launch.segments)]
+            second = segments[1] if len(segments) == 2 else (None, None)
             table, bias = getattr(self, f"table_{launch.level}"), getattr(self, f"bias_{index}")
             out_dtype = self.dtype if index < len(self.plan) - 1 else torch.float32
-            sums_here = sums_at(index) if launch.stats else None
             if self.forms[index] == "products":
                 products = []
                 for number, (source, rows) in enumerate(segments):
                     weights = getattr(self, f"slot_weights_{index}_{number}")
                     product = torch.matmul(source.to(weights.dtype), weights)
-                    products.append((product.view(*source.shape[:2], table.shape[1], -1), rows))
-                outputs.append(gather_sum(table, products, bias, out_dtype, sums_here))
-                continue
-            affine = self.affine if launch.segments[0].affine else None
-            weight = getattr(self, f"weight_{index}")
-            if self.forms[index] == "few":
-                outputs.append(few_channel_conv(table, *segments[0], affine, weight, bias, out_dtype, sums_here))
+                    products.append(product.view(*source.shape[:2], table.shape[1], -1))
+                out, sums[index] = gather_sum(table, products[0], segments[0][1],
+                                              products[1] if len(products) == 2 else None, second[1], bias,
+                                              out_dtype, launch.stats)
             else:
-                outputs.append(fused_conv(table, segments, affine, weight, bias, out_dtype, sums_here))
+                affine = self.affine if launch.segments[0].affine else None
+                weight = getattr(self, f"weight_{index}")
+                if self.forms[index] == "few":
+                    out, sums[index] = few_channel_conv(table, *segments[0], affine, weight, bias, out_dtype,
+                                                        launch.stats)
+                else:
+                    out, sums[index] = fused_conv(table, *segments[0], *second, affine, weight, bias, out_dtype,
+                                                  launch.stats)
+            outputs.append(out)
         return outputs[-1]

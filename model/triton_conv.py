@@ -20,30 +20,30 @@
 * `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
   per value instead of once per gather.
 
+Each launcher is a custom operator, `torch.library.triton_op` (learned_cloth::<name>), its kernels launched through
+`wrap_triton`: eager calls run them as before, `torch.export` keeps each as one operator of the program, and
+AOTInductor compiles their kernels into a package that runs without this module or Triton (deploy/export.py). The
+operators are functional: each allocates and returns its output and, for a norm, that output's per-channel sums
+(B, 2, N) fp32, [b, 0] the sums and [b, 1] the sums of squares, which `prepare` reads.
+
 Set TRITON_INTERPRET=1 before importing this module to run the kernels on the CPU with Triton's interpreter (the
 tests do); there the tile sizes are fixed instead of tuned.
 """
 from __future__ import annotations
 
 import os
-from typing import NamedTuple
 
 import torch
 import triton
 import triton.language as tl
+from torch.library import triton_op, wrap_triton
 
 from model.layers import LEAKY_SLOPE, NORM_EPS
 
 INTERPRETED = os.environ.get("TRITON_INTERPRET") == "1"
 
 
-class Sums(NamedTuple):
-    """Per-channel sums of a conv output: buffer[frame * batch_stride + c] and buffer[frame * batch_stride +
-    second + c] hold the sum and the sum of squares (a flat fp32 view starting at this output's first column)."""
-
-    buffer: torch.Tensor
-    batch_stride: int
-    second: int
+NAMESPACE = "learned_cloth"      # the operators' namespace: torch.ops.learned_cloth.<launcher>
 
 
 @triton.jit
@@ -256,36 +256,40 @@ _tuned_conv = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
 _FIXED = {"BLOCK_M": 16, "BLOCK_N": 16}
 
 
-def fused_conv(table: torch.Tensor, segments: list[tuple[torch.Tensor, torch.Tensor | None]],
-               affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
-               sums: Sums | None) -> torch.Tensor:
+@triton_op(f"{NAMESPACE}::fused_conv", mutates_args=())
+def fused_conv(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | None, src2: torch.Tensor | None,
+               map2: torch.Tensor | None, affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor,
+               out_dtype: torch.dtype, stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """One convolution: table (V, L) int32 +1 ids; one or two segments (source (B, V_src, C) contiguous, map
     (V_src_table, 1) int32 or None) filling the weight's (L * sum C, N) rows slot by slot; `affine` (2 C_1,)
-    = (offset, 1/scale) applied to the first segment on load, or None; bias (N,) fp32. Returns (B, V, N)."""
-    if not 1 <= len(segments) <= 2:
-        raise ValueError(f"a fused convolution reads one or two segments, got {len(segments)}")
+    = (offset, 1/scale) applied to the first segment on load, or None; bias (N,) fp32. Returns (B, V, N) and,
+    with `stats`, its sums (B, 2, N) (else an empty tensor)."""
     n_vertices, size = table.shape
     n_out = weight.shape[1]
-    (src1, map1), (src2, map2) = segments[0], segments[-1]
-    batch, c1, c2 = src1.shape[0], src1.shape[2], src2.shape[2] if len(segments) == 2 else 0
-    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
+    batch, c1, c2 = src1.shape[0], src1.shape[2], 0 if src2 is None else src2.shape[2]
+    out, sums, sums_args = _output(table, batch, n_out, out_dtype, stats, bias)
+    second = src1 if src2 is None else src2
     args = (out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out,
             src1, table if map1 is None else map1, src1.shape[1], c1,
-            src2, table if map2 is None else map2, src2.shape[1], c2)
+            second, table if map2 is None else map2, second.shape[1], c2)
     # K chunks as wide as the narrower segment allows (tl.dot needs 16): few-channel convs waste little.
     block_k = min(64, max(16, triton.next_power_of_2(min(c1, c2) if c2 else c1)))
     constants = dict(L=size, SLOTS=triton.next_power_of_2(size), MAPPED1=map1 is not None,
-                     MAPPED2=map2 is not None, TWO=len(segments) == 2, AFFINE=affine is not None,
-                     STATS=sums is not None, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
+                     MAPPED2=map2 is not None, TWO=src2 is not None, AFFINE=affine is not None,
+                     STATS=stats, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
     _launch(_conv_kernel, _tuned_conv, args, constants, n_vertices, n_out, batch)
-    return out
+    return out, sums
 
 
-def _output(table: torch.Tensor, batch: int, n_out: int, out_dtype: torch.dtype, sums: Sums | None,
-            bias: torch.Tensor) -> tuple[torch.Tensor, tuple]:
-    """A convolution's output (B, V, N) and its kernel's three sums arguments (any pointer when no norm)."""
+def _output(table: torch.Tensor, batch: int, n_out: int, out_dtype: torch.dtype, stats: bool,
+            bias: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, tuple]:
+    """A convolution's output (B, V, N), its sums (B, 2, N) zeroed for the epilogue's atomics (empty without a
+    norm) and its kernel's three sums arguments (any pointer when no norm)."""
     out = torch.empty(batch, table.shape[0], n_out, device=table.device, dtype=out_dtype)
-    return out, ((sums.buffer, sums.batch_stride, sums.second) if sums is not None else (bias, 0, 0))
+    if not stats:
+        return out, torch.empty(0, device=table.device, dtype=torch.float32), (bias, 0, 0)
+    sums = torch.zeros(batch, 2, n_out, device=table.device, dtype=torch.float32)
+    return out, sums, (sums, 2 * n_out, n_out)
 
 
 def _launch(kernel, tuned, args: tuple, constants: dict, n_vertices: int, n_out: int, batch: int) -> None:
@@ -293,11 +297,11 @@ def _launch(kernel, tuned, args: tuple, constants: dict, n_vertices: int, n_out:
     Triton's interpreter."""
     if INTERPRETED:
         grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
-        kernel[grid](*args, **constants, **_FIXED)
+        wrap_triton(kernel)[grid](*args, **constants, **_FIXED)
     else:
         grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
                              triton.cdiv(n_out, meta["BLOCK_N"]), batch)
-        tuned[grid](*args, **constants)
+        wrap_triton(tuned)[grid](*args, **constants)
 
 
 # Narrow column blocks give coarse levels (a few hundred rows) enough programs to fill the SMs.
@@ -318,59 +322,62 @@ _tuned_gather_sum = triton.autotune(_GATHER_SUM_CONFIGS, key=["n_vertices", "n_o
                                     restore_value=["sums_ptr"])(_gather_sum_kernel)
 
 
-def gather_sum(table: torch.Tensor, products: list[tuple[torch.Tensor, torch.Tensor | None]], bias: torch.Tensor,
-               out_dtype: torch.dtype, sums: Sums | None) -> torch.Tensor:
+@triton_op(f"{NAMESPACE}::gather_sum", mutates_args=())
+def gather_sum(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | None, src2: torch.Tensor | None,
+               map2: torch.Tensor | None, bias: torch.Tensor, out_dtype: torch.dtype,
+               stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """A convolution's second half when its products came first: out[b, v] = bias + sum over the segments and
-    the table's slots k of products[b, map(table[v, k]), k] (products (B, V_src, L, N) contiguous, each segment's
-    input already multiplied by its slot weights; map (V_src_table, 1) int32 or None). Returns (B, V, N), with
-    the norm's sums added as `fused_conv`'s."""
-    if not 1 <= len(products) <= 2:
-        raise ValueError(f"a convolution sums one or two segments' products, got {len(products)}")
+    the table's slots k of products[b, map(table[v, k]), k] (each segment's products (B, V_src, L, N) contiguous,
+    its input already multiplied by its slot weights; map (V_src_table, 1) int32 or None). Returns (B, V, N) and
+    its sums as `fused_conv`'s."""
     n_vertices, size = table.shape
-    (src1, map1), (src2, map2) = products[0], products[-1]
     batch, n_out = src1.shape[0], src1.shape[3]
-    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
+    out, sums, sums_args = _output(table, batch, n_out, out_dtype, stats, bias)
+    second = src1 if src2 is None else src2
     args = (out, *sums_args, table, bias, n_vertices, n_out, src1, table if map1 is None else map1, src1.shape[1],
-            src2, table if map2 is None else map2, src2.shape[1])
-    constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=len(products) == 2,
-                     STATS=sums is not None)
+            second, table if map2 is None else map2, second.shape[1])
+    constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=src2 is not None,
+                     STATS=stats)
     _launch(_gather_sum_kernel, _tuned_gather_sum, args, constants, n_vertices, n_out, batch)
-    return out
+    return out, sums
 
 
+@triton_op(f"{NAMESPACE}::few_channel_conv", mutates_args=())
 def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tensor | None,
                      affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
-                     sums: Sums | None) -> torch.Tensor:
+                     stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """`fused_conv` of one segment of few channels (a handful: the loops unroll over slots x channels) in fp32
     FMAs - the network's first convolution on raw features, an output layer's last - where tensor-core tiles
     would pad K to 16 and multiply mostly zeros."""
     n_vertices, size = table.shape
     batch, src_vertices, channels = source.shape
     n_out = weight.shape[1]
-    out, sums_args = _output(table, batch, n_out, out_dtype, sums, bias)
+    out, sums, sums_args = _output(table, batch, n_out, out_dtype, stats, bias)
     block_m, block_n = (16, 16) if INTERPRETED else (32, min(64, max(16, triton.next_power_of_2(n_out))))
     grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
-    _few_channel_kernel[grid](out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices,
-                              n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
-                              SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None,
-                              AFFINE=affine is not None, STATS=sums is not None, BLOCK_M=block_m, BLOCK_N=block_n,
-                              num_warps=4)
-    return out
+    wrap_triton(_few_channel_kernel)[grid](
+        out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out, source,
+        table if rows is None else rows, src_vertices, C=channels, L=size, SLOTS=max(16, triton.next_power_of_2(size)),
+        MAPPED=rows is not None, AFFINE=affine is not None, STATS=stats, BLOCK_M=block_m, BLOCK_N=block_n,
+        num_warps=4)
+    return out, sums
 
 
-def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: Sums | None, out_dtype: torch.dtype,
+@triton_op(f"{NAMESPACE}::prepare", mutates_args=())
+def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: torch.Tensor | None, out_dtype: torch.dtype,
             pool_max: bool) -> torch.Tensor:
-    """source (B, V_src, C) -> (B, V, C): normalised (instance norm from `sums` + leaky ReLU) if sums is given,
-    then reduced over each row of `rows` (V, P) int32 (mean, or max if pool_max), or row by row if None."""
+    """source (B, V_src, C) -> (B, V, C): normalised (instance norm from the source's `sums` (B, 2, C) +
+    leaky ReLU) if sums is given, then reduced over each row of `rows` (V, P) int32 (mean, or max if pool_max),
+    or row by row if None."""
     batch, src_vertices, channels = source.shape
     n_rows = src_vertices if rows is None else rows.shape[0]
     out = torch.empty(batch, n_rows, channels, device=source.device, dtype=out_dtype)
     block_c = min(triton.next_power_of_2(channels), 128)
     block_m = 16 if INTERPRETED else max(16, 4096 // block_c)
     grid = (triton.cdiv(n_rows, block_m), triton.cdiv(channels, block_c), batch)
-    sums_args = (sums.buffer, sums.batch_stride, sums.second) if sums is not None else (source, 0, 0)
-    _prepare_kernel[grid](out, source, source if rows is None else rows, *sums_args, n_rows, src_vertices,
-                          channels, P=1 if rows is None else rows.shape[1], MAPPED=rows is not None,
-                          NORMALIZE=sums is not None, POOL_MAX=pool_max, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE,
-                          BLOCK_M=block_m, BLOCK_C=block_c, num_warps=4)
+    sums_args = (sums, 2 * channels, channels) if sums is not None else (source, 0, 0)
+    wrap_triton(_prepare_kernel)[grid](
+        out, source, source if rows is None else rows, *sums_args, n_rows, src_vertices, channels,
+        P=1 if rows is None else rows.shape[1], MAPPED=rows is not None, NORMALIZE=sums is not None,
+        POOL_MAX=pool_max, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_C=block_c, num_warps=4)
     return out

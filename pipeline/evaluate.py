@@ -384,7 +384,8 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
         out.finish(Evaluation(errors, per_frame, None, times, timed, run.where, WARMUP_RUNS,
-                              run.state["parameter_count"], trained_frame_count(run.state["training"], data), by_kind))
+                              run.state["parameter_count"], trained_frame_count(run.state["training"], data), by_kind,
+                              times.fused))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:
@@ -626,11 +627,21 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
             f"Median **{np.median(times):.2f} ms per frame** on {device} on the deployment path ({times.path}; "
             f"{task.timed}, one frame per call, {len(times)} test frame(s) timed "
             f"after {WARMUP_RUNS} warm-up runs; min {times.min():.2f}, max {times.max():.2f} ms); eager PyTorch on "
-            f"the same frames: median {np.median(times.eager):.2f} ms. "
+            f"the same frames: median {np.median(times.eager):.2f} ms. {_fused_sentence(times)}"
             f"{task.timing_note(args.dataset, float(np.median(times)))}{task.timing_reference}")]),
         Section("Files", [Links(files)]),
     ]
     return sections
+
+
+def _fused_sentence(times) -> str:
+    """What a user deploys on CUDA, beside the fp32 path: the fused bf16 network's median and its error (none
+    where it was not timed: the CPU, a decoder)."""
+    if times.fused is None:
+        return ""
+    return (f"The fused bf16 network ({times.fused.path}) on the same frames: median "
+            f"**{np.median(times.fused.ms):.2f} ms**, within {times.fused.error:.1e} of the fp32 path's output "
+            f"(largest difference over its largest displacement). ")
 
 
 if __name__ == "__main__":

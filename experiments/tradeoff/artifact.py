@@ -15,22 +15,33 @@ from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
 STRING_COLUMNS = ("method", "network", "harmonic_every")
+# The learned path with the fused bf16 network (model.fused_network, CUDA) in place of the fp32 one: its ms, its
+# error against the fp32 network (largest |difference| over the largest fp32 displacement), the row's total and
+# speedup with it.
+FUSED_COLUMNS = ("ms_net_fused", "fused_error", "ms_total_fused", "speedup_fused")
 INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "params")
 FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net",
-                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup")
+                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup", *FUSED_COLUMNS)
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
-NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout")     # NaN: the scene has no held-out motion
+# NaN: the scene has no held-out motion (l1_heldout, l2_heldout); no fused network timed (the fused columns: a
+# CPU timing, where the fused network does not run, or a row without a network)
+NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout", *FUSED_COLUMNS)
 TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 # `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
 # alone, or a high-res run of another budget or harmonic schedule than the scene's.
 LEARNED, LOOP, HIGH_RES = "learned", "loop", "high_res"
 METHODS = (LEARNED, LOOP, HIGH_RES)
 NO_NETWORK = "none"      # `network` of a row without one
+SIM_HIGH_MEANING = ("the high-res solver at the reference budget with the scene's physics (body and self collision "
+                    "where it has them), not held to a "
+                    "low-res run (the paper's reference), one sequence alone, timed in the stage's job beside the "
+                    "learned path's low-res solve, Loop subdivision and network")
 
 
 @dataclasses.dataclass(frozen=True)
 class Reference:
-    """The scene's own high-res run, the ground truth every row is scored against and timed beside."""
+    """The scene's own high-res run: the ground truth every row is scored against, and the budget at which the
+    high-res solver, free, is the time to beat (`ms_sim_high`)."""
     substeps: int
     iterations: int
     harmonic_every: str
@@ -43,7 +54,6 @@ class Tradeoff:
     columns: dict[str, np.ndarray]
     device: str                 # where the learned path was timed, in words
     threads: int                # torch CPU threads of that timing
-    sim_high_batch: int         # sequences the high-res run stepped together (ms_sim_high is per sequence)
     reference: Reference
 
     def __len__(self) -> int:
@@ -54,10 +64,12 @@ def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tr
     with atomic_h5(path, STAGE, config) as f:
         TABLE.write(f, table.columns)
         ref = table.reference
-        f.attrs.update(device=table.device, threads=table.threads, sim_high_batch=table.sim_high_batch,
-                       reference_substeps=ref.substeps, reference_iterations=ref.iterations,
-                       reference_harmonic_every=ref.harmonic_every,
-                       error_unit="scene units (~m); the report shows x 1e-3", time_unit="ms per frame")
+        f.attrs.update(device=table.device, threads=table.threads, reference_substeps=ref.substeps,
+                       reference_iterations=ref.iterations, reference_harmonic_every=ref.harmonic_every,
+                       error_unit="scene units (~m); the report shows x 1e-3", time_unit="ms per frame",
+                       ms_sim_high=SIM_HIGH_MEANING,
+                       fused_columns=f"{', '.join(FUSED_COLUMNS)}: the learned path with the fused bf16 network; "
+                                     f"NaN: not timed (a CPU timing: it runs on CUDA only; a row without a network)")
 
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
@@ -69,5 +81,4 @@ def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
         attrs = f.attrs
         reference = Reference(int(attrs["reference_substeps"]), int(attrs["reference_iterations"]),
                               str(attrs["reference_harmonic_every"]))
-        return Tradeoff(columns, str(attrs["device"]), int(attrs["threads"]), int(attrs["sim_high_batch"]),
-                        reference)
+        return Tradeoff(columns, str(attrs["device"]), int(attrs["threads"]), reference)

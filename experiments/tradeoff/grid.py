@@ -3,16 +3,18 @@ from a scene's name, its resolved settings and its sequence names, the low-res b
 the high-res runs beside the scene's own, their folders and timing runs, each budget's and run's settings overlay,
 and the `experiments.tradeoff` stage's argument list and inputs.
 
-The scene's own budget reuses the scene's runs and dataset.h5; its own high-res run is the reference, never a row.
-A sharded scene (`shard` > 1) simulates by batch, so each budget and high-res run (the reference too) is also run
-for its first sequence alone, whose solver timing is the row's. The Snakefile imports this at every start: it
-reads settings only and imports nothing heavy.
+The scene's own budget reuses the scene's runs and dataset.h5; its own high-res run is the ground truth, never a
+row. The stage times the solvers of the speedup itself (the budgets' low-res runs and the free high-res run, the
+paper's reference) on the scene's first sequence, in its own job; a sharded scene (`shard` > 1) simulates by batch,
+so each high-res run beside the scene's is also run for its first sequence alone, whose solver timing is the row's.
+The Snakefile imports this at every start: it reads settings only and imports nothing heavy.
 """
 from __future__ import annotations
 
 from typing import Any
 
 from pipeline.core.config import shared_settings, simulation_settings
+from pipeline.workflow_paths import settled_runs
 
 Settings = dict[str, Any]
 # (substeps, iterations, harmonic schedule) of a high-res run; wildcards give the numbers as strings.
@@ -78,12 +80,11 @@ def high_res_files(scene: str, sequences: list[str], run: HighResRun) -> list[st
 
 
 def high_res_timings(scene: str, settings: Settings) -> dict[HighResRun, str]:
-    """A sharded scene's high-res timing runs (one sequence alone), by run, the reference's first; none with
-    `shard: 1` (each sequence's own job is timed)."""
+    """A sharded scene's timing runs (one sequence alone) of the high-res runs beside the scene's, by run; none
+    with `shard: 1` (each sequence's own job is timed)."""
     if settings["shard"] == 1:
         return {}
-    return {run: f"{high_res_folder(scene, run)}/timing/sim_high.h5"
-            for run in (reference_run(settings), *high_res_runs(settings))}
+    return {run: f"{high_res_folder(scene, run)}/timing/sim_high.h5" for run in high_res_runs(settings)}
 
 
 def scene_trained_nets(settings: Settings) -> list[str]:
@@ -118,44 +119,46 @@ def low_runs(scene: str, settings: Settings, sequences: list[str], substeps: int
     return [f"{folder}/sequences/{seq}/sim_low.h5" for seq in sequences]
 
 
-def timed_runs(scene: str, settings: Settings, sequences: list[str], substeps: int) -> list[str]:
-    """The runs whose solver timing is the budget's low-res ms: each sequence's own job, or the timing run."""
-    if settings["shard"] == 1:
-        return low_runs(scene, settings, sequences, substeps)
-    return [f"{point_folder(scene, substeps)}/timing/sim_low.h5"]
+def solve_timing_files(scene: str, sequences: list[str]) -> list[str]:
+    """What the stage times the solvers on: the first sequence's scene.h5 and low-res run at the scene's budget
+    (where its high-res run starts), then the scene's settle runs (low, high) if it is a motion library's window."""
+    first = f"results/{scene}/sequences/{sequences[0]}"
+    return [f"{first}/scene.h5", f"{first}/sim_low.h5",
+            *[run for level in ("low", "high") for run in settled_runs(scene, sequences[:1], level)]]
 
 
 def stage_arguments(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
-    """`--point N SIM_LOW.h5 ...`, `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5 MODEL.pt` for
-    each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run, and a sharded
-    scene's `--sim-high-timing SIM_HIGH.h5` and `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
-    words: list[Any] = []
+    """`--solve-timing SCENE.h5 SIM_LOW.h5` [`--settled SETTLE_LOW.h5 SETTLE_HIGH.h5`], then `--point N SIM_LOW.h5`
+    (the budget's run of the first sequence), `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5
+    MODEL.pt` for each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run, and
+    a sharded scene's `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
+    timing = solve_timing_files(scene, sequences)
+    words: list[Any] = ["--solve-timing", *timing[:2], *(["--settled", *timing[2:]] if timing[2:] else [])]
     for n in budgets(settings):
-        words += ["--point", n, *timed_runs(scene, settings, sequences, n)]
+        words += ["--point", n, low_runs(scene, settings, sequences, n)[0]]
         words += [x for net in scene_trained_nets(settings)
                   for x in ("--eval", n, evaluation_file(scene, n, net), network_model(scene, n, net))]
         if n in matched_budgets(settings):
             words += ["--matched", n, evaluation_file(scene, n, "matched"), network_model(scene, n, "matched")]
     for run in high_res_runs(settings):
         words += ["--high-res", *run, *high_res_files(scene, sequences, run)]
-    timings = high_res_timings(scene, settings)
-    if timings:
-        words += ["--sim-high-timing", timings[reference_run(settings)]]
-        words += [x for run in high_res_runs(settings) for x in ("--high-res-timing", *run, timings[run])]
+    words += [x for run, path in high_res_timings(scene, settings).items() for x in ("--high-res-timing", *run, path)]
     return [str(word) for word in words]
 
 
 def stage_inputs(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
-    """Every file of `stage_arguments`: evaluations, timed runs, models (each once) and high-res runs."""
-    return ([path for n in budgets(settings)
-             for path in (*[evaluation_file(scene, n, net) for net in scene_trained_nets(settings)],
-                          *timed_runs(scene, settings, sequences, n))]
-            + [path for n in matched_budgets(settings)
-               for path in (evaluation_file(scene, n, "matched"), network_model(scene, n, "matched"))]
-            + list(dict.fromkeys(network_model(scene, n, net) for n in budgets(settings)
-                                 for net in scene_trained_nets(settings)))
-            + [path for run in high_res_runs(settings) for path in high_res_files(scene, sequences, run)]
-            + list(high_res_timings(scene, settings).values()))
+    """Every file of `stage_arguments`, each once: the solvers' timing sequence, evaluations, low-res runs, models
+    and high-res runs."""
+    return list(dict.fromkeys(
+        solve_timing_files(scene, sequences)
+        + [path for n in budgets(settings)
+           for path in (*[evaluation_file(scene, n, net) for net in scene_trained_nets(settings)],
+                        low_runs(scene, settings, sequences, n)[0])]
+        + [path for n in matched_budgets(settings)
+           for path in (evaluation_file(scene, n, "matched"), network_model(scene, n, "matched"))]
+        + [network_model(scene, n, net) for n in budgets(settings) for net in scene_trained_nets(settings)]
+        + [path for run in high_res_runs(settings) for path in high_res_files(scene, sequences, run)]
+        + list(high_res_timings(scene, settings).values())))
 
 
 def point_settings(settings: Settings, substeps: int | str) -> Settings:

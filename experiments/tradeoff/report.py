@@ -98,6 +98,13 @@ def findings(table: Tradeoff) -> list[str]:
                      f"{c['harmonic_every'][i]}: {split} L1 {error[i]:.3f} from the {ref.substeps} x "
                      f"{ref.iterations} run (every {ref.harmonic_every}), {c['ms_total'][i]:.3g} ms a frame "
                      f"({c['speedup'][i]:.2f}x).")
+    fused = np.flatnonzero(np.isfinite(c["speedup_fused"]))
+    if len(fused):
+        best = fused[np.argmax(c["speedup_fused"][fused])]
+        lines.append(f"Fused bf16 network (what a user deploys on CUDA): fastest as {labels(table)[best]}, "
+                     f"{c['ms_total_fused'][best]:.3g} ms a frame whole ({c['speedup_fused'][best]:.1f}x, against "
+                     f"{c['speedup'][best]:.1f}x with the fp32 network); its output within "
+                     f"{np.max(c['fused_error'][fused]):.1e} of the fp32 network's in every row.")
     fits = np.flatnonzero(c["ms_total"] <= FRAME_60HZ_MS)
     if len(fits):
         best = fits[np.argmin(error[fits])]
@@ -113,9 +120,10 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
     c, ref = table.columns, table.reference
     _, error = _main_error(table)
     front = pareto_front(c["ms_total"], error)
+    fused = bool(np.any(np.isfinite(c["ms_net_fused"])))     # timed on CUDA: its columns shown
     header = ("| method | solver budget | network | trained on | params | test L1 | test L2 | held-out L1 | "
               "held-out L2 | low-res sim | Loop subdiv. | network | high-res sim | total | reference high-res sim | "
-              "speedup |")
+              "speedup |" + (" network, fused bf16 | vs fp32 | total, fused | speedup, fused |" if fused else ""))
     lines = ["# Speed-accuracy trade", "",
              f"The scene's report: [{scene_report.name}]({os.path.relpath(scene_report, path.parent)}).", "",
              f"Device: {table.device}; torch threads: {table.threads}; load average when tabulated: "
@@ -126,13 +134,19 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
              f"{ref.substeps}-substep inputs (fed cheaper runs: the input shift of paper Fig. 14) or on that "
              "budget's own inputs (matched); Loop subdivision alone is the floor; high-res: the high-res solver "
              "itself at a cheaper budget or the other harmonic schedule, held to the scene's low-res run. Errors "
-             "x 1e-3 scene units (as the scene's report); times in ms per frame of one sequence: low-res solve (the "
-             "solver's own timing), Loop subdivision and network (the deployment path, median after warm-up, timed by "
-             "this stage one after another), "
-             "a high-res row's own solve, their sum, and the reference high-res solve"
-             + (f" (a batch of {table.sim_high_batch} sequences' ms divided by {table.sim_high_batch}: a lower "
-                f"bound of one sequence's on a GPU)" if table.sim_high_batch > 1 else "")
-             + ". speedup = high-res sim / total. **Bold**: on the Pareto front of the "
+             "x 1e-3 scene units (as the scene's report); times in ms per frame of one sequence: low-res solve, "
+             "Loop subdivision and network (the deployment path, median after warm-up), a high-res row's own solve "
+             "(its runs' timing), their sum, and the reference high-res solve: the high-res solver at "
+             f"{ref.substeps} x {ref.iterations} with the scene's physics (body and self collision where it has "
+             "them), free (not held to a low-res run: "
+             "the paper's reference, what the learned path replaces). The low-res solves, Loop subdivision, the "
+             "networks and the reference are timed in this one job, one after another on the device, the solvers "
+             "over one sequence stepped alone. speedup = reference high-res sim / total."
+             + (" Fused: the same learned path with the fused bf16 network (model.fused_network, what a user "
+                "deploys on CUDA) in place of the fp32 one, timed beside it on the same frames; vs fp32: its "
+                "largest output difference over the fp32 network's largest displacement; the Pareto front and the "
+                "plot are the fp32 path's." if fused else "")
+             + " **Bold**: on the Pareto front of the "
              + ("held-out" if "held-out" in plotted_errors(table) else "test") + " L1 (no row both faster and "
              "more accurate).", "", f"![error against ms per frame]({os.path.relpath(plot, path.parent)})", "",
              "## Findings", "", *[f"- {line}" for line in findings(table)], "", "## Table", "",
@@ -150,6 +164,10 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
                  *[f"{c[k][i]:.3g}" for k in ("ms_sim_low", "ms_subdiv", "ms_net", "ms_sim_high_run", "ms_total",
                                                "ms_sim_high")],
                  f"{c['speedup'][i]:.1f}x"]
+        if fused:
+            cells += ["-" if not np.isfinite(c["ms_net_fused"][i]) else value for value in (
+                f"{c['ms_net_fused'][i]:.3g}", f"{c['fused_error'][i]:.1e}", f"{c['ms_total_fused'][i]:.3g}",
+                f"{c['speedup_fused'][i]:.1f}x")]
         lines.append("| " + " | ".join(cells) + " |")
     with atomic_write(path) as f:
         f.write(("\n".join(lines) + "\n").encode())

@@ -19,6 +19,7 @@ STAGE = "evaluate"
 BY_KIND = "by_kind"      # errors per motion category and per subject of a dataset with motion-library windows
 GROUPINGS = ("category", "subject")
 TERMS = ("l1", "l2")     # per frame and per group; WHO: the network, its predictor alone
+FUSED_MS = "inference_ms_fused"      # the fused bf16 network's times, written where it was timed (CUDA)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,6 +31,16 @@ class GroupErrors:
     frames: dict[str, np.ndarray]                        # split -> (G,) int64 each group's frames in it
     errors: dict[str, dict[str, dict[str, np.ndarray]]]  # split -> network/predictor -> l1/l2 -> (G,) float64,
                                                          # NaN for a group without frames in the split
+
+
+@dataclasses.dataclass(frozen=True)
+class FusedTiming:
+    """The fused bf16 network's ms per timed frame (model.fused_network: CUDA only; the same frames and warm-up
+    as the fp32 deployment path's) and its error against that path: the largest |fused - fp32| displacement over
+    the timed frames, over the largest |fp32| displacement."""
+    ms: np.ndarray              # (T,)
+    error: float
+    path: str                   # how it ran, in words
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +60,7 @@ class Evaluation:
     trained_frames: int                              # the frames the network trained on (model.pt's training)
     by_kind: dict[str, GroupErrors] = dataclasses.field(default_factory=dict)   # grouping -> errors; empty: a
                                                                                 # dataset without library windows
+    fused: FusedTiming | None = None    # None: not timed (the CPU, where it does not run; a decoder)
 
 
 def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
@@ -119,6 +131,13 @@ def _write_results(f: h5py.File, evaluation: Evaluation, predictions_stored: boo
                    warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
                    trained_frames=evaluation.trained_frames,
                    timing="input features and network, batch of one frame")
+    if evaluation.fused is not None:
+        f.create_dataset(FUSED_MS, data=np.asarray(evaluation.fused.ms, dtype=np.float64))
+        f[FUSED_MS].attrs.update(meaning="ms per timed frame (inference_frames) of the fused bf16 network, "
+                                         "timed as inference_ms; absent: not timed (it runs on CUDA only)",
+                                 path=evaluation.fused.path, error_vs_fp32=evaluation.fused.error,
+                                 error_meaning="largest |fused - fp32| displacement over the timed frames over the "
+                                               "largest |fp32| displacement")
     for grouping, groups in evaluation.by_kind.items():
         _write_groups(f, f"{BY_KIND}/{grouping}", groups)
     if evaluation.by_kind:
@@ -191,6 +210,7 @@ class NetworkTiming:
     device: str                 # where it ran, in words
     params: int                 # learnable parameters
     name: str                   # "<conv> x<width>", from the recorded model spec
+    fused: FusedTiming | None   # the fused bf16 network's, where it was timed (CUDA); else None
 
 
 def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
@@ -203,9 +223,18 @@ def read_network_timing(path: str | os.PathLike) -> NetworkTiming:
             name = f"{spec['conv']} x{float(spec['width']):g}"
         except (KeyError, TypeError, ValueError) as err:
             raise PipelineError(f"{path}: {err} missing or malformed: not an eval.h5 of pipeline.evaluate") from None
+        fused = None
+        if FUSED_MS in f:
+            fused_ms = read(f, FUSED_MS, np.float64)
+            attrs = f[FUSED_MS].attrs
+            error = float(attrs.get("error_vs_fp32", np.nan))
+            if fused_ms.shape != times.shape or not np.all(np.isfinite(fused_ms)) or not np.isfinite(error):
+                raise PipelineError(f"{path}: '{FUSED_MS}' must hold finite ms of each timed frame and a finite "
+                                    f"attribute 'error_vs_fp32'")
+            fused = FusedTiming(fused_ms, error, str(attrs.get("path", "")))
     if times.ndim != 1 or len(times) == 0 or not np.all(np.isfinite(times)):
         raise PipelineError(f"{path}: 'inference_ms' must hold the finite ms of at least one timed frame")
-    return NetworkTiming(times, device, read_parameter_count(path), name)
+    return NetworkTiming(times, device, read_parameter_count(path), name, fused)
 
 
 def read_trained_frames(path: str | os.PathLike) -> int:

@@ -64,7 +64,7 @@ class SimulationWriter:
     """One run's file while the run is made: its frames written as they are stepped (`frames`, from any thread:
     h5py serialises its calls), the rest once the run is done (`finish`). Opened by `simulation_writer`."""
 
-    def __init__(self, f: h5py.File, level: Literal["low", "high"], device: str, n_frames: int):
+    def __init__(self, f: h5py.File, level: Literal["low", "high", "free"], device: str, n_frames: int):
         self._f, self._level, self._device = f, level, device
         self._written = np.zeros(n_frames, dtype=bool)
         self.finished = False
@@ -97,7 +97,7 @@ class SimulationWriter:
 
 
 @contextlib.contextmanager
-def simulation_writer(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
+def simulation_writer(path: str | os.PathLike, level: Literal["low", "high", "free"], settings: Mapping[str, Any],
                       frames_vertices: tuple[int, int], device: str, source_mesh: str) -> Iterator[SimulationWriter]:
     """A writer of one run of (frames, vertices) positions; `settings` (the resolved scene settings) are its
     provenance `config`, `source_mesh` the `mesh_fingerprint` of the scene's low-res rest mesh (that of a
@@ -112,7 +112,7 @@ def simulation_writer(path: str | os.PathLike, level: Literal["low", "high"], se
             raise ValueError(f"{path}: the run's writer was left unfinished")
 
 
-def write_simulation(path: str | os.PathLike, level: Literal["low", "high"], settings: Mapping[str, Any],
+def write_simulation(path: str | os.PathLike, level: Literal["low", "high", "free"], settings: Mapping[str, Any],
                      run: SimulationRun, device: str, source_mesh: str) -> None:
     """Write one run made before (simulation_writer's arguments)."""
     with simulation_writer(path, level, settings, run.positions.shape[:2], device, source_mesh) as writer:

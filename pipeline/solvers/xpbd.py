@@ -6,13 +6,18 @@ runs it makes of a sequence (LEVELS):
   subdivision, the same body, and the hard constraint B^T M (x_high - S x_low) = 0 to the low-res run (paper sec.
   5, Kavan et al. 2011; projected once a substep by default, `high_res.harmonic_every`), starting at S x_low of
   frame 0. Its per-sequence work outside the solver (the harmonic targets before stepping, the residual's
-  products while the device steps on) runs on the job's threads, a sequence each.
+  products while the device steps on) runs on the job's threads, a sequence each;
+- `free`: the high-res run without that constraint, from the same start: the scene's physics alone (body and self
+  collision where it has them), the paper's high-res reference (a simulation that replaces the learned path, not
+  one held to a low-res run). Its harmonic residual says how far it drifts from the low-res run; the trade-off
+  times it (experiments.tradeoff).
 Several sequences of one garment are one batch, a solver world each. A motion library's window starts at both
 levels from the cloth that the scene's settle sequence left (the last frame of that sequence's run at the same
 level, the stage's --settled), not from the rest shape: the settle at rest is the same for every window.
 """
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -201,11 +206,13 @@ def prepare_low(settings: dict, groups: Sequence[tuple[str, ...]], device: str, 
 
 
 def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str, quiet: bool,
-                 threads: int, settled: np.ndarray | None) -> PreparedBatch:
+                 threads: int, settled: np.ndarray | None, held: bool = True) -> PreparedBatch:
     """The high-res runs of a batch of sequences, each group (SCENE, SUBDIV, SIM_LOW), one subdivision, from S
     x_low of frame 0 or, for a sequence that starts settled, from `settled` (held to its low-res run's frame 0); each
     sequence's harmonic targets (here) and residual (`measure`, while the device steps on) computed on `threads`
-    threads (numpy, scipy and the products release the GIL; the same numbers whatever the count)."""
+    threads (numpy, scipy and the products release the GIL; the same numbers whatever the count). `held`: with
+    the harmonic constraint to the low-res run; without it (the `free` level) the targets only measure the
+    residual."""
     start = time.perf_counter()
     if len({group[1] for group in groups}) > 1:
         raise PipelineError(f"{groups[1][1]}: a batch is one garment: every sequence takes the same SUBDIV")
@@ -245,7 +252,7 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
     # from frame 0's (~1 s each, for a 64-sequence batch).
     moved = [clearance(x_low, d.capsules) if clearance else None for x_low, d in zip(x_lows, batch.drives)]
     clearance_done = time.perf_counter()
-    model = batch.model(rest, faces, s, pins, harmonic=constraint)
+    model = batch.model(rest, faces, s, pins, harmonic=constraint if held else None)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         computing = [pool.submit(harmonic_targets_of, x_low, products, m) for x_low, m in zip(x_lows, moved)]
         frame0_targets = [harmonic_targets_of(x_low[:1], products, None if m is None else (m[0], m[1][:1]))
@@ -281,11 +288,14 @@ def prepare_high(settings: dict, groups: Sequence[tuple[str, ...]], device: str,
                              (harmonic_residual(residual, basis.shape[1]),), batch_worlds=solver.worlds,
                              setup_seconds=setup_seconds)
 
-    return PreparedBatch("high-res", solver, scene_paths, batch.n_frames, frame_work(solver), inputs, run, measure,
-                         summary=lambda: contact_growth(solver))
+    return PreparedBatch("high-res" if held else "high-res (free)", solver, scene_paths, batch.n_frames,
+                         frame_work(solver), inputs, run, measure, summary=lambda: contact_growth(solver))
 
 
 LEVELS = {
     "low": Level(("SCENE",), "the low-res run", prepare_low),
     "high": Level(("SCENE", "SUBDIV", "SIM_LOW"), "the high-res run held to the low-res one", prepare_high),
+    "free": Level(("SCENE", "SUBDIV", "SIM_LOW"), "the high-res run from the same start, not held to the low-res "
+                                                  "one (the paper's reference)", functools.partial(prepare_high,
+                                                                                                 held=False)),
 }

@@ -1,8 +1,11 @@
 """How a trained network's inference is timed, the same way wherever a figure is reported (the evaluate stage's
 report and eval.h5, the tradeoff stage's table): one frame per call after warm-up runs, synchronised on CUDA, on
-the deployment path (model.inference's fast path, replayed as one CUDA graph on a GPU) beside eager PyTorch."""
+the deployment path (model.inference's fast path, replayed as one CUDA graph on a GPU) beside eager PyTorch and,
+on CUDA, beside what a user deploys there: the fused bf16 network (model.fused_network)."""
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import time
 from typing import Callable
 
@@ -11,8 +14,10 @@ import torch
 
 from model.features import FrameStore
 from model.inference import FastRegressor, captured_frames
+from pipeline.artifacts.evaluation import FusedTiming
 
 WARMUP_RUNS = 3
+FUSED_PATH = "model.fused_network (Triton), bf16 hidden layers, fp32 first and last convolutions"
 
 
 def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
@@ -24,27 +29,48 @@ def pick_frames(frames: np.ndarray, count: int) -> np.ndarray:
 
 class InferenceTimes(np.ndarray):
     """ms of each timed frame on the deployment path (the array: eval.h5's inference_ms), carrying for the report
-    the eager network's ms on the same frames (`eager`) and the deployment path in words (`path`)."""
+    the eager network's ms on the same frames (`eager`), the deployment path in words (`path`) and the fused bf16
+    network's times (`fused`; None where it was not timed: on the CPU, where it does not run, and for a decoder)."""
 
     eager: np.ndarray
     path: str
+    fused: FusedTiming | None
+
+
+@contextlib.contextmanager
+def _bf16_sums_in_fp32():
+    """cuBLAS bf16 GEMMs with split-K partial sums in fp32 too (as bench/infer.py measures the fused path)."""
+    matmul = torch.backends.cuda.matmul
+    before = matmul.allow_bf16_reduced_precision_reduction
+    matmul.allow_bf16_reduced_precision_reduction = False
+    try:
+        yield
+    finally:
+        matmul.allow_bf16_reduced_precision_reduction = before
+
+
+def _deployed(fast: FastRegressor, store: FrameStore, ids: torch.Tensor, path: str) -> tuple[Callable, str]:
+    """`fast` as deployed on the device of `ids`: one replayed CUDA graph on CUDA, launched where it cannot be
+    captured (a feature's kernel), as is on the CPU; and its path in words."""
+    if not ids.is_cuda:
+        return fast, f"{path}, inference_mode"
+    try:
+        return captured_frames(fast, store.batch(ids[:1])), f"{path}, replayed as one CUDA graph"
+    except RuntimeError as err:       # a feature's kernel that cannot be captured: time it launched
+        return fast, f"{path}, launched kernel by kernel (no CUDA graph: {str(err).splitlines()[0]})"
+
+
+def _relative(got: torch.Tensor, expected: torch.Tensor) -> float:
+    return float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
 
 
 def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> InferenceTimes:
     """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
     of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
-    on the same frames, eager PyTorch."""
+    on the same frames, eager PyTorch; on CUDA (with Triton) also the fused bf16 network (`FusedTiming`), replayed
+    the same way."""
     sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-    fast = FastRegressor(model, mesh).to(ids.device)
-    path = "model.inference fast path, fp32, inference_mode"
-    deployed = fast
-    if ids.is_cuda:
-        try:
-            deployed = captured_frames(fast, store.batch(ids[:1]))
-            path = "model.inference fast path, fp32, replayed as one CUDA graph"
-        except RuntimeError as err:       # a feature's kernel that cannot be captured: time it launched
-            path += f", launched kernel by kernel (no CUDA graph: {str(err).splitlines()[0]})"
 
     def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
         times, outputs = [], []
@@ -61,17 +87,25 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
         return np.asarray(times), torch.cat(outputs)
 
     eager_ms, expected = per_frame(lambda frame: model(frame, mesh), torch.no_grad)
+    deployed, path = _deployed(FastRegressor(model, mesh).to(ids.device), store, ids,
+                               "model.inference fast path, fp32")
     deployed_ms, got = per_frame(deployed, torch.inference_mode)
-    difference = float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
     times = deployed_ms.view(InferenceTimes)
-    times.eager, times.path = eager_ms, f"{path}; within {difference:.0e} of the eager output"
+    times.eager, times.path = eager_ms, f"{path}; within {_relative(got, expected):.0e} of the eager output"
+    times.fused = None
+    if ids.is_cuda and importlib.util.find_spec("triton") is not None:    # PyTorch's CUDA builds bring Triton
+        with _bf16_sums_in_fp32():
+            fused, fused_path = _deployed(FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device),
+                                          store, ids, FUSED_PATH)
+            fused_ms, fused_out = per_frame(fused, torch.inference_mode)
+        times.fused = FusedTiming(fused_ms, _relative(fused_out, got), fused_path)
     return times
 
 
 def time_decoder(model, mesh, store, ids: torch.Tensor) -> InferenceTimes:
-    """time_inference for a decoder task (model.inference's fast path covers the encoder-decoder only): eager
-    PyTorch under inference_mode, batch of one (the input vector given), after warm-up runs; synchronised on
-    CUDA."""
+    """time_inference for a decoder task (model.inference's fast path covers the encoder-decoder only, and so
+    does the fused network: `fused` is None): eager PyTorch under inference_mode, batch of one (the input vector
+    given), after warm-up runs; synchronised on CUDA."""
     sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
     times = []
     with torch.inference_mode():
@@ -84,5 +118,5 @@ def time_decoder(model, mesh, store, ids: torch.Tensor) -> InferenceTimes:
             if i >= 0:
                 times.append((time.perf_counter() - start) * 1e3)
     measured = np.asarray(times).view(InferenceTimes)
-    measured.eager, measured.path = measured, "eager PyTorch, fp32, inference_mode"
+    measured.eager, measured.path, measured.fused = measured, "eager PyTorch, fp32, inference_mode", None
     return measured

@@ -6,6 +6,7 @@ would unpickle."""
 from __future__ import annotations
 
 import ast
+import importlib.util
 import io
 import json
 import os
@@ -19,7 +20,7 @@ import pytest
 import torch
 
 from deploy import export, runner
-from deploy.export import EXPORT_TOLERANCE, INPUTS, coarse_faces, eager_displacement
+from deploy.export import EXPORT_TOLERANCE, FUSED_TOLERANCE, INPUTS, coarse_faces, eager_displacement
 from geometry.loop_subdivision import loop_subdivide
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.inference import UPSAMPLER_INPUTS
@@ -113,14 +114,14 @@ def test_manifest_names_the_inputs_the_model_needs(work):
     assert list(INPUTS) == list(UPSAMPLER_INPUTS) == list(runner.INPUTS)
 
 
-def test_runner_without_the_project_upsamples_like_the_eager_network(work, tmp_path):
-    """The export's runner.py, run from outside the repository by an interpreter that sees torch and numpy's
-    site-packages but not the project (no .pth files: the editable install is one), gives S x_low + the eager
-    displacement of every frame."""
-    frames = _sequence(work)
+def _run_without_the_project(export_dir: Path, folder: Path, *options: str) -> tuple[np.ndarray, np.ndarray]:
+    """The export's runner.py on a waving sequence, run from `folder` (outside the repository) by a fresh
+    interpreter that sees torch and numpy's site-packages but not the project (no .pth files: the editable install
+    is one): the runner's high-res frames and the eager network's (S x_low + displacement, and the displacement)."""
+    frames = _sequence(export_dir.parent)
     body = _capsules(len(frames))
-    np.save(tmp_path / "frames.npy", frames)
-    np.savez(tmp_path / "body.npz", **body)
+    np.save(folder / "frames.npy", frames)
+    np.savez(folder / "body.npz", **body)
     site = str(Path(torch.__file__).parents[1])
     script = f"""
 import runpy, sys
@@ -131,22 +132,57 @@ for name in {PROJECT_PACKAGES!r}:
     except ModuleNotFoundError:
         continue
     sys.exit(f"project package {{name}} is importable")
-sys.argv = ["runner.py", {str(work / "export")!r}, "frames.npy", "--out", "high.npy", "--capsules", "body.npz",
-            "--gravity", "0,-2,0", "--threads", "1"]
-runpy.run_path({str(work / "export" / "runner.py")!r}, run_name="__main__")
+sys.argv = ["runner.py", {str(export_dir)!r}, "frames.npy", "--out", "high.npy", "--capsules", "body.npz",
+            "--gravity", "0,-2,0", "--threads", "1", *{list(options)!r}]
+runpy.run_path({str(export_dir / "runner.py")!r}, run_name="__main__")
 leaked = sorted({{m.split(".")[0] for m in sys.modules}} & set({PROJECT_PACKAGES!r}))
 sys.exit(f"the runner imported {{leaked}}" if leaked else 0)
 """
     env = {**os.environ, "PYTHONPATH": ""}
-    done = subprocess.run([sys.executable, "-S", "-c", script], cwd=tmp_path, env=env, capture_output=True,
+    done = subprocess.run([sys.executable, "-S", "-c", script], cwd=folder, env=env, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr + done.stdout
-    assert not tmp_path.resolve().is_relative_to(REPO)
-    smooth, displacement = _expected(work, frames, body, np.tile([0.0, -1.0, 0.0], (len(frames), 1)))
-    high = np.load(tmp_path / "high.npy")
+    assert not folder.resolve().is_relative_to(REPO)
+    smooth, displacement = _expected(export_dir.parent, frames, body, np.tile([0.0, -1.0, 0.0], (len(frames), 1)))
+    high = np.load(folder / "high.npy")
     assert high.shape == smooth.shape
-    assert np.abs(high - smooth - displacement).max() <= EXPORT_TOLERANCE * np.abs(displacement).max()
+    return high - smooth, displacement
+
+
+def test_runner_without_the_project_upsamples_like_the_eager_network(work, tmp_path):
+    """The CPU program gives S x_low + the eager displacement of every frame."""
+    got, displacement = _run_without_the_project(work / "export", tmp_path)
+    assert np.abs(got - displacement).max() <= EXPORT_TOLERANCE * np.abs(displacement).max()
     assert np.abs(displacement).max() > 1e-3          # the network is not silent
+
+
+def test_a_cpu_export_has_no_fused_package_and_the_runner_says_so(work, tmp_path, monkeypatch):
+    assert json.loads((work / "export" / "upsampler.json").read_text())["fused"] is None
+    assert not (work / "export" / runner.FUSED_PACKAGE).exists()
+    monkeypatch.chdir(tmp_path)
+    np.save("frames.npy", _sequence(work, 1))
+    np.savez("body.npz", **_capsules(1))
+    with pytest.raises(runner.RunnerError, match="--fused runs the fused package of an export made on CUDA"):
+        runner.main([str(work / "export"), "frames.npy", "--out", "x.npy", "--capsules", "body.npz", "--fused"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
+                    reason="the fused package is compiled for a CUDA GPU, with Triton")
+def test_the_fused_package_runs_without_the_project_within_one_percent_of_the_fp32_network(work, tmp_path):
+    """Exported on CUDA, the folder also holds the AOTInductor package of the fused bf16 path; the runner, in a
+    fresh interpreter without the project (or Triton's Python kernels: compiled in), runs it with --fused within
+    1 % of the eager fp32 network's largest displacement, as the export checked."""
+    export_dir = work / "export_cuda"
+    if not export_dir.exists():
+        cli.run(export_model.main, [str(work / name) for name in ("model.pt", "operators.h5", "subdiv.h5")]
+                + [str(export_dir), "--frame-time", str(FRAME_TIME), "--device", "cuda", "--quiet"])
+    fused = json.loads((export_dir / "upsampler.json").read_text())["fused"]
+    assert fused["package"] == runner.FUSED_PACKAGE and (export_dir / runner.FUSED_PACKAGE).stat().st_size > 0
+    assert fused["max_difference_vs_eager"] <= FUSED_TOLERANCE
+    got, displacement = _run_without_the_project(export_dir, tmp_path, "--fused", "--device", "cuda")
+    difference = np.abs(got - displacement).max() / np.abs(displacement).max()
+    print(f"fused package vs eager fp32: {difference:.1e} of the largest displacement")
+    assert difference <= FUSED_TOLERANCE
 
 
 def test_obj_frames_in_and_out_match_the_npy_path(work, tmp_path):

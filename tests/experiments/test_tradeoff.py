@@ -13,8 +13,9 @@ from scipy.spatial.transform import Rotation
 from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff,
                                           write_tradeoff)
 from experiments.tradeoff.report import findings, pareto_front
-from experiments.tradeoff.stage import (Budget, Network, budget_rows, high_res_errors, main, make_row, parse_grid,
-                                        parse_high_res, per_sequence_ms, table_of, time_subdivision)
+from experiments.tradeoff.stage import (NOT_TIMED, Budget, Network, NetworkMs, budget_rows, high_res_errors, main,
+                                        make_row, parse_grid, parse_high_res, per_sequence_ms, table_of,
+                                        time_subdivision)
 from model.losses import l1_loss, l2_loss
 from pipeline.artifacts.dataset import SEQUENCE, SEQUENCE_FRAME, SEQUENCE_NAMES, SPLIT_HELD_OUT, SPLIT_TEST
 from pipeline.artifacts.dataset import read_frame_origins
@@ -95,7 +96,8 @@ def test_a_budgets_rows_are_its_networks_then_the_matched_one_then_loop_alone_wi
                          1000)
     budget = Budget(1, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")], Network(matched, "m.pt"))
     rows = budget_rows(budget, scene_substeps=4, iterations=30, ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
-                       ms_net={"s.pt": 4.0, "w.pt": 1.0, "m.pt": 4.0})
+                       ms_net={"s.pt": NetworkMs(4.0), "w.pt": NetworkMs(1.0),
+                                                                    "m.pt": NetworkMs(4.0)})
     assert [(r["method"], r["network"], r["trained_substeps"], r["params"]) for r in rows] == [
         (LEARNED, "RC9 x0.25", 4, 1000), (LEARNED, "RC9 x0.125", 4, 250), (LEARNED, "RC9 x0.25", 1, 1000),
         (LOOP, "none", 0, 0)]
@@ -119,11 +121,13 @@ def test_an_evaluation_without_its_network_spec_or_timed_frames_is_refused(tmp_p
 
 
 def test_a_row_without_a_held_out_split_has_nan_there_and_its_speedup_is_the_reference_over_its_total():
-    row = make_row(HIGH_RES, "none", 2, 15, 0, 0, {"test": {"l1": 0.1, "l2": 0.2}}, 0.0, 0.0, 0.0, 20.0, "substep",
+    row = make_row(HIGH_RES, "none", 2, 15, 0, 0, {"test": {"l1": 0.1, "l2": 0.2}}, 0.0, 0.0, NOT_TIMED, 20.0,
+                   "substep",
                    ms_sim_high_run=5.0)
     assert np.isnan(row["l1_heldout"]) and np.isnan(row["l2_heldout"])
     assert (row["ms_total"], row["speedup"], row["harmonic_every"]) == (5.0, 4.0, "substep")
-    assert make_row(LEARNED, "n", 1, 10, 4, 9, {"test": {"l1": 1, "l2": 1}}, 1.0, 2.0, 4.0, 70.0)["speedup"] == 10.0
+    assert make_row(LEARNED, "n", 1, 10, 4, 9, {"test": {"l1": 1, "l2": 1}}, 1.0, 2.0, NetworkMs(4.0),
+                    70.0)["speedup"] == 10.0
     assert list(row) == list(COLUMNS)
 
 
@@ -216,16 +220,17 @@ def test_a_dataset_without_test_frames_is_refused(tmp_path):
 
 
 def table(rows, reference=REFERENCE):
-    return table_of(rows, "cpu, 2 threads", 2, 1, reference)
+    return table_of(rows, "cpu, 2 threads", 2, reference)
 
 
 def learned(n, trained, l1, total, network="RC9 x0.25"):
-    return make_row(LEARNED, network, n, 30, trained, 100, {"test": {"l1": l1, "l2": l1}}, total, 0.0, 0.0, 100.0)
+    return make_row(LEARNED, network, n, 30, trained, 100, {"test": {"l1": l1, "l2": l1}}, total, 0.0, NOT_TIMED,
+                    100.0)
 
 
 def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_removes():
     rows = [learned(1, 4, 3e-3, 10.0), learned(1, 1, 2e-3, 10.0), learned(4, 4, 1e-3, 40.0),
-            make_row(HIGH_RES, "none", 1, 10, 0, 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, 0.0, 0.0, 0.0, 100.0,
+            make_row(HIGH_RES, "none", 1, 10, 0, 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, 0.0, 0.0, NOT_TIMED, 100.0,
                      "substep", ms_sim_high_run=25.0)]
     lines = findings(table(rows))
     assert ("Input shift: RC9 x0.25 trained on 4-substep inputs has test L1 3.000 fed 1-substep runs against 1.000 "
@@ -241,17 +246,18 @@ def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_r
 def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_methods(tmp_path):
     rows = [learned(1, 4, 1e-3, 10.0),
             make_row(LOOP, "none", 1, 30, 0, 0,
-                     {"test": {"l1": 2e-3, "l2": 3e-3}, "held_out": {"l1": 4e-3, "l2": 5e-3}}, 10.0, 0.5, 0.0, 100.0)]
+                     {"test": {"l1": 2e-3, "l2": 3e-3}, "held_out": {"l1": 4e-3, "l2": 5e-3}}, 10.0, 0.5, NOT_TIMED,
+                     100.0)]
     written = table(rows)
     write_tradeoff(tmp_path / "t.h5", {}, written)
     back = read_tradeoff(tmp_path / "t.h5")
-    assert (back.device, back.threads, back.sim_high_batch, back.reference) == ("cpu, 2 threads", 2, 1, REFERENCE)
+    assert (back.device, back.threads, back.reference) == ("cpu, 2 threads", 2, REFERENCE)
     for name in COLUMNS:
         np.testing.assert_array_equal(back.columns[name], written.columns[name])
     assert np.isnan(back.columns["l1_heldout"][0]) and back.columns["method"].tolist() == [LEARNED, LOOP]
 
     def broken(**columns):
-        write_tradeoff(tmp_path / "bad.h5", {}, Tradeoff({**written.columns, **columns}, "cpu", 1, 1, REFERENCE))
+        write_tradeoff(tmp_path / "bad.h5", {}, Tradeoff({**written.columns, **columns}, "cpu", 1, REFERENCE))
         return tmp_path / "bad.h5"
 
     with pytest.raises(PipelineError, match="one value per row"):
@@ -287,7 +293,7 @@ def test_the_grid_is_in_budget_order_with_each_budgets_evaluations_in_the_order_
     (["1", "10", "substep"], "SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH"),
     (["1", "0", "substep", "h.h5"], "ITERATIONS must be a positive integer"),
     (["1", "10", "sometimes", "h.h5"], "SCHEDULE must be one of iteration, substep"),
-    (["4", "30", "substep", "h.h5"], "the scene's own high-res run, the reference")])
+    (["4", "30", "substep", "h.h5"], "the scene's own high-res run, the ground truth")])
 def test_bad_high_res_runs_are_refused(group, message):
     with pytest.raises(PipelineError, match=message):
         parse_high_res([group], REFERENCE)
@@ -323,6 +329,15 @@ def test_without_the_dataset_or_the_operators_the_networks_cannot_be_timed_a_usa
     with pytest.raises(SystemExit) as exit_:
         main(["subdiv.h5", str(tmp_path / "t.h5"), str(tmp_path / "p.png"), str(tmp_path / "r.md"),
               "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5", "e.pt",
-              *[word for pair in given.items() for word in pair]])
+              "--solve-timing", "s.h5", "l.h5", *[word for pair in given.items() for word in pair]])
     assert exit_.value.code == 2 and f"required: {missing}" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_without_the_settings_the_solvers_cannot_be_timed_a_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["subdiv.h5", str(tmp_path / "t.h5"), str(tmp_path / "p.png"), str(tmp_path / "r.md"),
+              "--sim-high", "h.h5", "--point", "1", "l.h5", "--eval", "1", "e.h5", "e.pt",
+              "--solve-timing", "s.h5", "l.h5", "--dataset", "d.h5", "--operators", "o.h5"])
+    assert exit_.value.code == 2 and "--settings is required" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())

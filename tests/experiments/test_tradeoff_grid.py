@@ -58,16 +58,17 @@ def test_a_width_folder_is_the_same_from_the_config_and_from_a_wildcard(width, f
 
 
 def test_the_argument_list_of_a_small_grid():
-    """Budget 1 (re-simulated, a smaller network, a matched one) and the scene's own 2; one high-res run."""
+    """The first sequence the stage times the solvers on; budget 1 (re-simulated, a smaller network, a matched
+    one) and the scene's own 2, each with its first sequence's run (its frames time Loop subdivision); one high-res
+    run."""
     words = grid.stage_arguments(SCENE, scene_settings(), SEQUENCES)
     assert words == [
+        "--solve-timing", "results/cloth/sequences/train_000/scene.h5", "results/cloth/sequences/train_000/sim_low.h5",
         "--point", "1", "results/cloth/tradeoff/s1/sequences/train_000/sim_low.h5",
-        "results/cloth/tradeoff/s1/sequences/held_out_000/sim_low.h5",
         "--eval", "1", "results/cloth/tradeoff/s1/scene/eval.h5", "results/cloth/model.pt",
         "--eval", "1", "results/cloth/tradeoff/s1/w0.5/eval.h5", "results/cloth/tradeoff/w0.5/model.pt",
         "--matched", "1", "results/cloth/tradeoff/s1/matched/eval.h5", "results/cloth/tradeoff/s1/matched/model.pt",
         "--point", "2", "results/cloth/sequences/train_000/sim_low.h5",
-        "results/cloth/sequences/held_out_000/sim_low.h5",
         "--eval", "2", "results/cloth/tradeoff/s2/scene/eval.h5", "results/cloth/model.pt",
         "--eval", "2", "results/cloth/tradeoff/s2/w0.5/eval.h5", "results/cloth/tradeoff/w0.5/model.pt",
         "--high-res", "1", "5", "substep", "results/cloth/tradeoff/h1x5_substep/sequences/train_000/sim_high.h5",
@@ -84,23 +85,28 @@ def test_the_stage_inputs_are_the_files_of_its_arguments_each_once(shard):
     assert set(inputs) == {word for word in words if word.startswith("results/")}
 
 
-def test_a_sharded_scene_times_each_budget_and_high_res_run_by_its_first_sequence_alone():
+def test_a_sharded_scene_times_each_high_res_run_by_its_first_sequence_alone():
+    """The budgets and the reference are timed by the stage itself (--solve-timing); the high-res rows by a timing
+    run each of the first sequence alone."""
     settings = scene_settings(shard=2, harmonic_every=["iteration"])
     runs = [(1, 5, "substep"), (2, 10, "iteration")]
     assert grid.high_res_runs(settings) == runs
-    assert grid.timed_runs(SCENE, settings, SEQUENCES, 2) == ["results/cloth/tradeoff/s2/timing/sim_low.h5"]
-    assert grid.timed_runs(SCENE, settings, SEQUENCES, 1) == ["results/cloth/tradeoff/s1/timing/sim_low.h5"]
     timings = grid.high_res_timings(SCENE, settings)
-    assert list(timings) == [(2, 10, "substep"), *runs]          # the reference's first
-    assert timings[(2, 10, "substep")] == "results/cloth/tradeoff/h2x10_substep/timing/sim_high.h5"
+    assert list(timings) == runs                                  # no reference: the stage times the free run
     words = grid.stage_arguments(SCENE, settings, SEQUENCES)
     assert [words[i + 3] for i, word in enumerate(words) if word == "--point"] == ["--eval", "--eval"]   # one each
-    timing_words = words[words.index("--sim-high-timing"):]
+    timing_words = words[words.index("--high-res-timing"):]
     assert timing_words == [
-        "--sim-high-timing", "results/cloth/tradeoff/h2x10_substep/timing/sim_high.h5",
         "--high-res-timing", "1", "5", "substep", "results/cloth/tradeoff/h1x5_substep/timing/sim_high.h5",
         "--high-res-timing", "2", "10", "iteration", "results/cloth/tradeoff/h2x10_iteration/timing/sim_high.h5"]
     assert grid.high_res_timings(SCENE, scene_settings(shard=1)) == {}
+
+
+def test_a_motion_librarys_window_is_timed_from_the_scenes_settle_runs():
+    words = grid.stage_arguments(SCENE, scene_settings(), ["train_001-01-01_w00", "held_out_000"])
+    assert words[:6] == ["--solve-timing", "results/cloth/sequences/train_001-01-01_w00/scene.h5",
+                         "results/cloth/sequences/train_001-01-01_w00/sim_low.h5", "--settled",
+                         "results/cloth/settle/sim_low.h5", "results/cloth/settle/sim_high.h5"]
 
 
 def test_a_high_res_file_from_wildcards_is_the_one_from_the_config():

@@ -79,18 +79,18 @@ def test_the_table_has_a_row_per_way_to_the_high_res_cloth_with_finite_positive_
 
 @built_grid
 def test_the_high_res_times_are_one_sequence_alone_in_a_sharded_scene(tradeoff):
-    """The scene is sharded (its runs are batches of 2): the reference's ms and each high-res row's are the median
-    solve_ms of the first sequence re-simulated alone with that budget and schedule, not a batch's over 2."""
+    """The scene is sharded (its runs are batches of 2): each high-res row's ms is the median solve_ms of the first
+    sequence re-simulated alone with that budget and schedule, not a batch's over 2; the reference is one value,
+    the free run the stage timed itself (no timing run of its own), the CPU fused columns NaN."""
     table = read_tradeoff(tradeoff / "tradeoff" / "tradeoff.h5")
-    assert table.sim_high_batch == 1
-    for row, folder in ((None, "h2x10_substep"), (4, "h1x5_substep"), (5, "h2x10_iteration")):
+    for row, folder in ((4, "h1x5_substep"), (5, "h2x10_iteration")):
         with h5py.File(tradeoff / "tradeoff" / folder / "timing" / "sim_high.h5") as f:
             assert f.attrs["batch"] == 1 and f["positions"].shape[0] == len(f["solve_ms"])
             ms = float(np.median(f["solve_ms"][1:]))        # frame 0: the initial state, not solved
-        if row is None:
-            assert np.all(table.columns["ms_sim_high"] == ms)
-        else:
-            assert table.columns["ms_sim_high_run"][row] == ms
+        assert table.columns["ms_sim_high_run"][row] == ms
+    assert len(set(table.columns["ms_sim_high"])) == 1 and not (tradeoff / "tradeoff" / "h2x10_substep").exists()
+    for name in ("ms_net_fused", "fused_error", "ms_total_fused", "speedup_fused"):
+        assert np.all(np.isnan(table.columns[name])), name
 
 
 @built_grid
@@ -186,6 +186,8 @@ def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_
                                              {"low", "high", "iteration", "substep", "2>&1", "|", "tee"}
                                              or w.startswith(("pipeline.", "experiments.")))] == [], job["shell"]
     stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
+    assert (" --solve-timing results/patch/sequences/train_000/scene.h5 results/patch/sequences/train_000/sim_low.h5 "
+            in stage) and "--settled" not in stage
     assert (" --point 4 results/patch/sequences/train_000/sim_low.h5 --eval 4 results/patch/tradeoff/s4/scene/eval.h5"
             in stage)
     assert " --matched 1 results/patch/tradeoff/s1/matched/eval.h5 " in stage and "--matched 4" not in stage
@@ -198,24 +200,25 @@ def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_
 
 def test_a_sharded_scene_simulates_by_shard_and_times_one_sequence_alone(tmp_path):
     """With `shard: 2`, each cheaper budget's low-res runs and each high-res run are a batch job per shard (as the
-    scene's), and a budget's low-res ms, a high-res run's ms and the reference's come from a run of the first
-    sequence alone, the only run the stage is given for timing (the scene's own budget too: its runs are
-    batches)."""
+    scene's); a high-res run's ms comes from a run of the first sequence alone, and the budgets' low-res ms and the
+    free reference's are the stage's own timing of the first sequence (--solve-timing): no timing run of theirs."""
     grid = {**GRID, "substeps": [1, 2], "high_res_budgets": [[1, 5], [2, 10]]}
     run = run_plan(tmp_path, "results/pants/tradeoff/", "--configfile", str(tiny_grid(tmp_path, grid, shard=2)))
     counts = planned_counts(run)
-    assert (counts["tradeoff_simulate_low_batch_pants_000"], counts["tradeoff_simulate_low_batch_pants_001"],
-            counts["tradeoff_timing_low"]) == (1, 1, 2)        # budget 1 re-simulated; both timed
+    assert (counts["tradeoff_simulate_low_batch_pants_000"], counts["tradeoff_simulate_low_batch_pants_001"]) == (
+        1, 1)                                                  # budget 1 re-simulated
     assert (counts["tradeoff_simulate_high_batch_pants_000"], counts["tradeoff_simulate_high_batch_pants_001"],
-            counts["tradeoff_timing_high"]) == (2, 2, 3)       # 1 x 5 and the every-iteration 2 x 10; + reference
-    assert counts["tradeoff_high_settings"] == 3               # the reference's, for its timing run
-    assert "tradeoff_simulate_low" not in counts and "tradeoff_simulate_high" not in counts
+            counts["tradeoff_timing_high"]) == (2, 2, 2)       # 1 x 5 and the every-iteration 2 x 10
+    assert counts["tradeoff_high_settings"] == 2
+    assert not {"tradeoff_simulate_low", "tradeoff_simulate_high", "tradeoff_timing_low"} & set(counts)
     stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
-    assert " --point 1 results/pants/tradeoff/s1/timing/sim_low.h5 --eval 1 " in stage
-    assert " --point 2 results/pants/tradeoff/s2/timing/sim_low.h5 --eval 2 " in stage
-    assert " --sim-high-timing results/pants/tradeoff/h2x10_substep/timing/sim_high.h5 " in stage
+    assert (" --solve-timing results/pants/sequences/train_000/scene.h5 results/pants/sequences/train_000/sim_low.h5 "
+            in stage)
+    assert " --point 1 results/pants/tradeoff/s1/sequences/train_000/sim_low.h5 --eval 1 " in stage
+    assert " --point 2 results/pants/sequences/train_000/sim_low.h5 --eval 2 " in stage
+    assert "--sim-high-timing" not in stage and "h2x10_substep" not in stage
     assert " --high-res-timing 1 5 substep results/pants/tradeoff/h1x5_substep/timing/sim_high.h5 " in stage
     assert " --high-res-timing 2 10 iteration results/pants/tradeoff/h2x10_iteration/timing/sim_high.h5 " in stage
     timing = [line for line in run.stdout.splitlines()
               if "-m pipeline.simulate high " in line and "/timing/sim_high.h5" in line]
-    assert len(timing) == 3 and all(" results/pants/sequences/train_000/sim_low.h5 " in line for line in timing)
+    assert len(timing) == 2 and all(" results/pants/sequences/train_000/sim_low.h5 " in line for line in timing)

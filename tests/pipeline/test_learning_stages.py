@@ -117,6 +117,7 @@ def test_evaluation_errors_renders_and_exports(trained):
         errors = {k: f[f"errors/{k}"][()] for k in ("network/test/l1", "network/test/l2", "predictor/test/l1",
                                                       "predictor/test/l2")}
         assert f["inference_ms"].shape == (1,) or np.all(f["inference_ms"][()] > 0)
+        assert "inference_ms_fused" not in f      # the fused bf16 network runs on CUDA only: not timed here
     truth = inputs + target
     difference = (predicted - truth)[test_ids].astype(np.float64)
     assert np.isclose(errors["network/test/l1"], np.abs(difference).mean(), rtol=1e-4)
@@ -163,7 +164,7 @@ def data_uri_bytes(uri: str) -> bytes:
 def test_the_tradeoff_times_each_model_once_on_the_deployment_path_and_pairs_it_with_its_own_evaluation(
         trained, tmp_path):
     """experiments.tradeoff.time_networks: one median per distinct model (a model fed several budgets is timed once),
-    finite and positive; an evaluation of a network of another size is refused (its errors would be paired with
+    finite and positive, the fused network's NaN on the CPU; an evaluation of a network of another size is refused (its errors would be paired with
     another network's ms)."""
     lean = trained / "lean"
     if not (lean / "eval.h5").exists():
@@ -180,7 +181,8 @@ def test_the_tradeoff_times_each_model_once_on_the_deployment_path_and_pairs_it_
     timed = calls[0][3].tolist()
     assert list(ms) == [model] and len(calls) == 1
     assert set(timed) <= set(test_frames.tolist()) and len(timed) == min(4, len(test_frames))
-    assert np.isfinite(ms[model]) and ms[model] > 0
+    assert np.isfinite(ms[model].fp32) and ms[model].fp32 > 0
+    assert np.isnan(ms[model].fused) and np.isnan(ms[model].fused_error)      # the fused network: CUDA only
     with h5py.File(lean / "eval.h5") as f:
         other = tmp_path / "other.h5"
         with h5py.File(other, "w") as g:

@@ -282,7 +282,7 @@ def test_the_solver_kind_is_optional_and_names_a_registered_solver(tmp_path):
     from pipeline.core.errors import PipelineError
     from pipeline.solvers import registry, xpbd
     settings = resolve_scene(CONFIG, "patch", "cpu")
-    assert "kind" not in settings["solver"] and registry.level_names() == ["low", "high"]
+    assert "kind" not in settings["solver"] and registry.level_names() == ["low", "high", "free"]
     named = dict(settings, solver=dict(settings["solver"], kind="xpbd"))
     for path, written in (("absent.json", settings), ("named.json", named)):
         write_settings(written, tmp_path / path)
@@ -296,7 +296,7 @@ def test_the_solver_kind_is_optional_and_names_a_registered_solver(tmp_path):
         with pytest.raises(PipelineError, match=rf"^x\.json: solver\.kind '{kind}' is not a kind the simulate stage "
                                                 rf"steps \(it steps: xpbd; "):
             registry.solver_level(dict(settings, solver={"kind": kind}), "low", "x.json")
-    with pytest.raises(PipelineError, match=r"the xpbd solver makes no 'middle' run \(its runs: low, high\)"):
+    with pytest.raises(PipelineError, match=r"the xpbd solver makes no 'middle' run \(its runs: low, high, free\)"):
         registry.solver_level(settings, "middle", "patch.json")
     write_settings(dict(settings, solver={k: v for k, v in settings["solver"].items() if k != "substeps"}),
                    tmp_path / "no_substeps.json")

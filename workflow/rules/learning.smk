@@ -78,7 +78,8 @@ rule evaluate:
 
 
 # On request only (`snakemake results/<scene>/deploy`), not part of `results/<scene>/`: the trained model as a
-# self-contained upsampler that runs with torch and numpy alone (deploy/README.md).
+# self-contained upsampler that runs with torch and numpy alone (deploy/README.md); a scene on CUDA also gets the
+# fused bf16 network's AOTInductor package, compiled on the job's GPU.
 rule export_model:
     input:
         settings=f"{OUT}/settings.json", model=f"{OUT}/model.pt", operators=f"{OUT}/operators.h5",
@@ -87,7 +88,7 @@ rule export_model:
     log: log_of("export_model")
     benchmark: benchmark_of("export_model")
     threads: 1
-    resources: mem_mb=4000
+    resources: mem_mb=4000, gpu=gpus_on_device
     shell:
         "{PY:q} -m pipeline.export_model {input.model:q} {input.operators:q} {input.subdiv:q} {output:q} "
         "--settings {input.settings:q} --quiet 2>&1 | tee {log:q}"

@@ -2,12 +2,10 @@
 # a way to get the high-res cloth, scored against the scene's high-res runs and timed beside them.
 # * Low-res budgets (`tradeoff.substeps`, plus those of `tradeoff.matched`): for each n other than the scene's own
 #   the scene's sequences are re-simulated at low resolution with n substeps (the scene's iterations), as the
-#   scene's runs were: one job per sequence (`shard: 1`, whose solver timing is one sequence's), or a batch job per
-#   shard plus a timing run of the first sequence alone (timing/sim_low.h5: a batch's ms on a GPU is about one
-#   sequence's, so divided by its sequences it would flatter the learned path); a folder per sequence beside that
-#   run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the dataset stage
-#   gathers them unchanged (same sequences, same seeded split). The scene's own budget reuses the scene's runs and
-#   dataset.h5 (a sharded scene still gets its timing run).
+#   scene's runs were: one job per sequence (`shard: 1`) or a batch job per shard; a folder per sequence beside
+#   that run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the dataset
+#   stage gathers them unchanged (same sequences, same seeded split). The scene's own budget reuses the scene's runs
+#   and dataset.h5. The budgets' low-res ms are not these runs': the stage times each budget's solver itself (below).
 # * Networks fed each budget's inputs (errors only; eval.h5 keeps its own timing for its report): the scene's trained network; the
 #   scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings with that width and
 #   `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of `tradeoff.matched` other than
@@ -17,10 +15,12 @@
 #   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
 #   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
 #   simulated as the scene's high-res runs were (per sequence, or a batch job per shard); a sharded scene also runs
-#   the first sequence alone for each (the reference too: folder h<own budget>_<own schedule>/), whose ms is the
-#   row's, as for the low-res budgets.
-# Then one table, plot and report (experiments.tradeoff), which also times every network itself, one after another
-# on the device (the evaluations may have shared it with other jobs). None of this is part of `results/<scene>/`:
+#   the first sequence alone for each, whose ms is the row's.
+# Then one table, plot and report (experiments.tradeoff), which times both sides of the speedup itself, one after
+# another on the device in its one job: the reference (the high-res solver at the scene's budget, free: body and
+# self collision, not held to a low-res run, the paper's reference) and each budget's low-res solver, on the
+# scene's first sequence stepped alone, then Loop subdivision and every network (fp32 and, on CUDA, the fused bf16
+# network; the evaluations may have shared the device with other jobs). None of this is part of `results/<scene>/`:
 # `make run` does not grow. Only paths and the grid's numbers and schedule names (integers and an enum, checked by
 # the schema) reach a shell, quoted.
 
@@ -112,22 +112,6 @@ rule tradeoff_simulate_low:
         "2>&1 | tee {log:q}"
 
 
-# The first sequence alone, one solver world: the low-res timing of a sharded scene's budget.
-rule tradeoff_timing_low:
-    input:
-        settings=f"{TRADEOFF_POINT}/simulation.json",
-        scene=first_sequence_file("scene.h5"), settled=settled_runs("low", first_sequence),
-    output: f"{TRADEOFF_POINT}/timing/sim_low.h5"
-    params: settled=settled_flag("low", first_sequence)
-    log: f"{TRADEOFF_POINT}/logs/timing_low.log"
-    benchmark: f"{TRADEOFF_POINT}/benchmarks/timing_low.tsv"
-    threads: 1
-    resources: mem_mb=4000, gpu=gpus_on_device
-    shell:
-        "{PY:q} -m pipeline.simulate low {input.settings:q} {input.scene:q} {output:q} {params.settled:q} --quiet "
-        "2>&1 | tee {log:q}"
-
-
 rule tradeoff_high_settings:
     output: f"{TRADEOFF_HIGH}/simulation.json"
     params:
@@ -162,9 +146,8 @@ rule tradeoff_simulate_high:
 
 
 # The first sequence alone at high resolution, one solver world, held to the scene's low-res run of it: a sharded
-# scene's high-res ms per frame, of each high-res run and of the reference (whose folder holds only this run and its
-# simulation.json), as tradeoff_timing_low is its low-res budgets' (a batch's ms divided by its sequences would
-# flatter the high-res rows and the reference alike on a GPU, and make every speedup a loose lower bound).
+# scene's high-res ms per frame of each high-res run beside the scene's (a batch's ms divided by its sequences would
+# flatter the high-res rows on a GPU).
 rule tradeoff_timing_high:
     input:
         settings=f"{TRADEOFF_HIGH}/simulation.json", subdiv=f"{OUT}/subdiv.h5",
