@@ -176,7 +176,14 @@ def skin_from_file(vertices: np.ndarray, faces: np.ndarray, units: str) -> FileS
     return FileSkin(metres, faces, units)
 
 
-def check_rig_in_skin(rig: Rig, skin: FileSkin) -> None:
+def rig_skeleton(skin: FileSkin, rig: Rig) -> tuple[Skeleton, RestShapes]:
+    """The procedural skeleton's parts, limits and angles on the rig's joints (metres), and the capsules of its
+    flesh; ValueError naming the first joint or bone outside the skin, or a bone that has no frame."""
+    _check_inside(skin, rig)
+    return _skeleton(skin, rig)
+
+
+def _check_inside(skin: FileSkin, rig: Rig) -> None:
     """Every role's joint and every bone inside the skin; ValueError naming the first that is not."""
     roles = list(rig.positions)
     inside = inside_mesh(skin.vertices, skin.faces, np.array([rig.positions[r] for r in roles]))
@@ -198,18 +205,16 @@ def _bones(rig: Rig) -> list[tuple[str, str, str]]:
             + [("palm", "palm", f"{finger}_1") for finger in FINGERS if finger != "middle"])
 
 
-def file_hand(skin: FileSkin, rig: Rig, tet_spacing: float) -> Hand:
-    """The hand of a skin and its rig (in metres, checked by check_rig_in_skin) with its volume at `tet_spacing`;
-    ValueError for a spacing a hand cannot be meshed at, or a rig whose bones have no frame."""
+def file_hand(skin: FileSkin, skeleton: tuple[Skeleton, RestShapes], tet_spacing: float) -> Hand:
+    """The hand of a skin and its rig's skeleton (rig_skeleton) with its volume at `tet_spacing`; ValueError for a
+    spacing a hand cannot be meshed at."""
     check_spacing("tet spacing", tet_spacing)
-    skel, shapes = _skeleton(skin, rig)
     vertices, faces = skin.vertices, skin.faces
-    return flesh_hand(skel, shapes, vertices, faces, tet_spacing, lambda p: inside_mesh(vertices, faces, p),
+    return flesh_hand(*skeleton, vertices, faces, tet_spacing, lambda p: inside_mesh(vertices, faces, p),
                       (vertices.min(axis=0), vertices.max(axis=0)))
 
 
 def _skeleton(skin: FileSkin, rig: Rig) -> tuple[Skeleton, RestShapes]:
-    """The procedural skeleton's parts, limits and angles on the rig's joints, and the capsules of its flesh."""
     layout = hand_skeleton()
     p = rig.positions
     normal = np.cross(p["index_1"] - p["little_1"], p["middle_1"] - p["palm"])

@@ -53,7 +53,7 @@ def write_hand_files(folder: Path, spacing: float = 0.008, scale: float = 1.0, o
     obj, bones = Path(folder) / "hand.obj", Path(folder) / "bones.yaml"
     write_obj(obj, place(hand.skin_vertices), hand.skin_faces)
     joints = {role: place(x) for role, x in procedural_joints().items()}
-    bones.write_text(yaml.safe_dump(bone_document(joints, names), sort_keys=False))
+    bones.write_text(yaml.safe_dump(bone_document(joints, names), sort_keys=False, default_flow_style=None))
     return obj, bones
 
 
