@@ -1,6 +1,7 @@
-"""A user's hand written by the tests (of tests/scenes, tests/hostile and tests/pipeline): the procedural hand's
-own skin as an OBJ and its skeleton as a bone file (scenes.hand_file's format), scaled, moved and in any unit, so
-that what the hand_file generator makes of them can be compared with the procedural hand itself."""
+"""Hands written by the tests (of tests/scenes, tests/hostile and tests/pipeline): the procedural hand's own skin as
+an OBJ and its skeleton as a bone file (scenes.hand_file's format), scaled, moved and in any unit, so that what the
+hand_file generator makes of them can be compared with the procedural hand itself; and the workflow config that
+shrinks the hand scene to seconds (`hand_config`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,6 +15,25 @@ from scenes.hand_skeleton import hand_skeleton
 from scenes.kinematics import rest_transforms
 
 UNIT_METRES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+REPO = Path(__file__).resolve().parents[1]
+FRAMES = 24
+# A 12 mm hand (~1,500 skin vertices, ~2,900 tets), two training sequences and the held-out fist of FRAMES frames,
+# a small decoder.
+TINY_HAND = {"frames": FRAMES, "sequences": 2, "shard": 2, "mesh": {"skin_spacing": 0.012, "tet_spacing": 0.012},
+             "network": {"arch": "U32 U U32 U16 U3"}, "operators": {"levels": 5}, "training": {"epochs": 10},
+             "evaluation": {"render_frames": 1, "video_frames": 1, "export_frames": 1, "timing_frames": 3}}
+SEQUENCES = ("train_000", "train_001", "held_out_000")
+
+
+def hand_config(folder: Path, scenes: dict | None = None, **hand) -> Path:
+    """hand.yaml in `folder`: the shipped config with the CPU profile's hand scene shrunk to TINY_HAND (its keys
+    replaced by `hand`'s) and `scenes` added."""
+    config = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
+    config["profiles"]["cpu"]["scenes"]["hand"] = {**TINY_HAND, **hand}
+    config["scenes"].update(scenes or {})
+    path = folder / "hand.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
 
 
 def procedural_joints() -> dict[str, np.ndarray]:
