@@ -42,6 +42,7 @@ from scenes.skeleton import Skeleton
 
 HAND_SIZE = (0.15, 0.35)   # metres: a hand with a forearm stump, wrist stump to fingertip (cm and in don't overlap)
 MAX_JOINTS = 1000          # a hand rig has ~25; a bone file of more is no hand's
+MAX_NAME = 100             # characters of a joint's name (names are quoted in errors, which are one line)
 BONE_SAMPLES = 5           # points along each bone checked to lie inside the skin
 MAX_TAPER = 0.9            # a bone's end radii differ by at most this share of its length (a capsule needs < 1)
 
@@ -84,16 +85,19 @@ def read_rig(document: Any) -> Rig:
         raise ValueError(f"{len(joints)} joints: a hand's bone file lists 1 to {MAX_JOINTS}")
     position, parent = {}, {}
     for k, joint in enumerate(joints):
-        if not isinstance(joint, Mapping) or not isinstance(joint.get("name"), str) or not joint["name"] \
-                or set(joint) - {"name", "position", "parent"}:
-            raise ValueError(f"joint {k}: a joint is {{name, position, parent}}, its name a non-empty string")
+        if not isinstance(joint, Mapping) or set(joint) - {"name", "position", "parent"} \
+                or not isinstance(joint.get("name"), str) or not 0 < len(joint["name"]) <= MAX_NAME \
+                or not joint["name"].isprintable():
+            raise ValueError(f"joint {k}: a joint is {{name, position, parent}}, its name 1 to {MAX_NAME} printable "
+                             f"characters")
         name = joint["name"]
         if name in position:
             raise ValueError(f"joint '{name}' is listed twice")
         xyz = joint.get("position")
         if not (isinstance(xyz, list) and len(xyz) == 3 and all(
                 isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in xyz)):
-            raise ValueError(f"joint '{name}': position must be three finite numbers, got {xyz!r}"[:300])
+            # Not quoted: an alias may stand for a structure far too big to print.
+            raise ValueError(f"joint '{name}': position must be three finite numbers [x, y, z]")
         if not (joint.get("parent") is None or isinstance(joint["parent"], str)):
             raise ValueError(f"joint '{name}': parent must be a joint's name or absent")
         position[name], parent[name] = np.array(xyz, dtype=np.float64), joint.get("parent")
@@ -103,9 +107,9 @@ def read_rig(document: Any) -> Rig:
         raise ValueError("'roles' maps roles to the file's joint names")
     for role, name in roles.items():
         if role not in LAYOUT:
-            raise ValueError(f"roles: unknown role '{role}' (roles: {', '.join(LAYOUT)})"[:400])
-        if name not in position:
-            raise ValueError(f"roles: role '{role}' names joint {name!r}, which the file does not list"[:300])
+            raise ValueError(f"roles: unknown role {str(role)[:80]!r} (roles: {', '.join(LAYOUT)})")
+        if not isinstance(name, str) or name not in position:
+            raise ValueError(f"roles: role '{role}' names no joint the file lists")
     of = {role: roles.get(role, role) for role in LAYOUT}
     missing = [role for role, name in of.items() if name not in position]
     if missing:
@@ -126,7 +130,7 @@ def _ancestors(parent: dict[str, str | None]) -> dict[str, set[str]]:
     """Each joint's ancestors; ValueError for an unknown parent, no root or several, or a cycle."""
     for name, p in parent.items():
         if p is not None and p not in parent:
-            raise ValueError(f"joint '{name}': parent '{p}' is no joint of the file")
+            raise ValueError(f"joint '{name}': parent {p[:MAX_NAME]!r} is no joint of the file")
     roots = [name for name, p in parent.items() if p is None]
     if len(roots) != 1:
         raise ValueError(f"{len(roots)} joints have no parent ({', '.join(roots[:5]) or 'none'}): a hand's joints "

@@ -106,10 +106,17 @@ def test_a_bone_that_leaves_the_skin_between_two_joints_inside_it_is_refused(fol
     refused(folder, capsys, "bones.yaml", "thumb_2 bone", "leaves the hand's skin")
 
 
+# Ten levels of aliases, each repeating the last ten times: 10^10 values if walked or printed, a few lines here.
+ALIAS_BOMB = "joints:\n  - {name: a, position: &l0 [0, 0, 0]}\n" + "".join(
+    f"  - {{name: j{k}, position: &l{k} [{', '.join([f'*l{k - 1}'] * 10)}]}}\n" for k in range(1, 11))
+
+
 @pytest.mark.parametrize("text, words", [("joints: [a, b\n", ("not valid YAML",)),
                                          ("- 1\n- 2\n", ("maps 'joints'",)),
-                                         (b"\xff\xfe joints", ("cannot read the bone file",))],
-                         ids=["yaml", "not a map", "not text"])
+                                         (b"\xff\xfe joints", ("cannot read the bone file",)),
+                                         (ALIAS_BOMB, ("joint 'j1'", "three finite numbers")),
+                                         ('joints: [{name: "wrist\\nerror: forged"}]\n', ("printable",))],
+                         ids=["yaml", "not a map", "not text", "alias bomb", "newline in a name"])
 def test_a_bone_file_that_is_no_bone_file_is_refused(folder, capsys, text, words):
     (folder / "bones.yaml").write_bytes(text if isinstance(text, bytes) else text.encode())
     refused(folder, capsys, "bones.yaml", *words)
