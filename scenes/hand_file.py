@@ -58,6 +58,18 @@ def _layout() -> dict[str, str | None]:
 LAYOUT = _layout()
 
 
+def _bones() -> list[tuple[str, str, str]]:
+    """(part, start role, end role) of every bone: each part's from its joint to its child's (the palm's to the
+    middle finger's MCP), then the palm's other metacarpals."""
+    child = {parent: role for role, parent in LAYOUT.items() if parent is not None}
+    ends = {**child, "palm": "middle_1"}          # the palm, the one part with several children, set apart
+    return ([(part, part, ends[part]) for part in hand_skeleton().names]
+            + [("palm", "palm", f"{finger}_1") for finger in FINGERS if finger != "middle"])
+
+
+BONES = _bones()
+
+
 @dataclass(frozen=True, eq=False)
 class Rig:
     """A bone file's roles: each role's position (metres once `in_metres`) and the file's name of its joint."""
@@ -66,12 +78,6 @@ class Rig:
 
     def in_metres(self, factor: float) -> "Rig":
         return Rig({role: factor * p for role, p in self.positions.items()}, self.joints)
-
-    def bone_end(self, part: str) -> str:
-        """The role a part's bone ends at: its child's joint (the palm's: the middle finger's MCP)."""
-        if part == "palm":
-            return "middle_1"
-        return next(role for role, parent in LAYOUT.items() if parent == part)
 
 
 def read_rig(document: Any) -> Rig:
@@ -194,19 +200,12 @@ def _check_inside(skin: FileSkin, rig: Rig) -> None:
     if not inside.all():
         role = roles[int(np.argmin(inside))]
         raise ValueError(f"joint '{rig.joints[role]}' (role {role}) lies outside the hand's skin")
-    for part, start, end in _bones(rig):
+    for part, start, end in BONES:
         t = np.linspace(0, 1, BONE_SAMPLES + 2)[1:-1, None]
         along = (1 - t) * rig.positions[start] + t * rig.positions[end]
         if not inside_mesh(skin.vertices, skin.faces, along).all():
             raise ValueError(f"the {part} bone from joint '{rig.joints[start]}' to '{rig.joints[end]}' leaves the "
                              f"hand's skin")
-
-
-def _bones(rig: Rig) -> list[tuple[str, str, str]]:
-    """(part, start role, end role) of every bone: each part's, then the palm's other metacarpals."""
-    skel = hand_skeleton()
-    return ([(part, part, rig.bone_end(part)) for part in skel.names]
-            + [("palm", "palm", f"{finger}_1") for finger in FINGERS if finger != "middle"])
 
 
 def file_hand(skin: FileSkin, skeleton: tuple[Skeleton, RestShapes], tet_spacing: float) -> Hand:
@@ -219,6 +218,8 @@ def file_hand(skin: FileSkin, skeleton: tuple[Skeleton, RestShapes], tet_spacing
 
 
 def _skeleton(skin: FileSkin, rig: Rig) -> tuple[Skeleton, RestShapes]:
+    """The layout's parts on the rig: each part's frame (y along its bone, z towards the palm, the thumb's
+    twisted), its joint in its parent's frame, its bone and the flesh's radius at the bone's ends."""
     layout = hand_skeleton()
     p = rig.positions
     normal = np.cross(p["index_1"] - p["little_1"], p["middle_1"] - p["palm"])
@@ -226,20 +227,22 @@ def _skeleton(skin: FileSkin, rig: Rig) -> tuple[Skeleton, RestShapes]:
         raise ValueError("the index and little MCPs and the line from the wrist to the middle MCP are parallel: "
                          "the palm has no facing")
     normal /= np.linalg.norm(normal)
-    bones = _bones(rig)
-    ends = np.array([(p[start], p[end]) for _, start, end in bones])                     # (C, 2, 3)
-    radius = dict(zip(p, distance_to_mesh(skin.vertices, skin.faces, np.array(list(p.values())))))
-    ra = np.array([radius[start] for _, start, _ in bones])
+    ends = np.array([(p[start], p[end]) for _, start, end in BONES])                     # (C, 2, 3)
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
-    rb = np.clip([radius[end] for _, _, end in bones], ra - MAX_TAPER * length, ra + MAX_TAPER * length)
+    for k, (part, start, end) in enumerate(BONES):
+        if not length[k] > 1e-6 * np.ptp(skin.vertices, axis=0).max():
+            raise ValueError(f"the {part} bone from joint '{rig.joints[start]}' to '{rig.joints[end]}' has no length")
+    radius = dict(zip(p, distance_to_mesh(skin.vertices, skin.faces, np.array(list(p.values())))))
+    ra = np.array([radius[start] for _, start, _ in BONES])
+    rb = np.clip([radius[end] for _, _, end in BONES], ra - MAX_TAPER * length, ra + MAX_TAPER * length)
     rotation = np.empty((layout.n_parts, 3, 3))
     for k, name in enumerate(layout.names):
-        y = ends[k, 1] - ends[k, 0]
-        z = normal - normal @ y * y / max(y @ y, 1e-300)
-        if not (length[k] > 1e-9 and np.linalg.norm(z) > 1e-6 * length[k]):
-            raise ValueError(f"the {name} bone from joint '{rig.joints[bones[k][1]]}' to "
-                             f"'{rig.joints[bones[k][2]]}' has no length or points along the palm's normal")
-        y, z = y / length[k], z / np.linalg.norm(z)
+        y = (ends[k, 1] - ends[k, 0]) / length[k]
+        z = normal - normal @ y * y
+        if not np.linalg.norm(z) > 1e-6:
+            raise ValueError(f"the {name} bone from joint '{rig.joints[BONES[k][1]]}' to "
+                             f"'{rig.joints[BONES[k][2]]}' points along the palm's normal: it has no flexion axis")
+        z /= np.linalg.norm(z)
         if name.startswith("thumb"):
             twist = np.radians(THUMB_TWIST)
             z = np.cos(twist) * z + np.sin(twist) * np.cross(y, z)
@@ -254,5 +257,5 @@ def _skeleton(skin: FileSkin, rig: Rig) -> tuple[Skeleton, RestShapes]:
                     capsule_b=np.stack([np.zeros(n), length[:n], np.zeros(n)], 1), radius_a=ra[:n],
                     radius_b=rb[:n], joint_lower=layout.joint_lower, joint_upper=layout.joint_upper,
                     height=float(np.ptp(skin.vertices, axis=0).max()))
-    part = np.array([layout.index(name) for name, _, _ in bones])
+    part = np.array([layout.index(name) for name, _, _ in BONES])
     return skel, RestShapes(ends[:, 0], ends[:, 1], ra, rb, part)

@@ -153,3 +153,16 @@ def document(**change):
 def test_a_bone_file_that_is_no_tree_of_the_hands_roles_is_refused_naming_the_joint(doc, message):
     with pytest.raises(ValueError, match=message):
         read_rig(doc)
+
+
+@pytest.mark.parametrize("role, moved_to, message", [
+    ("index_2", "index_1", "the index_1 bone from joint 'index_1' to 'index_2' has no length"),
+    ("little_1", "palm", "the palm bone from joint 'palm' to 'little_1' has no length"),
+], ids=["phalanx", "metacarpal"])
+def test_a_rig_whose_bones_have_no_frame_is_refused_naming_the_bone(tmp_path, role, moved_to, message):
+    obj, _ = write_hand_files(tmp_path, SPACING)
+    joints = procedural_joints()
+    joints[role] = joints[moved_to]
+    skin = skin_from_file(*load_mesh(obj), "m")
+    with pytest.raises(ValueError, match=message):
+        rig_skeleton(skin, read_rig(bone_document(joints)))
