@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 _EDGES = ((0, 1), (1, 2), (2, 0))
+MAX_BUCKETS = 1024
 
 
 def inside_mesh(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -44,7 +45,9 @@ def _candidate_pairs(tri2: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray,
     """(triangle, column) pairs whose column may pass through the triangle's projection: columns bucketed on a
     square grid about one triangle across, each triangle paired with the columns of the buckets its box covers."""
     lo, hi = tri2.min(axis=1), tri2.max(axis=1)
-    cell = max(float(np.mean(hi - lo)), 1e-12 * (1.0 + float(np.abs(columns).max())))
+    # At most MAX_BUCKETS buckets a side: a few tiny triangles far apart would otherwise ask for billions.
+    cell = max(float(np.mean(hi - lo)), float(np.ptp(columns, axis=0).max()) / MAX_BUCKETS,
+               1e-12 * (1.0 + float(np.abs(columns).max())))
     origin = columns.min(axis=0)
     n_cells = np.floor((columns.max(axis=0) - origin) / cell).astype(np.int64) + 1
     bucket = np.floor((columns - origin) / cell).astype(np.int64)
