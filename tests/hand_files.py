@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from scenes.capsules import capsules_world
+from scenes.hand_file import LAYOUT
 from scenes.hand_shape import procedural_hand
 from scenes.hand_skeleton import hand_skeleton
 from scenes.kinematics import rest_transforms
@@ -53,7 +54,6 @@ def procedural_joints() -> dict[str, np.ndarray]:
 def bone_document(joints: dict[str, np.ndarray], names: dict[str, str] | None = None) -> dict:
     """A bone file's document of role joints (scenes.hand_file.LAYOUT's tree), each joint called `names[role]`
     (default: the role) and listed under roles where that differs."""
-    from scenes.hand_file import LAYOUT
     names = names or {}
     name = lambda role: names.get(role, role)  # noqa: E731
     listed = [{"name": name(role), "position": [float(c) for c in joints[role]],
