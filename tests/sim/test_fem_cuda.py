@@ -5,10 +5,11 @@ stepped alone. Skipped without a CUDA device (run on a GPU machine:
 `PYTHONPATH=$PWD python -m pytest -q tests/sim/test_fem_cuda.py tests/sim/test_fem.py::test_cpu_and_cuda_agree`).
 
 The tolerance, measured on the CPU: the minimum is found to the residual tolerance, and two devices' roundings (CUDA
-sums in another order) take slightly different Newton paths to it. Along such paths (the targets moved by 1e-10 m,
-or the two worlds stepped alone instead of batched) 99% of the nodes end within 1e-9 m of each other, but a few
-nodes where the energy is nearly flat settle up to 0.084 mm apart (the 8 mm hand's flesh between split chains):
-hence every node within AGREE_MAX (1/40 of a tet) and 99% of them within AGREE_MOST."""
+sums in another order) can take different Newton paths to it. Along such paths on the CPU (the targets moved by
+1e-10 m, the two worlds stepped alone instead of batched, two load steps instead of one, CG to 1e-5 instead of 1e-3)
+99% of the nodes end within 1e-9 m of each other, but a few nodes where the energy is nearly flat (the flesh
+between split chains) settle up to 0.45 mm apart: hence 99% of the nodes within AGREE_MOST and every node within
+AGREE_MAX (1/8 of a tet)."""
 import numpy as np
 import pytest
 import warp as wp
@@ -21,9 +22,9 @@ from sim.fem import FemInputs, FemModel, FemSettings, FemSolver
 
 pytestmark = pytest.mark.skipif(not wp.is_cuda_available(), reason="no CUDA device on this machine")
 
-SPACING = 0.008              # the CI hand (at 0.01 the fist inverts two tets on either device)
+SPACING = 0.008              # the CI hand (at 0.01 this fist inverts two tets, on the CPU already)
 TOLERANCE = 1.0e-8           # the residual every frame must reach, on both devices
-AGREE_MAX = 2.0e-4           # metres, every node and skin vertex
+AGREE_MAX = 1.0e-3           # metres, every node and skin vertex
 AGREE_MOST = 1.0e-6          # metres, 99% of them
 
 
