@@ -221,7 +221,9 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
     return {"render_frames": evaluation["render_frames"], "video_frames": evaluation["video_frames"],
             "export_frames": evaluation["export_frames"], "timing_frames": evaluation["timing_frames"],
             "device": settings["device"], "device_cache_gb": settings["training"]["device_cache_gb"],
-            "garment": settings["mesh"]["file"] if settings["mesh"]["generator"] == "garment_file" else None}
+            "garment": settings["mesh"]["file"] if settings["mesh"]["generator"] == "garment_file" else None,
+            "hand_files": (f"{settings['mesh']['file']} and {settings['mesh']['bones']}"
+                           if settings["mesh"]["generator"] == "hand_file" else None)}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -239,6 +241,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="test (and held-out) frames shown as stills; 0: no stills and no plots")
     parser.add_argument("--garment", help="the user's garment file the scene wore, named in the report "
                                           "(--settings: mesh.file of a garment_file scene)")
+    parser.add_argument("--hand-files", help="the user's hand skin and bone files, named in the report "
+                                             "(--settings: mesh.file and mesh.bones of a hand_file scene)")
     parser.add_argument("--video-frames", type=int, default=120, help="frames of each video; 0: no videos")
     parser.add_argument("--export-frames", type=int, default=60, help="first frames exported as OBJ (0: all)")
     parser.add_argument("--tradeoff-report", help="the scene's tradeoff/report.md, listed under the report's "
@@ -588,6 +592,7 @@ def _report_sections(args, state, data: LearningData, errors, times, device: str
     input_rows = [["dataset", args.dataset],
                   *([["garment", f"{args.garment} (the user's file, dressed on the mannequin: dressed.h5)"]]
                     if args.garment else []),
+                  *([["hand", f"{args.hand_files} (the user's files: hand.h5)"]] if args.hand_files else []),
                   ["frames", ", ".join(f"{len(ids)} {SPLIT_NAMES[name]}" for name, ids in data.splits().items())
                    + guard],
                   *task.input_rows(data, state, n_low)]

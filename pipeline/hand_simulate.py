@@ -21,7 +21,7 @@ import numpy as np
 import warp as wp
 from tqdm import tqdm
 
-from pipeline.artifacts.hand import HandRun, hand_spacings, read_hand, write_hand_run
+from pipeline.artifacts.hand import HandRun, check_hand_scene, read_hand, write_hand_run
 from pipeline.core import cli
 from pipeline.core.config import LEARNING_ONLY, read_settings
 from pipeline.core.errors import PipelineError
@@ -80,7 +80,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError(f"give NAME OUT pairs; got {len(args.runs)} paths")
     names, outs = args.runs[0::2], args.runs[1::2]
     settings = read_settings(args.settings, unread=LEARNING_ONLY)
-    hand_spacings(settings, args.settings)
+    check_hand_scene(settings, args.settings)
     device = args.device or settings["device"]
     cli.check_device(device, "Warp", wp.get_cuda_device_count)
     fem = fem_settings(settings, args.settings)

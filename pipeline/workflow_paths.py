@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable
 
 from pipeline.core.config import application_settings
 from pipeline.core.errors import PipelineError
-from scenes.sequences import is_window_name, sequence_bvh_files, wears_garment
+from scenes.sequences import is_hand, is_window_name, sequence_bvh_files, wears_garment
 
 Settings = dict[str, Any]
 
@@ -68,11 +68,6 @@ def sequence_files(scene: str, sequences: list[str], name: str) -> list[str]:
     return [f"{folder}/{name}" for folder in sequence_folders(scene, sequences)]
 
 
-def is_hand(settings: Settings) -> bool:
-    """Whether a scene is a hand (its FEM runs and dataset are hand.smk's) rather than cloth."""
-    return settings["mesh"]["generator"] == "hand"
-
-
 def sequence_products(settings: Settings) -> tuple[str, ...]:
     """What each sequence of the scene is simulated into: the cloth's two runs, or the hand's FEM run."""
     return (HAND_RUN,) if is_hand(settings) else SEQUENCE_PRODUCTS
@@ -106,6 +101,12 @@ def garment_files(settings: Settings) -> list[str]:
     return [settings["mesh"]["file"]] if settings["mesh"]["generator"] == "garment_file" else []
 
 
+def hand_files(settings: Settings) -> list[str]:
+    """The user's skin and bone files a hand_file scene's hand.h5 is made from: editing either makes it again."""
+    mesh = settings["mesh"]
+    return [mesh["file"], mesh["bones"]] if mesh["generator"] == "hand_file" else []
+
+
 def settled_runs(scene: str, sequences: Iterable[str], level: str) -> list[str]:
     """The settle run that a simulate job of these sequences starts from at `level` (low, high): the scene's when
     one of them is a motion library's window, none otherwise."""
@@ -136,12 +137,15 @@ def check_bvh_files(scene: str, settings: Settings, sequences: list[str]) -> Non
                                 f"{os.getcwd()})")
 
 
-def check_garment_file(scene: str, settings: Settings) -> None:
-    """A garment_file scene's garment file exists (as check_bvh_files for motion files)."""
-    for path in garment_files(settings):
+def check_user_files(scene: str, settings: Settings) -> None:
+    """A garment_file scene's garment file, a hand_file scene's skin and bone files exist (as check_bvh_files for
+    motion files)."""
+    keys = dict(zip(hand_files(settings), ("mesh.file", "mesh.bones")))
+    for path in garment_files(settings) + hand_files(settings):
         if not os.path.isfile(path):
-            raise PipelineError(f"{path}: garment file of scene '{scene}' (mesh.file) does not exist (working "
-                                f"directory {os.getcwd()})")
+            kind = f"hand file ({keys[path]})" if path in keys else "garment file (mesh.file)"
+            raise PipelineError(f"{path}: {kind} of scene '{scene}' does not exist (working directory "
+                                f"{os.getcwd()})")
 
 
 def application_of(model_dir: str) -> str:

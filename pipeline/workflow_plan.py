@@ -19,7 +19,7 @@ from typing import Iterable
 from pipeline.artifacts.subdiv import read_vertex_counts
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import (HAND_MESH, check_bvh_files, check_garment_file, garment_files, is_hand,
+from pipeline.workflow_paths import (HAND_MESH, check_bvh_files, check_user_files, garment_files, is_hand,
                                      sequences_or_error, subdiv_file)
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
@@ -50,7 +50,7 @@ def plan(config: dict, announce: bool = True, targets: Iterable[str] = ()) -> tu
     costs = {}
     for scene, names in sequences.items():
         check_bvh_files(scene, settings[scene], names)
-        check_garment_file(scene, settings[scene])
+        check_user_files(scene, settings[scene])
         costs[scene] = scene_cost(scene, settings[scene], names)
         if not config.get("allow_large", False):
             check_cost(scene, *costs[scene])

@@ -40,15 +40,16 @@ class FileGarment:
     up: str                     # the up axis read or given
 
 
-def detect_units(vertices: np.ndarray, units: str) -> str:
-    """`units` when given (checked to give a garment-sized mesh), else the one unit in which the file's largest
-    extent is garment-sized; ValueError asking for mesh.units otherwise."""
+def detect_units(vertices: np.ndarray, units: str, size: tuple[float, float] = GARMENT_SIZE,
+                 thing: str = "garment") -> str:
+    """`units` when given (checked to give a `thing` of `size`, metres across its largest extent), else the one
+    unit in which the file's largest extent is such a size; ValueError asking for mesh.units otherwise."""
     extent = float(np.ptp(vertices, axis=0).max())
-    low, high = GARMENT_SIZE
+    low, high = size
     if units != "auto":
         metres = extent * UNITS[units]
         if not low / 2 <= metres <= 2 * high:
-            raise ValueError(f"in {units} the garment would be {metres:.3g} m across (a garment is {low}-{high} m): "
+            raise ValueError(f"in {units} the {thing} would be {metres:.3g} m across (a {thing} is {low}-{high} m): "
                              f"wrong units? set mesh.units to the file's")
         return units
     fits = [name for name, factor in UNITS.items() if low <= extent * factor <= high]
@@ -56,9 +57,9 @@ def detect_units(vertices: np.ndarray, units: str) -> str:
         return fits[0]
     sizes = ", ".join(f"{extent * factor:.3g} m in {name}" for name, factor in UNITS.items())
     if not fits:
-        raise ValueError(f"its largest extent, {extent:.4g} file units, is no garment's size in any unit ({sizes}): "
-                         f"not a garment, or set mesh.units")
-    raise ValueError(f"its largest extent, {extent:.4g} file units, is a garment's size in {' and in '.join(fits)}: "
+        raise ValueError(f"its largest extent, {extent:.4g} file units, is no {thing}'s size in any unit ({sizes}): "
+                         f"not a {thing}, or set mesh.units")
+    raise ValueError(f"its largest extent, {extent:.4g} file units, is a {thing}'s size in {' and in '.join(fits)}: "
                      f"set mesh.units to one of {', '.join(UNITS)}")
 
 

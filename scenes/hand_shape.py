@@ -22,6 +22,7 @@ the FEM solver deforms, with the nodes each bone drives and the skin embedded in
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -93,6 +94,15 @@ class RestShapes:
         """(N, C) signed distance of each point to each capsule."""
         return capsule_signed_distance(points, self.a, self.b, self.ra, self.rb)
 
+    def nearest_part(self, points: np.ndarray) -> np.ndarray:
+        """(N,) the part whose capsule is nearest each point."""
+        return self.part[self.distances(points).argmin(axis=1)]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lower and upper corners of the box holding every capsule."""
+        r = np.maximum(self.ra, self.rb)[:, None]
+        return np.minimum(self.a - r, self.b - r).min(axis=0), np.maximum(self.a + r, self.b + r).max(axis=0)
+
 
 def hand_sdf(skel: Skeleton, shapes: RestShapes, points: np.ndarray) -> np.ndarray:
     """The flesh's implicit function at `points` (N, 3): negative inside, ~ the distance to the skin nearby."""
@@ -115,7 +125,7 @@ def skin_mesh(skel: Skeleton, shapes: RestShapes, spacing: float,
               relax_iterations: int = 10) -> tuple[np.ndarray, np.ndarray]:
     """The rest skin: vertices (V, 3) and outward triangles (F, 3), checked manifold."""
     sdf = lambda p: hand_sdf(skel, shapes, p)  # noqa: E731
-    origin, cells = _grid_box(shapes, spacing)
+    origin, cells = grid_box(shapes.bounds(), spacing)
     nodes, tets = kuhn_grid(cells, origin, spacing)
     vertices, faces = marching_tetrahedra(nodes, tets, sdf(nodes))
     vertices = relax_on_surface(vertices, faces, sdf, relax_iterations, 1e-3 * spacing)
@@ -123,11 +133,9 @@ def skin_mesh(skel: Skeleton, shapes: RestShapes, spacing: float,
     return vertices, faces
 
 
-def _grid_box(shapes: RestShapes, spacing: float) -> tuple[np.ndarray, tuple[int, int, int]]:
-    """A grid's origin and cells covering every capsule with two cells to spare."""
-    r = np.maximum(shapes.ra, shapes.rb)[:, None]
-    lo = np.minimum(shapes.a - r, shapes.b - r).min(axis=0) - 2 * spacing
-    hi = np.maximum(shapes.a + r, shapes.b + r).max(axis=0) + 2 * spacing
+def grid_box(bounds: tuple[np.ndarray, np.ndarray], spacing: float) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """A grid's origin and cells covering the box `bounds` (lower, upper corner) with two cells to spare."""
+    lo, hi = bounds[0] - 2 * spacing, bounds[1] + 2 * spacing
     return lo, tuple(int(c) for c in np.ceil((hi - lo) / spacing))
 
 
@@ -147,24 +155,27 @@ class HandVolume:
     split_nodes: int              # node copies made to keep chains apart
 
 
-def hand_volume(skel: Skeleton, shapes: RestShapes, skin: np.ndarray, spacing: float) -> HandVolume:
-    origin, cells = _grid_box(shapes, spacing)
+def hand_volume(skel: Skeleton, shapes: RestShapes, skin: np.ndarray, spacing: float,
+                inside: Callable[[np.ndarray], np.ndarray], bounds: tuple[np.ndarray, np.ndarray]) -> HandVolume:
+    """The tet volume of the flesh: the Kuhn tets of a grid of `spacing` over `bounds` that reach a node `inside`
+    it (points (N, 3) -> (N,) bool) or hold a `skin` vertex, the chains split apart, the nodes within each of
+    `shapes`' bones driven by its part."""
+    origin, cells = grid_box(bounds, spacing)
     nodes, tets = kuhn_grid(cells, origin, spacing)
-    inside = hand_sdf(skel, shapes, nodes) < 0
-    keep = inside[tets].any(axis=1)
+    keep = inside(nodes)[tets].any(axis=1)
     holder, weights = _grid_tet_of(skin, origin, spacing, cells, nodes, tets)
     keep[holder] = True
     kept = np.flatnonzero(keep)
     renumber = np.full(len(tets), -1)
     renumber[kept] = np.arange(len(kept))
     tets = tets[kept]
-    chains = chain_of_parts(skel)[shapes.part[shapes.distances(nodes[tets].mean(axis=1)).argmin(axis=1)]]
+    chains = chain_of_parts(skel)[shapes.nearest_part(nodes[tets].mean(axis=1))]
     tets, copied = _split_chains(tets, chains)          # numbers only the nodes the kept tets use
     nodes = nodes[copied]
-    driven, driven_part = _driven_nodes(skel, nodes, spacing)
+    driven, driven_part = _driven_nodes(skel, shapes, nodes, spacing)
     tet_faces = np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]])
-    node_influences, node_weights = diffused_weights(shapes.part[shapes.distances(nodes).argmin(axis=1)],
-                                                     skel.n_parts, nodes, tet_faces, SKIN_BLEND_WIDTH)
+    node_influences, node_weights = diffused_weights(shapes.nearest_part(nodes), skel.n_parts, nodes, tet_faces,
+                                                     SKIN_BLEND_WIDTH)
     return HandVolume(nodes, tets, driven, driven_part, (renumber[holder], weights), node_influences, node_weights,
                       float(dihedral_angles(nodes, tets).min()), float(radius_ratios(nodes, tets).min()),
                       int(len(copied) - len(np.unique(copied))))
@@ -199,8 +210,8 @@ def _split_chains(tets: np.ndarray, chains: np.ndarray) -> tuple[np.ndarray, np.
     return new.reshape(-1, 4), keys[:, 0]
 
 
-def _driven_nodes(skel: Skeleton, nodes: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    shapes = RestShapes.of(skel)
+def _driven_nodes(skel: Skeleton, shapes: RestShapes, nodes: np.ndarray,
+                  spacing: float) -> tuple[np.ndarray, np.ndarray]:
     axis = shapes.b - shapes.a
     length = np.linalg.norm(axis, axis=1)
     unit = axis / length[:, None]
@@ -266,16 +277,30 @@ class Hand:
                                      rest_transforms(self.skeleton), transforms)
 
 
+def flesh_hand(skel: Skeleton, shapes: RestShapes, vertices: np.ndarray, faces: np.ndarray, tet_spacing: float,
+               inside: Callable[[np.ndarray], np.ndarray], bounds: tuple[np.ndarray, np.ndarray]) -> Hand:
+    """The hand of a skeleton, its flesh's capsules (`shapes`) and rest skin: the skin's linear blend skinning and
+    the tet volume (`hand_volume`)."""
+    influences, weights = diffused_weights(shapes.nearest_part(vertices), skel.n_parts, vertices, faces,
+                                           SKIN_BLEND_WIDTH)
+    volume = hand_volume(skel, shapes, vertices, tet_spacing, inside, bounds)
+    return Hand(skel, vertices, faces, influences, weights, volume)
+
+
 def procedural_hand(skin_spacing: float, tet_spacing: float, relax_iterations: int = 10) -> Hand:
     """The hand with its skin meshed at `skin_spacing` and its volume at `tet_spacing` (metres): about 3.5k skin
     vertices and 8k tets at 0.008, 26k and 30k at 0.003 and 0.005. Spacings outside SPACING_RANGE are refused
     (ValueError): coarser, a grid cell outgrows a fingertip; finer, the grids no longer fit in memory."""
     for name, spacing in (("skin spacing", skin_spacing), ("tet spacing", tet_spacing)):
-        if not SPACING_RANGE[0] <= spacing <= SPACING_RANGE[1]:
-            raise ValueError(f"{name} {spacing} m is outside [{SPACING_RANGE[0]}, {SPACING_RANGE[1]}] m")
+        check_spacing(name, spacing)
     skel = hand_skeleton()
     shapes = RestShapes.of(skel)
     vertices, faces = skin_mesh(skel, shapes, skin_spacing, relax_iterations)
-    nearest = shapes.part[shapes.distances(vertices).argmin(axis=1)]
-    influences, weights = diffused_weights(nearest, skel.n_parts, vertices, faces, SKIN_BLEND_WIDTH)
-    return Hand(skel, vertices, faces, influences, weights, hand_volume(skel, shapes, vertices, tet_spacing))
+    return flesh_hand(skel, shapes, vertices, faces, tet_spacing, lambda p: hand_sdf(skel, shapes, p) < 0,
+                      shapes.bounds())
+
+
+def check_spacing(name: str, spacing: float) -> None:
+    """ValueError for a spacing outside SPACING_RANGE (or NaN)."""
+    if not SPACING_RANGE[0] <= spacing <= SPACING_RANGE[1]:
+        raise ValueError(f"{name} {spacing} m is outside [{SPACING_RANGE[0]}, {SPACING_RANGE[1]}] m")

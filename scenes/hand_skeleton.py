@@ -33,9 +33,11 @@ _FINGER_SHAPE = {
     "ring": ((-0.018, 0.086, 0.0), 9.0, (0.042, 0.026, 0.020), (0.0094, 0.0085, 0.0078, 0.0070)),
     "little": ((-0.037, 0.076, 0.0), 19.0, (0.033, 0.019, 0.018), (0.0085, 0.0077, 0.0070, 0.0063)),
 }
-# The thumb: CMC joint in the palm frame, its rest direction (rotation about z, then its own twist about y so its
-# nail faces sideways, deg), metacarpal and phalanx lengths and radii.
-_THUMB = ((0.020, 0.012, 0.010), -40.0, 70.0, (0.044, 0.032, 0.027), (0.0135, 0.0108, 0.0098, 0.0088, 0.0078))
+# The thumb's own twist about its bone (deg): its nail faces sideways, so it flexes across the palm, not into it.
+THUMB_TWIST = 70.0
+# The thumb: CMC joint in the palm frame, its rest direction (rotation about z, then its twist about y, deg),
+# metacarpal and phalanx lengths and radii.
+_THUMB = ((0.020, 0.012, 0.010), -40.0, THUMB_TWIST, (0.044, 0.032, 0.027), (0.0135, 0.0108, 0.0098, 0.0088, 0.0078))
 
 # (name, part, axis, lower, upper) in degrees; the DIP joints are not here (they follow their PIP).
 _ANGLES = [("wrist_flexion", "palm", 0, -60.0, 70.0), ("wrist_deviation", "palm", 2, -25.0, 15.0)]
@@ -120,9 +122,9 @@ def part_angles(skel: Skeleton, angles: np.ndarray) -> np.ndarray:
 
 def hand_transforms(skel: Skeleton, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World rotations (..., P, 4) and translations (..., P, 3) of the parts posed by the 18 angles (..., 18), the
-    forearm fixed at the origin."""
+    forearm fixed where it is at rest (the procedural hand's: at the origin)."""
     rotations = joint_quaternions(part_angles(skel, angles))
-    return forward_kinematics(skel, np.zeros(3), rotations)
+    return forward_kinematics(skel, skel.joint_offsets[0], rotations)
 
 
 def fist_angles(closure: float = 1.0) -> np.ndarray:

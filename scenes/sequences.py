@@ -88,6 +88,15 @@ def wears_garment(settings: dict) -> bool:
     return settings["mesh"]["generator"] in GARMENT_GENERATORS
 
 
+# The generators of the FEM hand scenes: the procedural hand and a user's hand from a mesh and a bone file.
+HAND_GENERATORS = ("hand", "hand_file")
+
+
+def is_hand(settings: dict) -> bool:
+    """Whether a scene is a hand moved by the FEM (its joint angles, FEM runs and dataset) rather than cloth."""
+    return settings["mesh"]["generator"] in HAND_GENERATORS
+
+
 def held_out_clips(settings: dict) -> list:
     """The held-out clip entries when `dataset.split` is `held_out`: a garment's `drivers.mannequin.test_clips`, the
     hand's `drivers.hand.test_motions`; else none."""
@@ -95,7 +104,7 @@ def held_out_clips(settings: dict) -> list:
         return []
     if wears_garment(settings):
         return list(settings["drivers"]["mannequin"]["test_clips"])
-    if settings["mesh"]["generator"] == "hand":
+    if is_hand(settings):
         return list(settings["drivers"]["hand"]["test_motions"])
     return []
 

@@ -1,10 +1,12 @@
 """The hand scene's artifacts (docs/artifacts.md, sections "hand.h5" and "fem.h5"):
 
-- hand.h5, written by `pipeline.hand_scene`: the procedural hand's rest skin (`vertices`, `faces` at the root, so
-  any stage that reads a mesh reads it: the operators), its linear blend skinning weights, and its tet volume
-  (nodes, tets, the nodes each bone drives, the skin's barycentric embedding, the nodes' own skinning weights)
-  with its element quality. The skeleton is the procedural one (scenes.hand_skeleton); its part names and joint
-  offsets are stored and checked on reading, so a file of another skeleton is refused.
+- hand.h5, written by `pipeline.hand_scene`: the hand's rest skin (`vertices`, `faces` at the root, so any stage
+  that reads a mesh reads it: the operators), its linear blend skinning weights, its tet volume (nodes, tets, the
+  nodes each bone drives, the skin's barycentric embedding, the nodes' own skinning weights) with its element
+  quality, and its skeleton's rest geometry: the procedural hand's, or a user's hand's (scenes.hand_file), whose
+  joints and bones are its own while its 17 parts, their tree and the 18 angles' limits are the procedural
+  layout's (scenes.hand_skeleton), checked on reading. A file written before user hands stores the part names and
+  joint offsets alone: the procedural skeleton's, checked against it.
 - fem.h5, written by `pipeline.hand_simulate`: one sequence's 18 joint angles per frame and the skin the FEM
   moved there, with how each frame's minimisation went (residual, Newton and CG iterations, converged) and its
   milliseconds.
@@ -22,6 +24,8 @@ from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
 from scenes.hand_shape import Hand, HandVolume
 from scenes.hand_skeleton import ANGLE_NAMES, hand_skeleton
+from scenes.sequences import is_hand
+from scenes.skeleton import Skeleton
 
 HAND_STAGE, RUN_STAGE = "hand_scene", "hand_simulate"
 VERTICES, FACES = "vertices", "faces"
@@ -30,24 +34,27 @@ NODES, TETS, DRIVEN, DRIVEN_PART = "volume/nodes", "volume/tets", "volume/driven
 EMBED_TET, EMBED_WEIGHTS = "volume/embedding_tet", "volume/embedding_weights"
 NODE_INFLUENCES, NODE_WEIGHTS = "volume/node_influences", "volume/node_weights"
 PART_NAMES, JOINT_OFFSETS = "skeleton/names", "skeleton/joint_offsets"
+# The rest of a Skeleton's rest geometry (its limits are the layout's): skeleton/<field>.
+SKELETON_FIELDS = ("parents", "frame_rotations", "capsule_a", "capsule_b", "radius_a", "radius_b")
 QUALITY = ("min_dihedral_deg", "min_radius_ratio", "split_nodes")      # attrs of volume/
 ANGLES, SKIN, RESIDUAL, NEWTON, CG, CONVERGED, SOLVE_MS = (
     "angles", "skin", "residual", "newton_iterations", "cg_iterations", "converged", "solve_ms")
 
 
-def hand_spacings(settings: Mapping[str, Any], source: str) -> tuple[float, float]:
-    """(skin spacing, tet spacing) of a hand scene's settings; an error naming `source` for another scene's."""
-    mesh = settings["mesh"]
-    if mesh["generator"] != "hand":
+def check_hand_scene(settings: Mapping[str, Any], source: str) -> None:
+    """An error naming `source` for the settings of a scene that is no hand scene."""
+    if not is_hand(settings):
         raise PipelineError(f"{source}: scene '{settings['scene']}' is no hand scene (mesh.generator "
-                            f"'{mesh['generator']}')")
-    return mesh["skin_spacing"], mesh["tet_spacing"]
+                            f"'{settings['mesh']['generator']}')")
 
 
-def write_hand(path: str | os.PathLike, config: Mapping[str, Any], hand: Hand) -> None:
+def write_hand(path: str | os.PathLike, config: Mapping[str, Any], hand: Hand,
+               attrs: Mapping[str, Any] | None = None) -> None:
+    """hand.h5 of `hand`, with `attrs` (a user's hand: its files, their sha256, units) at the root."""
     vol = hand.volume
     with atomic_h5(path, HAND_STAGE, config) as f:
         f.attrs[SOURCE_MESH] = mesh_fingerprint(hand.skin_vertices, hand.skin_faces)
+        f.attrs.update(attrs or {})
         for name, data in ((VERTICES, hand.skin_vertices), (FACES, hand.skin_faces.astype(np.int32)),
                            (SKIN_INFLUENCES, hand.skin_influences.astype(np.int32)),
                            (SKIN_WEIGHTS, hand.skin_weights), (NODES, vol.nodes), (TETS, vol.tets.astype(np.int32)),
@@ -56,7 +63,8 @@ def write_hand(path: str | os.PathLike, config: Mapping[str, Any], hand: Hand) -
                            (NODE_INFLUENCES, vol.node_influences.astype(np.int32)),
                            (NODE_WEIGHTS, vol.node_weights),
                            (PART_NAMES, np.array(hand.skeleton.names, dtype="S")),
-                           (JOINT_OFFSETS, hand.skeleton.joint_offsets)):
+                           (JOINT_OFFSETS, hand.skeleton.joint_offsets),
+                           *((f"skeleton/{field}", getattr(hand.skeleton, field)) for field in SKELETON_FIELDS)):
             f.create_dataset(name, data=data)
         f[VERTICES].attrs["meaning"] = "the rest skin (S, 3), metres: the mesh the decoder writes"
         f[SKIN_WEIGHTS].attrs["meaning"] = ("linear blend skinning of the skin: 4 parts (skin/influences) and "
@@ -72,13 +80,8 @@ def write_hand(path: str | os.PathLike, config: Mapping[str, Any], hand: Hand) -
 
 def read_hand(path: str | os.PathLike) -> Hand:
     """The hand of a hand.h5, every index checked against what it indexes; one error naming the file otherwise."""
-    skeleton = hand_skeleton()
     with open_artifact(path) as f:
-        names = tuple(n.decode() for n in read(f, PART_NAMES))
-        offsets = read(f, JOINT_OFFSETS, np.float64)
-        if names != skeleton.names or offsets.shape != skeleton.joint_offsets.shape \
-                or not np.allclose(offsets, skeleton.joint_offsets):
-            raise PipelineError(f"{path}: made for another skeleton than scenes.hand_skeleton's")
+        skeleton = _read_skeleton(f, path)
         parts = skeleton.n_parts
         vertices = read(f, VERTICES, np.float64)
         nodes = read(f, NODES, np.float64)
@@ -104,6 +107,27 @@ def read_hand(path: str | os.PathLike) -> Hand:
                         weights[NODE_WEIGHTS], float(quality["min_dihedral_deg"]),
                         float(quality["min_radius_ratio"]), int(quality["split_nodes"]))
     return Hand(skeleton, vertices, faces, skin_influences, weights[SKIN_WEIGHTS], volume)
+
+
+def _read_skeleton(f: h5py.File, path: str | os.PathLike) -> Skeleton:
+    """The skeleton of a hand.h5: the procedural layout's parts, tree and limits on the stored rest geometry."""
+    layout = hand_skeleton()
+    names = tuple(n.decode() for n in read(f, PART_NAMES))
+    offsets = read(f, JOINT_OFFSETS, np.float64)
+    if names != layout.names:
+        raise PipelineError(f"{path}: made for another skeleton than scenes.hand_skeleton's 17 parts")
+    if "skeleton/frame_rotations" not in f:         # written before user hands: the procedural skeleton
+        if offsets.shape != layout.joint_offsets.shape or not np.allclose(offsets, layout.joint_offsets):
+            raise PipelineError(f"{path}: made for another skeleton than scenes.hand_skeleton's")
+        return layout
+    fields = {name: read(f, f"skeleton/{name}", np.int64 if name == "parents" else np.float64)
+              for name in SKELETON_FIELDS}
+    if not np.array_equal(fields["parents"], layout.parents):
+        raise PipelineError(f"{path}: 'skeleton/parents' is not the tree of scenes.hand_skeleton's parts")
+    try:
+        return dataclasses.replace(layout, joint_offsets=offsets, **fields)
+    except ValueError as err:
+        raise PipelineError(f"{path}: skeleton: {err}") from None
 
 
 def read_skin_vertex_count(path: str | os.PathLike) -> int:

@@ -26,7 +26,7 @@ import yaml
 from model.feature_spec import FeatureSpec
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import FLOAT32_MAX, atomic_write
-from scenes.sequences import clip_key, held_out_clips, library_of, training_clips, wears_garment
+from scenes.sequences import clip_key, held_out_clips, is_hand, library_of, training_clips, wears_garment
 
 SCHEMA_PATH = Path(__file__).resolve().parents[2] / "workflow" / "config.schema.yaml"
 
@@ -52,14 +52,14 @@ def load_config(path: str | os.PathLike) -> dict:
     except (OSError, UnicodeDecodeError) as err:
         raise PipelineError(f"{path}: cannot read the config ({err})") from None
     except yaml.YAMLError as err:
-        raise PipelineError(_yaml_error(path, err)) from None
+        raise PipelineError(yaml_error(path, err)) from None
     if not isinstance(config, dict):    # the schema's message would quote the whole of a file that is no config
         raise PipelineError(f"{path}: not a config (a config is YAML whose top level maps keys to values)")
     validate_config(config, str(path))
     return config
 
 
-def _yaml_error(path: Path, err: yaml.YAMLError) -> str:
+def yaml_error(path: Path, err: yaml.YAMLError) -> str:
     """One line `FILE:LINE:COLUMN: problem` for a YAML error, which PyYAML spreads over several (the offending
     text and a caret, for the problem and for the construct it interrupted)."""
     mark = getattr(err, "problem_mark", None)
@@ -220,13 +220,14 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     def fail(message: str):
         raise PipelineError(f"{source}: {where}: {message}")
     generator = settings["mesh"]["generator"]
-    garment, hand = wears_garment(settings), generator == "hand"
+    garment, hand = wears_garment(settings), is_hand(settings)
     if garment != (settings["drivers"]["pins"] == "attachment"):
         fail("drivers.pins must be 'attachment' exactly when mesh.generator is 'garment' or 'garment_file'")
     if hand != (settings["drivers"]["pins"] == "bones"):
-        fail("drivers.pins must be 'bones' exactly when mesh.generator is 'hand'")
+        fail("drivers.pins must be 'bones' exactly when mesh.generator is 'hand' or 'hand_file'")
     if hand != (settings["solver"].get("kind") == "fem"):
-        fail("solver.kind must be 'fem' exactly when mesh.generator is 'hand' (the volumetric FEM moves the hand)")
+        fail("solver.kind must be 'fem' exactly when mesh.generator is 'hand' or 'hand_file' (the volumetric FEM moves "
+             "the hand)")
     if "fem" in settings["solver"] and not hand:
         fail("solver.fem applies only to solver.kind 'fem'")
     if hand:
@@ -267,7 +268,7 @@ def _check_consistent(settings: dict, where: str, source: str) -> None:
     if settings["dataset"]["split"] == "held_out":
         if not (garment or hand):
             fail("dataset.split 'held_out' needs mannequin clips or hand motions (mesh.generator 'garment', "
-                 "'garment_file' or 'hand')")
+                 "'garment_file', 'hand' or 'hand_file')")
         if not held_out_clips(settings) and not held_subjects:
             fail("dataset.split 'held_out' needs drivers.mannequin.test_clips, drivers.hand.test_motions or "
                  "library_windows.held_out_subjects")

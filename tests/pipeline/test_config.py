@@ -109,12 +109,25 @@ def test_garment_scene_needs_no_grid_keys_and_refuses_them():
     ("hand", {"drivers": {"hand": {"test_motions": []}}}, "needs drivers.mannequin.test_clips, drivers.hand.test"),
     ("hand", {"sequences": 0}, "the hand needs training sequences"),
     ("hand", {"mesh": {"max_edge": 0.1}}, "key 'max_edge' in scenes.hand.mesh applies only when generator is grid"),
+    ("hand", {"mesh": {"generator": "hand_file", "file": "h.obj", "units": "auto"}},
+     "key 'skin_spacing' in scenes.hand.mesh applies only when generator is hand \\(here: hand_file\\)"),
 ])
 def test_inconsistent_settings_are_named(scene, change, message):
     config = copy.deepcopy(CONFIG)
     config["scenes"][scene] = deep_merge(config["scenes"][scene], change)
     with pytest.raises(PipelineError, match=message):
         resolve_scene(config, scene, "paper")
+
+
+def test_a_users_hand_is_the_hand_scene_but_its_mesh_and_needs_its_bone_file():
+    config = copy.deepcopy(CONFIG)
+    mesh = {"generator": "hand_file", "file": "h.obj", "bones": "b.yaml", "units": "cm", "tet_spacing": 0.008}
+    config["scenes"]["mine"] = {"like": "hand", "mesh": mesh}
+    settings, hand = resolve_scene(config, "mine", "cpu"), resolve_scene(config, "hand", "cpu")
+    assert settings["mesh"].items() >= mesh.items() and settings["solver"] == hand["solver"] and settings["frames"] == hand["frames"]
+    config["scenes"]["mine"]["mesh"] = {k: v for k, v in mesh.items() if k != "bones"}
+    with pytest.raises(PipelineError, match="missing key 'bones' in scenes.mine.mesh"):
+        resolve_scene(config, "mine", "cpu")
 
 
 @pytest.mark.parametrize("entry, message", [

@@ -14,21 +14,8 @@ from pipeline.artifacts.hand import read_hand, read_hand_run
 from pipeline.core.errors import PipelineError
 from scenes.hand_motion import fist_trajectory
 from scenes.hand_skeleton import ANGLE_LIMITS, hand_transforms
-from workflow_runs import REPO, build, snakemake, tail
-
-FRAMES = 24
-TINY_HAND = {"frames": FRAMES, "sequences": 2, "shard": 2, "mesh": {"skin_spacing": 0.012, "tet_spacing": 0.012},
-             "network": {"arch": "U32 U U32 U16 U3"}, "operators": {"levels": 5}, "training": {"epochs": 10},
-             "evaluation": {"render_frames": 1, "video_frames": 1, "export_frames": 1, "timing_frames": 3}}
-SEQUENCES = ("train_000", "train_001", "held_out_000")
-
-
-def hand_config(folder, **hand):
-    config = yaml.safe_load((REPO / "workflow_config.yaml").read_text())
-    config["profiles"]["cpu"]["scenes"]["hand"] = {**TINY_HAND, **hand}
-    path = folder / "hand.yaml"
-    path.write_text(yaml.safe_dump(config))
-    return path
+from hand_files import FRAMES, SEQUENCES, hand_config
+from workflow_runs import build, snakemake, tail
 
 
 @pytest.fixture(scope="module")

@@ -52,6 +52,20 @@ def test_a_hand_scenes_sequences_are_fem_runs_and_its_operators_are_built_on_its
     assert workflow_paths.operators_mesh("pants", cloth) == "results/pants/subdiv.h5"
 
 
+def test_a_users_hand_is_a_hand_scene_whose_two_files_must_exist_and_a_missing_one_is_named(tmp_path):
+    obj, bones = tmp_path / "hand.obj", tmp_path / "bones.yaml"
+    mine = {"mesh": {"generator": "hand_file", "file": str(obj), "bones": str(bones)}}
+    assert workflow_paths.is_hand(mine) and workflow_paths.operators_mesh("mine", mine) == "results/mine/hand.h5"
+    assert workflow_paths.hand_files(mine) == [str(obj), str(bones)]
+    assert workflow_paths.hand_files({"mesh": {"generator": "hand"}}) == []
+    obj.write_text("v 0 0 0")
+    with pytest.raises(PipelineError, match=f"{re.escape(str(bones))}: hand file \\(mesh.bones\\) of scene 'mine' "
+                                            f"does not exist"):
+        workflow_paths.check_user_files("mine", mine)
+    bones.write_text("joints: []")
+    workflow_paths.check_user_files("mine", mine)
+
+
 def garment_settings(clips, test_clips):
     return {"mesh": {"generator": "garment"}, "dataset": {"split": "held_out"}, "sequences": 1,
             "drivers": {"mannequin": {"clips": clips, "test_clips": test_clips}}}

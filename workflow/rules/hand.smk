@@ -1,5 +1,6 @@
-# The hand scenes (mesh.generator hand; paper Table 4, "hand"): the procedural hand's skin and tet volume
-# (hand.h5), each shard of sequences simulated by the quasi-static FEM as one batch of worlds (a fem.h5 per
+# The hand scenes (mesh.generator hand or hand_file; paper Table 4, "hand"): the procedural hand's skin or the
+# user's own (its skin and bone files are the rule's inputs, so editing them makes the hand again) and its tet
+# volume (hand.h5), each shard of sequences simulated by the quasi-static FEM as one batch of worlds (a fem.h5 per
 # sequence), and their dataset (18 joint angles in, linear blend skinning as predictor, FEM - LBS as target). The
 # operators (on the skin), training and evaluation are learning.smk's, as for any scene; `results/<hand scene>/`
 # stands for all of it (common.smk: scene_products). Every path in a shell is a quoted literal or wildcard.
@@ -11,7 +12,7 @@ ruleorder: hand_dataset > dataset
 
 
 rule hand_scene:
-    input: settings=f"{OUT}/simulation.json"
+    input: settings=f"{OUT}/simulation.json", files=lambda w: workflow_paths.hand_files(SETTINGS[w.scene])
     output: f"{OUT}/{workflow_paths.HAND_MESH}"
     wildcard_constraints: scene=HAND_SCENES
     log: log_of("hand_scene")
