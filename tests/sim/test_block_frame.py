@@ -159,7 +159,7 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
         model = ClothModel(rest, faces, SolverSettings(frame_kernel=frame_kernel), pins, harmonic=harmonic)
         return ClothSolver(model, "cpu", **solver).frame_kernel
 
-    assert SolverSettings().frame_kernel == "auto"
+    assert SolverSettings().frame_kernel == "sweeps"
     assert kernel("auto") == "sweeps"            # the CPU's default
     assert kernel("block") == "block" and kernel("sweeps") == "sweeps"
     basis, _, mass = harmonic_basis(rest, faces, 3)
