@@ -148,6 +148,23 @@ def check_user_files(scene: str, settings: Settings) -> None:
                                 f"{os.getcwd()})")
 
 
+# The folders of results/<scene>/ built on a cloth scene's low- and high-res runs: the study, the trade-off, the
+# operator comparison (upsampling networks) and the pose and PCA applications. A hand scene has none of them.
+CLOTH_EXPERIMENTS = ("study", "tradeoff", "convs", "pose", "pca")
+
+
+def check_targets(targets: Iterable[str], settings: dict[str, Settings]) -> None:
+    """A target inside results/<hand scene>/ that only a cloth scene has is one error naming the hand's own target
+    (without the check Snakemake would look for cloth runs the hand never makes and fail far from the cause)."""
+    for target in targets:
+        parts = os.path.normpath(target).split(os.sep)
+        if (len(parts) > 2 and parts[0] == "results" and parts[1] in settings and is_hand(settings[parts[1]])
+                and parts[2] in CLOTH_EXPERIMENTS):
+            raise PipelineError(f"{target}: '{parts[2]}' is made from a cloth scene's runs, and '{parts[1]}' is a "
+                                f"hand scene (its network a decoder of the joint angles, its data FEM runs): its "
+                                f"target is results/{parts[1]}/")
+
+
 def application_of(model_dir: str) -> str:
     """The application (pose, pca) of a model folder (pose, pca/k<K>)."""
     return model_dir.split("/")[0]

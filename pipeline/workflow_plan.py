@@ -19,8 +19,8 @@ from typing import Iterable
 from pipeline.artifacts.subdiv import read_vertex_counts
 from pipeline.core.config import resolve_scene
 from pipeline.core.errors import PipelineError
-from pipeline.workflow_paths import (HAND_MESH, check_bvh_files, check_user_files, garment_files, is_hand,
-                                     sequences_or_error, subdiv_file)
+from pipeline.workflow_paths import (HAND_MESH, check_bvh_files, check_targets, check_user_files, garment_files,
+                                     is_hand, sequences_or_error, subdiv_file)
 from scenes.bvh import MAX_PLAYED_FRAMES
 from scenes.sequences import library_of, sequence_frames, sequence_names, sequence_shards
 
@@ -47,6 +47,7 @@ def plan(config: dict, announce: bool = True, targets: Iterable[str] = ()) -> tu
         raise PipelineError(f"workflow config: default_scene '{config['default_scene']}' is not a scene "
                             f"(known: {', '.join(sorted(settings))})")
     sequences = {scene: sequences_or_error(scene, lambda: sequence_names(s)) for scene, s in settings.items()}
+    check_targets(targets, settings)
     costs = {}
     for scene, names in sequences.items():
         check_bvh_files(scene, settings[scene], names)

@@ -153,3 +153,12 @@ def test_the_train_job_runs_its_ranks_under_torchrun_with_a_gpu_and_a_share_of_t
     assert workflow_paths.train_gpus(four) == 4 and workflow_paths.train_gpus({**four, "device": "cpu"}) == 0
     assert [workflow_paths.rank_threads(four, t) for t in (1, 4, 16, 17)] == [1, 1, 4, 4]
     assert workflow_paths.rank_threads(one, 16) == 16
+
+
+@pytest.mark.parametrize("folder", workflow_paths.CLOTH_EXPERIMENTS)
+def test_a_cloth_experiment_of_a_hand_scene_is_one_error_naming_the_hands_target(folder):
+    settings = {"hand": {"mesh": {"generator": "hand"}}, "pants": {"mesh": {"generator": "garment"}}}
+    workflow_paths.check_targets(["results/hand/", "results/pants/" + folder, f"results/hand/{folder}x"], settings)
+    with pytest.raises(PipelineError, match=rf"^results/hand/{folder}/: '{folder}' is made from a cloth scene's "
+                                            r"runs, .* its target is results/hand/$"):
+        workflow_paths.check_targets([f"results/hand/{folder}/"], settings)
