@@ -81,10 +81,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         raise PipelineError(f"{err}") from None
     if len(set(names)) != len(names) or HELD_OUT == roles[0] or roles != sorted(roles, key=lambda r: r == HELD_OUT):
         raise PipelineError(f"sequences {', '.join(names)}: each once, the training ones first, then the held-out")
+    # Planned from the runs' angles and timings alone; their skins (120 MB a 300-frame run at the paper's size) are
+    # read one run at a time as the dataset is written.
     runs = []
     for folder in folders:
         check_same_mesh(args.hand, folder / RUN)
-        runs.append((folder.name, read_hand_run(folder / RUN, len(hand.skin_vertices))))
+        runs.append((folder.name, read_hand_run(folder / RUN, len(hand.skin_vertices), skin=False)))
     counts = [len(run.angles) for _, run in runs]
     sequence = np.concatenate([np.full(n, k) for k, n in enumerate(counts)])
     held = np.isin(sequence, [k for k, role in enumerate(roles) if role == HELD_OUT])
@@ -103,8 +105,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         test_fraction=args.test_fraction, frame_time=args.frame_time, task=task)
 
     def frames() -> Iterator[SequenceFrames]:
-        for _, run in runs:
-            yield sequence_frames(hand, run)
+        for folder in folders:
+            yield sequence_frames(hand, read_hand_run(folder / RUN, len(hand.skin_vertices)))
 
     config = {"hand": args.hand, "sequences": args.sequences, "test_fraction": args.test_fraction,
               "seed": args.seed, "frame_time": args.frame_time, "task": HandTask.name}

@@ -143,8 +143,8 @@ def check_user_files(scene: str, settings: Settings) -> None:
     keys = dict(zip(hand_files(settings), ("mesh.file", "mesh.bones")))
     for path in garment_files(settings) + hand_files(settings):
         if not os.path.isfile(path):
-            kind = f"hand file ({keys[path]})" if path in keys else "garment file (mesh.file)"
-            raise PipelineError(f"{path}: {kind} of scene '{scene}' does not exist (working directory "
+            kind, key = ("hand file", keys[path]) if path in keys else ("garment file", "mesh.file")
+            raise PipelineError(f"{path}: {kind} of scene '{scene}' ({key}) does not exist (working directory "
                                 f"{os.getcwd()})")
 
 

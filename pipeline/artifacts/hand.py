@@ -145,7 +145,7 @@ class HandRun:
     Newton and CG iterations, whether it converged, and the batch's milliseconds over its worlds (frame 0: the
     rest state, not solved: 0)."""
     angles: np.ndarray
-    skin: np.ndarray
+    skin: np.ndarray | None  # None: read without it (read_hand_run(..., skin=False))
     residual: np.ndarray
     newton_iterations: np.ndarray
     cg_iterations: np.ndarray
@@ -171,17 +171,22 @@ def write_hand_run(path: str | os.PathLike, config: Mapping[str, Any], run: Hand
                                         "together: the batch's time over them), frame 0: none")
 
 
-def read_hand_run(path: str | os.PathLike, n_skin: int) -> HandRun:
-    """A fem.h5 of a skin of `n_skin` vertices; one error naming the file for anything that does not fit."""
+def read_hand_run(path: str | os.PathLike, n_skin: int, skin: bool = True) -> HandRun:
+    """A fem.h5 of a skin of `n_skin` vertices; one error naming the file for anything that does not fit. With
+    `skin` False its shape is checked and the skin itself left on disk (`HandRun.skin` None): what a stage that
+    reads one run's skin at a time plans with."""
     with open_artifact(path) as f:
         angles = read(f, ANGLES, np.float64)
-        skin = read(f, SKIN, np.float32)
+        if SKIN not in f or not isinstance(f[SKIN], h5py.Dataset):
+            raise PipelineError(f"{path}: missing dataset '{SKIN}'")
+        shape = f[SKIN].shape
         n = len(angles)
-        if angles.shape != (n, len(ANGLE_NAMES)) or skin.shape != (n, n_skin, 3) or n < 2:
-            raise PipelineError(f"{path}: '{ANGLES}' {angles.shape} and '{SKIN}' {skin.shape} must be (F, "
+        if angles.shape != (n, len(ANGLE_NAMES)) or shape != (n, n_skin, 3) or n < 2:
+            raise PipelineError(f"{path}: '{ANGLES}' {angles.shape} and '{SKIN}' {shape} must be (F, "
                                 f"{len(ANGLE_NAMES)}) and (F, {n_skin}, 3), F >= 2")
         per_frame = {name: read(f, name) for name in (RESIDUAL, NEWTON, CG, CONVERGED, SOLVE_MS)}
         if any(v.shape != (n,) for v in per_frame.values()):
             raise PipelineError(f"{path}: {', '.join(per_frame)} must each hold one value a frame ({n})")
-        return HandRun(angles, skin, per_frame[RESIDUAL], per_frame[NEWTON], per_frame[CG], per_frame[CONVERGED],
-                       per_frame[SOLVE_MS], int(f.attrs.get("worlds", 1)), str(f.attrs.get("device", "")))
+        return HandRun(angles, read(f, SKIN, np.float32) if skin else None, per_frame[RESIDUAL], per_frame[NEWTON],
+                       per_frame[CG], per_frame[CONVERGED], per_frame[SOLVE_MS], int(f.attrs.get("worlds", 1)),
+                       str(f.attrs.get("device", "")))

@@ -117,6 +117,24 @@ def test_a_damaged_hand_file_is_one_error(hand, tmp_path):
         read_hand(damaged)
 
 
+def test_a_run_planned_without_its_skin_is_checked_all_the_same(hand, tmp_path):
+    """The dataset stage plans from the runs without their skins (one is read at a time as it is written): the
+    skin stays on disk, everything else is read, and a skin of the wrong shape is refused all the same."""
+    path = hand / "sequences" / SEQUENCES[0] / "fem.h5"
+    n_skin = len(read_hand(hand / "hand.h5").skin_vertices)
+    whole, planned = read_hand_run(path, n_skin), read_hand_run(path, n_skin, skin=False)
+    assert planned.skin is None and whole.skin.shape == (FRAMES, n_skin, 3)
+    assert np.array_equal(planned.angles, whole.angles) and np.array_equal(planned.solve_ms, whole.solve_ms)
+    short = tmp_path / "fem.h5"
+    short.write_bytes(path.read_bytes())
+    with h5py.File(short, "r+") as f:
+        skin = f["skin"][:, :-1]
+        del f["skin"]
+        f["skin"] = skin
+    with pytest.raises(PipelineError, match=r"'skin' \(\d+, \d+, 3\) must be"):
+        read_hand_run(short, n_skin, skin=False)
+
+
 def test_a_hand_scene_must_be_moved_by_the_fem(tmp_path):
     config = hand_config(tmp_path, solver={"kind": "xpbd"})
     run = snakemake(tmp_path, "results/hand/", "-n", "--configfile", str(config))

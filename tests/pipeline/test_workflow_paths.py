@@ -59,7 +59,7 @@ def test_a_users_hand_is_a_hand_scene_whose_two_files_must_exist_and_a_missing_o
     assert workflow_paths.hand_files(mine) == [str(obj), str(bones)]
     assert workflow_paths.hand_files({"mesh": {"generator": "hand"}}) == []
     obj.write_text("v 0 0 0")
-    with pytest.raises(PipelineError, match=f"{re.escape(str(bones))}: hand file \\(mesh.bones\\) of scene 'mine' "
+    with pytest.raises(PipelineError, match=f"{re.escape(str(bones))}: hand file of scene 'mine' \\(mesh.bones\\) "
                                             f"does not exist"):
         workflow_paths.check_user_files("mine", mine)
     bones.write_text("joints: []")
