@@ -7,9 +7,9 @@ import pytest
 from geometry.isosurface import triangle_angles
 from geometry.mesh import validate_mesh
 from geometry.tets import dihedral_angles, radius_ratios, tet_volumes
+from hand_fem import solve
 from scenes.hand_shape import RestShapes, hand_sdf, procedural_hand
 from scenes.hand_skeleton import ANGLE_LIMITS, ANGLE_NAMES, fist_angles, hand_transforms, part_angles
-from sim.fem import FemInputs, FemModel, FemSettings, FemSolver
 
 SPACING = 0.008     # the CI size: ~3.5k skin vertices, ~8k tets
 
@@ -69,18 +69,6 @@ def test_the_volume_is_of_congruent_tets_and_embeds_the_skin(hand):
     embedded = np.einsum("sk,skj->sj", weights, vol.nodes[vol.tets[tet_of]])
     np.testing.assert_allclose(embedded, hand.skin_vertices, atol=1e-12)
     assert set(np.unique(vol.driven_part)) == set(range(hand.skeleton.n_parts))  # every bone grips the flesh
-
-
-def solve(hand, poses, settings=FemSettings()):
-    model = FemModel(hand.volume.nodes, hand.volume.tets, settings, hand.volume.driven, hand.volume.embedding)
-    solver = FemSolver(model, "cpu")
-    last = hand_transforms(hand.skeleton, np.zeros(18))
-    for angles in poses:
-        now = hand_transforms(hand.skeleton, angles)
-        solver.step(solver.state, FemInputs(hand.driven_targets(now), hand.node_motion(last, now)))
-        assert solver.last_report.converged.all()
-        last = now
-    return solver
 
 
 @pytest.mark.parametrize("pose", ["fist", "hyper-extension"])

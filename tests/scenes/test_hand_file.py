@@ -9,13 +9,13 @@ import yaml
 from scipy.spatial import cKDTree
 
 from geometry.tets import tet_volumes
+from hand_fem import solve
 from hand_files import bone_document, procedural_joints, write_hand_files
 from pipeline.core.meshio import load_mesh
 from scenes.garment_file import UNITS
 from scenes.hand_file import LAYOUT, file_hand, read_rig, rig_skeleton, skin_from_file
 from scenes.hand_shape import procedural_hand
 from scenes.hand_skeleton import ANGLE_NAMES, fist_angles, hand_transforms
-from sim.fem import FemInputs, FemModel, FemSettings, FemSolver
 
 SPACING = 0.008
 
@@ -34,18 +34,6 @@ def procedural():
 @pytest.fixture(scope="module")
 def own(tmp_path_factory):
     return hand_of_files(*write_hand_files(tmp_path_factory.mktemp("own"), SPACING))[0]
-
-
-def solve(hand, poses):
-    model = FemModel(hand.volume.nodes, hand.volume.tets, FemSettings(), hand.volume.driven, hand.volume.embedding)
-    solver = FemSolver(model, "cpu")
-    last = hand_transforms(hand.skeleton, np.zeros(18))
-    for angles in poses:
-        now = hand_transforms(hand.skeleton, angles)
-        solver.step(solver.state, FemInputs(hand.driven_targets(now), hand.node_motion(last, now)))
-        assert solver.last_report.converged.all()
-        last = now
-    return solver
 
 
 def test_the_procedural_hands_own_files_make_its_volume_and_driven_nodes_again(procedural, own):
