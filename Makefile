@@ -4,6 +4,8 @@
 # `make test-cluster`: the Slurm executor plugin (requirements-cluster.txt) into the virtualenv, a single-node Slurm
 # on this machine (tools/local_slurm.sh: root, Debian's slurm-wlm, slurmdbd, munge, mariadb-server), the workflow
 # through profiles/slurm against a local run (tests/cluster), then Slurm torn down.
+# `make test-gpu`: the test files that exercise CUDA (Warp's kernels, CUDA graphs, the fused Triton network, the
+# exported package), whole, on a machine with a CUDA device (refused without one: skipped tests would pass).
 # Setup installs the pinned requirements, then the project itself (editable), so the stages, bench/ and tests/
 # import it from any directory; the stamp names both files' contents, so a change to either reinstalls.
 VENV ?= .venv
@@ -13,7 +15,11 @@ SCENE ?=
 
 CLUSTER_STAMP := $(VENV)/.cluster-$(shell cat requirements-cluster.txt | sha1sum | cut -c1-12)
 
-.PHONY: setup run test test-cluster bench clean
+GPU_TESTS := tests/sim/test_block_frame.py tests/sim/test_fem_cuda.py tests/sim/test_fem.py tests/sim/test_batched.py \
+	tests/sim/test_collision.py tests/model/test_training_step.py tests/model/test_fused_network.py \
+	tests/pipeline/test_inference_timing.py tests/deploy/test_deploy_export.py
+
+.PHONY: setup run test test-cluster test-gpu bench clean
 
 setup: $(STAMP)
 
@@ -38,6 +44,11 @@ test-cluster: $(CLUSTER_STAMP)
 	tools/local_slurm.sh up
 	LEARNED_CLOTH_SLURM=1 SLURM_CONF=$${LOCAL_SLURM_DIR:-/tmp/local-slurm}/slurm.conf \
 		$(PY) -m pytest -q tests/cluster; status=$$?; tools/local_slurm.sh down; exit $$status
+
+test-gpu: $(STAMP)
+	$(PY) -c "import sys, torch, warp; torch.cuda.is_available() and warp.is_cuda_available() or \
+		sys.exit('make test-gpu: no CUDA device for torch and warp on this machine')"
+	$(PY) -m pytest -q -rs $(GPU_TESTS)
 
 bench: $(STAMP)
 	$(PY) bench/cloth_solver.py
