@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import SOURCE_MESH, atomic_h5, mesh_fingerprint, open_artifact, read, read_indices
+from pipeline.core.h5 import SOURCE_MESH, atomic_h5, dataset, mesh_fingerprint, open_artifact, read, read_indices
 from scenes.hand_shape import Hand, HandVolume
 from scenes.hand_skeleton import ANGLE_NAMES, hand_skeleton
 from scenes.sequences import is_hand
@@ -177,9 +177,7 @@ def read_hand_run(path: str | os.PathLike, n_skin: int, skin: bool = True) -> Ha
     reads one run's skin at a time plans with."""
     with open_artifact(path) as f:
         angles = read(f, ANGLES, np.float64)
-        if SKIN not in f or not isinstance(f[SKIN], h5py.Dataset):
-            raise PipelineError(f"{path}: missing dataset '{SKIN}'")
-        shape = f[SKIN].shape
+        shape = dataset(f, SKIN).shape
         n = len(angles)
         if angles.shape != (n, len(ANGLE_NAMES)) or shape != (n, n_skin, 3) or n < 2:
             raise PipelineError(f"{path}: '{ANGLES}' {angles.shape} and '{SKIN}' {shape} must be (F, "

@@ -323,14 +323,20 @@ def _one_line(err: Exception) -> str:
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-def read(f: h5py.File, name: str, dtype: Any = None) -> np.ndarray:
-    """Read a whole dataset, naming the file and dataset if it is absent or holds NaN, inf or a value beyond
-    float32's range; with a `dtype`, it must hold real numbers (numpy would turn text into an error of its own
-    and drop an imaginary part with a warning)."""
+def dataset(f: h5py.File, name: str) -> h5py.Dataset:
+    """The dataset `name` unread (its shape, dtype, chunks); one error naming the file if it is absent or a group."""
     if name not in f:
         raise PipelineError(f"{f.filename}: missing dataset '{name}'")
     if not isinstance(f[name], h5py.Dataset):
         raise PipelineError(f"{f.filename}: '{name}' is a group, not a dataset")
+    return f[name]
+
+
+def read(f: h5py.File, name: str, dtype: Any = None) -> np.ndarray:
+    """Read a whole dataset, naming the file and dataset if it is absent or holds NaN, inf or a value beyond
+    float32's range; with a `dtype`, it must hold real numbers (numpy would turn text into an error of its own
+    and drop an imaginary part with a warning)."""
+    dataset(f, name)
     if dtype is not None and f[name].dtype.kind not in "biuf":
         raise PipelineError(f"{f.filename}: dataset '{name}' holds {f[name].dtype} values, not real numbers")
     data = f[name][()]
@@ -471,14 +477,14 @@ def read_indices(f: h5py.File, name: str, upper: int, shape: tuple[int | None, .
     `shape` (None: any length along that axis)."""
     if name not in f:
         raise PipelineError(f"{f.filename}: missing dataset '{name}'")
-    dataset = f[name]
-    if not isinstance(dataset, h5py.Dataset) or not np.issubdtype(dataset.dtype, np.integer):
+    stored = f[name]
+    if not isinstance(stored, h5py.Dataset) or not np.issubdtype(stored.dtype, np.integer):
         raise PipelineError(f"{f.filename}: '{name}' must be an integer dataset of indices")
-    if shape is not None and (len(dataset.shape) != len(shape)
-                              or any(want is not None and got != want for got, want in zip(dataset.shape, shape))):
+    if shape is not None and (len(stored.shape) != len(shape)
+                              or any(want is not None and got != want for got, want in zip(stored.shape, shape))):
         wanted = "(" + ", ".join("any" if n is None else str(n) for n in shape) + ")"
-        raise PipelineError(f"{f.filename}: dataset '{name}' has shape {dataset.shape}, expected {wanted}")
-    data = np.asarray(dataset[()], dtype=np.int64)
+        raise PipelineError(f"{f.filename}: dataset '{name}' has shape {stored.shape}, expected {wanted}")
+    data = np.asarray(stored[()], dtype=np.int64)
     if data.size and (data.min() < lower or data.max() >= upper):
         raise PipelineError(f"{f.filename}: dataset '{name}' holds indices outside [{lower}, {upper}) "
                             f"(found {data.min()}..{data.max()})")
