@@ -270,11 +270,14 @@ _FRAME_TENSORS = ("positions", "previous", "before_previous", "capsule_a", "caps
 def captured_frames(fast: FastRegressor, example: FrameBatch):
     """`fast(frame)` for frames shaped like `example` as one replayed CUDA graph (`CapturedCall`); the radii and
     frame time are the example's. Returns a function of a FrameBatch whose result the next call overwrites."""
-    def run(*tensors: torch.Tensor) -> torch.Tensor:
-        return fast(dataclasses.replace(example, **dict(zip(_FRAME_TENSORS, tensors))))
+    # A scene without a body or a previous frame has no such tensors: only the present ones are graph inputs.
+    names = tuple(name for name in _FRAME_TENSORS if getattr(example, name) is not None)
 
-    captured = CapturedCall(run, *(getattr(example, name) for name in _FRAME_TENSORS))
-    return lambda frame: captured(*(getattr(frame, name) for name in _FRAME_TENSORS))
+    def run(*tensors: torch.Tensor) -> torch.Tensor:
+        return fast(dataclasses.replace(example, **dict(zip(names, tensors))))
+
+    captured = CapturedCall(run, *(getattr(example, name) for name in names))
+    return lambda frame: captured(*(getattr(frame, name) for name in names))
 
 
 class CapturedCall:

@@ -389,7 +389,7 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
         page = report_html(title, sections).encode() if args.html else None
         out.finish(Evaluation(errors, per_frame, None, times, timed, run.where, WARMUP_RUNS,
                               run.state["parameter_count"], trained_frame_count(run.state["training"], data), by_kind,
-                              times.fused))
+                              times.fused, task.predictor_label))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:

@@ -61,6 +61,7 @@ class Evaluation:
     by_kind: dict[str, GroupErrors] = dataclasses.field(default_factory=dict)   # grouping -> errors; empty: a
                                                                                 # dataset without library windows
     fused: FusedTiming | None = None    # None: not timed (the CPU, where it does not run; a decoder)
+    predictor: str = "the predictor"    # what the predictor is, in words (the task's: "Loop subdivision", ...)
 
 
 def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
@@ -119,7 +120,8 @@ def _write_results(f: h5py.File, evaluation: Evaluation, predictions_stored: boo
                 f.create_dataset(f"errors/{who}/{split}/{term}", data=np.float64(value))
     f["errors"].attrs["meaning"] = ("split-wide L1 (eq. 4), L2 (eq. 5), Ln (eq. 6) and the training loss's "
                                     "weighted total; network = predictor + network output, predictor = "
-                                    "Loop-subdivided low-res alone")
+                                    f"{evaluation.predictor} alone")
+    f.attrs["predictor"] = evaluation.predictor
     f["errors"].attrs["unit"] = "scene units (~m); Ln dimensionless"
     for who, values in evaluation.per_frame.items():
         for term, per_frame in values.items():

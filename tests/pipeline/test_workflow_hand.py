@@ -88,6 +88,7 @@ def test_the_network_beats_linear_blend_skinning_on_the_test_frames(hand):
     with h5py.File(hand / "eval.h5") as f:
         network, predictor = (f[f"errors/{who}/test/l1"][()] for who in ("network", "predictor"))
         held = f["errors/network/held_out/l1"][()]
+        assert f.attrs["predictor"] == "linear blend skinning" and "skinning alone" in f["errors"].attrs["meaning"]
     assert network < predictor and np.isfinite(held)
 
 

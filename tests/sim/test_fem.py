@@ -66,7 +66,7 @@ def cube():
 def test_energy_and_gradient_match_a_numpy_implementation_and_finite_differences(cube):
     model, energy, x = cube
     mu, lam = model.settings.lame
-    e, g = wp.zeros(1, dtype=wp.float64), wp.zeros(len(x), dtype=wp.vec3d)
+    e, g = wp.zeros(1, dtype=wp.float64, device=CPU), wp.zeros(len(x), dtype=wp.vec3d, device=CPU)
     energy.energy(vec3d(x), e)
     energy.gradient(vec3d(x), g)
     assert e.numpy()[0] == pytest.approx(ref.energy(x, model.rest_vertices, model.tets, mu, lam), rel=1e-12)
@@ -123,10 +123,10 @@ def test_the_stress_derivative_and_its_projection_match_finite_differences_and_a
     Fs = [np.eye(3), R, R @ np.diag([1.3, 0.9, 0.6]), np.diag([0.5, 0.5, 0.5]), np.diag([1.4, 1.2, 1.1]),
           np.diag([1.0, 0.8, -0.3]) @ R, np.eye(3) + 0.4 * rng.standard_normal((3, 3)),
           np.diag([1.0, 1.0, 1.0 + 1e-9])]                      # repeated singular values
-    out = wp.zeros(len(Fs), dtype=mat99d)
+    out = wp.zeros(len(Fs), dtype=mat99d, device=CPU)
     for project in (False, True):
-        wp.launch(_stress_derivatives, dim=len(Fs), inputs=[wp.array(np.array(Fs), dtype=wp.mat33d), mu, lam,
-                                                            project, out])
+        wp.launch(_stress_derivatives, dim=len(Fs), inputs=[wp.array(np.array(Fs), dtype=wp.mat33d, device=CPU), mu,
+                                                            lam, project, out], device=CPU)
         for F, H in zip(Fs, out.numpy()):
             h = 1e-6
             fd = np.stack([((reference_stress(F + h * E, mu, lam) - reference_stress(F - h * E, mu, lam)) / (2 * h))
@@ -150,7 +150,7 @@ def test_the_projected_hessian_is_positive_semi_definite_where_the_exact_one_is_
 def test_rest_and_any_rotation_of_it_have_zero_energy_and_force(cube, degrees):
     model, energy, _ = cube
     x = rotated_about(model.rest_vertices, degrees, "xyz"[1], np.array([0.3, 0.2, 0.1])) + np.array([5.0, -2, 1])
-    e, g = wp.zeros(1, dtype=wp.float64), wp.zeros(len(x), dtype=wp.vec3d)
+    e, g = wp.zeros(1, dtype=wp.float64, device=CPU), wp.zeros(len(x), dtype=wp.vec3d, device=CPU)
     energy.energy(vec3d(x), e)
     energy.gradient(vec3d(x), g)
     mu = model.settings.lame[0]
