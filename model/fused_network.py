@@ -14,7 +14,11 @@ launches (model.triton_conv):
   each launcher is a functional custom operator, so that torch.export and AOTInductor take the network whole).
 * **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
   the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
-  averaged or maxed) is folded into the same kind of launch.
+  averaged or maxed) is folded into the same kind of launch. With `fold_norms` (narrow networks, whose frame is
+  bound by the number of launches rather than by arithmetic) a norm without a pooling is applied instead by the
+  gathering convolutions that read the value, on load (`Segment.normalize`): one launch less per norm and per
+  skip connection, and those convolutions gather rather than take products first (the products' matmul would
+  read the un-normalised rows).
 * **row widths** -> `aligned_plan` pads every stored width to a multiple of 16 channels with zeros, so rows are
   16-byte aligned and loads vectorise (an exact transformation).
 * **input normalisation** -> the first convolution's prologue, (x - offset) / scale, on its few channels; the
@@ -44,12 +48,14 @@ NETWORK_INPUT = -1          # a source id: the raw features, not a launch's outp
 @dataclasses.dataclass(frozen=True)
 class Segment:
     """A run of a convolution's input channels: `channels` of `source` (NETWORK_INPUT or a launch's index) at
-    each table vertex's row `rows[v]` (None: the vertex itself); `affine`: (x - offset) / scale on load."""
+    each table vertex's row `rows[v]` (None: the vertex itself); `affine`: (x - offset) / scale on load;
+    `normalize`: instance norm (from the source convolution's sums) + leaky ReLU on load."""
 
     source: int
     channels: int
     rows: np.ndarray | None = None
     affine: bool = False
+    normalize: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,11 +99,13 @@ def _compose(rows: np.ndarray | None, index: np.ndarray) -> np.ndarray:
 
 
 class _Planner:
-    """Turns step-list values into launches, normalising each conv output once whoever reads it."""
+    """Turns step-list values into launches, normalising each conv output once whoever reads it (or, with
+    `fold_norms`, wherever it is read)."""
 
-    def __init__(self):
+    def __init__(self, fold_norms: bool):
         self.plan: list[FusedConv | Prepare] = []
         self.normalised: dict[int, int] = {}
+        self.fold_norms = fold_norms
 
     def emit(self, launch: FusedConv | Prepare) -> int:
         self.plan.append(launch)
@@ -107,6 +115,8 @@ class _Planner:
         source, rows = value.source, value.rows
         if rows is not None and rows.shape[1] > 1:      # a pooling: reduce once, at the coarse level
             source, rows = self.emit(Prepare(source, value.channels, rows, normalize=value.normed)), None
+        elif value.normed and self.fold_norms:
+            return Segment(source, value.channels, rows, normalize=True)
         elif value.normed:
             if source not in self.normalised:
                 self.normalised[source] = self.emit(Prepare(source, value.channels, None, normalize=True))
@@ -114,15 +124,16 @@ class _Planner:
         return Segment(source, value.channels, rows, affine=source == NETWORK_INPUT)
 
 
-def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float) -> list[FusedConv | Prepare]:
-    """The encoder-decoder's steps as launches over `mesh`, the last one the output. Raises ValueError for a
-    network or step it cannot fuse."""
+def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float,
+               fold_norms: bool = False) -> list[FusedConv | Prepare]:
+    """The encoder-decoder's steps as launches over `mesh`, the last one the output; `fold_norms`: a norm
+    without a pooling applied by its readers on load. Raises ValueError for a network or step it cannot fuse."""
     if not isinstance(net, EncoderDecoder):
         raise ValueError(f"fused inference runs the encoder-decoder only, got a {type(net).__name__}")
     net.check_mesh(mesh)
     pool = [t.cpu().numpy() for t in mesh.pool]
     unpool = [t.cpu().numpy() for t in mesh.unpool]
-    planner = _Planner()
+    planner = _Planner(fold_norms)
     value: _Value | list[_Value] = _Value(NETWORK_INPUT, net.in_channels)
     skips: list[_Value] = []
     last = len(net.convs) - 1
@@ -168,7 +179,12 @@ def products_first(launch: FusedConv) -> bool:
     each input row times every slot's weights in one large matmul (cuBLAS's rate, and an unpooled segment at its
     coarse level), then each vertex sums its table neighbours' slot products - a memory-bound pass without the
     gather-GEMM's latency-bound loads. The choice is measured in docs/performance.md."""
-    return not launch.segments[0].affine and min(s.channels for s in launch.segments) >= PRODUCTS_MIN_CHANNELS
+    return can_take_products(launch) and min(s.channels for s in launch.segments) >= PRODUCTS_MIN_CHANNELS
+
+
+def can_take_products(launch: FusedConv) -> bool:
+    """Whether the convolution's inputs may be multiplied as stored: no affine or norm applied on load."""
+    return not any(s.affine or s.normalize for s in launch.segments)
 
 
 def few_channels(launch: FusedConv) -> bool:
@@ -258,6 +274,9 @@ def run_plan_reference(plan: list[FusedConv | Prepare], tables: list[torch.Tenso
             values = source_of(segment.source)
             if segment.affine:
                 values = (values - input_offset) / input_scale
+            if segment.normalize:
+                mean, inv_std = norm_from_sums(sums[segment.source], values.shape[1])
+                values = nn.functional.leaky_relu((values - mean[:, None]) * inv_std[:, None], LEAKY_SLOPE)
             parts.append(values if segment.rows is None else through(values, segment.rows)[:, :, 0])
         out = mesh_conv(torch.cat(parts, dim=-1), tables[launch.level], launch.weight.float().to(x.device),
                         launch.bias.float().to(x.device))
@@ -275,13 +294,14 @@ class FusedNetwork(nn.Module):
 
     def __init__(self, net: EncoderDecoder, mesh: MeshHierarchy, input_offset: torch.Tensor,
                  input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32,
-                 products: bool | None = None):
+                 products: bool | None = None, fold_norms: bool = False):
         """`products`: how the convolutions run - None: each by the rules (`products_first`, then
-        `few_channels`, else a gather-GEMM); True: products first wherever no input affine forbids it; False:
-        every one a gather-GEMM (the form before products-first, for comparison)."""
+        `few_channels`, else a gather-GEMM); True: products first wherever nothing applied on load forbids it;
+        False: every one a gather-GEMM (the form before products-first, for comparison). `fold_norms`: norms
+        without a pooling applied on load by the convolutions reading them (fewer launches; see the module)."""
         super().__init__()
         mesh = mesh.to("cpu")
-        self.plan = aligned_plan(fused_plan(net, mesh, output_scale), ALIGN, FEW_CHANNELS)
+        self.plan = aligned_plan(fused_plan(net, mesh, output_scale, fold_norms), ALIGN, FEW_CHANNELS)
         self.pool_max = net.pool_kind == "max"
         self.dtype = dtype
         convs = [i for i, launch in enumerate(self.plan) if isinstance(launch, FusedConv)]
@@ -290,7 +310,7 @@ class FusedNetwork(nn.Module):
         def form(launch: FusedConv) -> str:
             if products is False:
                 return "gather"
-            if not launch.segments[0].affine and (products or products_first(launch)):
+            if can_take_products(launch) and (products or products_first(launch)):
                 return "products"
             return "few" if few_channels(launch) else "gather"
         self.forms = {index: form(self.plan[index]) for index in convs}
@@ -334,6 +354,7 @@ class FusedNetwork(nn.Module):
                 continue
             segments = [(source_of(segment.source), getattr(self, f"rows_{index}_{number}", None))
                         for number, segment in enumerate(launch.segments)]
+            norms = [sums[segment.source] if segment.normalize else None for segment in launch.segments]
             second = segments[1] if len(segments) == 2 else (None, None)
             table, bias = getattr(self, f"table_{launch.level}"), getattr(self, f"bias_{index}")
             out_dtype = self.dtype if index < len(self.plan) - 1 else torch.float32
@@ -350,10 +371,11 @@ class FusedNetwork(nn.Module):
                 affine = self.affine if launch.segments[0].affine else None
                 weight = getattr(self, f"weight_{index}")
                 if self.forms[index] == "few":
-                    out, sums[index] = few_channel_conv(table, *segments[0], affine, weight, bias, out_dtype,
-                                                        launch.stats)
+                    out, sums[index] = few_channel_conv(table, *segments[0], affine, norms[0], weight, bias,
+                                                        out_dtype, launch.stats)
                 else:
-                    out, sums[index] = fused_conv(table, *segments[0], *second, affine, weight, bias, out_dtype,
+                    out, sums[index] = fused_conv(table, *segments[0], *second, affine, norms[0],
+                                                  norms[1] if len(norms) == 2 else None, weight, bias, out_dtype,
                                                   launch.stats)
             outputs.append(out)
         return outputs[-1]

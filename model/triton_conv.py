@@ -57,11 +57,24 @@ def _slot_rows(table_ptr, rows, row_ok, L: tl.constexpr, SLOTS: tl.constexpr):
 
 
 @triton.jit
-def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, outs, out_ok, channels, row_offset, width,
-                 n_out, L: tl.constexpr, SLOTS: tl.constexpr, AFFINE: tl.constexpr, PRECISE: tl.constexpr,
-                 BLOCK_K: tl.constexpr):
+def _norm_on_load(x, sums_ptr, cols, col_ok, mask, channels, n_src, EPS: tl.constexpr, SLOPE: tl.constexpr):
+    """Instance norm (mean and 1/std from the frame's sums of the source, `n_src` vertices) + leaky ReLU of the
+    loaded (rows, cols) values, in fp32; 0 where `mask` is off (padding slots)."""
+    mean = tl.load(sums_ptr + cols, mask=col_ok, other=0.0) / n_src
+    squares = tl.load(sums_ptr + channels + cols, mask=col_ok, other=0.0) / n_src
+    factor = 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
+    x = (x.to(tl.float32) - mean[None, :]) * factor[None, :]
+    return tl.where(mask, tl.where(x > 0, x, x * SLOPE), 0.0)
+
+
+@triton.jit
+def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, norm_ptr, n_src, outs, out_ok, channels,
+                 row_offset, width, n_out, L: tl.constexpr, SLOTS: tl.constexpr, AFFINE: tl.constexpr,
+                 NORM: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr, EPS: tl.constexpr,
+                 SLOPE: tl.constexpr):
     """acc + this segment's gathered inputs @ its weight rows (row_offset within each slot's `width`). The loop
-    over (slot, channel chunk) is flat and its gather addresses come from registers, so Triton pipelines it."""
+    over (slot, channel chunk) is flat and its gather addresses come from registers, so Triton pipelines it.
+    NORM: the inputs normalised on load from the source's sums at `norm_ptr` (this frame's (2, channels))."""
     chunks = tl.cdiv(channels, BLOCK_K)
     slots = tl.arange(0, SLOTS)
     for step in range(L * chunks):
@@ -77,6 +90,8 @@ def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, outs, out
             shift = tl.load(affine_ptr + cols, mask=col_ok, other=0.0)
             factor = tl.load(affine_ptr + channels + cols, mask=col_ok, other=0.0)
             a = tl.where(mask, (a.to(tl.float32) - shift[None, :]) * factor[None, :], 0.0)
+        if NORM:
+            a = _norm_on_load(a, norm_ptr, cols, col_ok, mask, channels, n_src, EPS, SLOPE)
         w = tl.load(weight_ptr + (slot * width + row_offset + cols)[:, None].to(tl.int64) * n_out + outs[None, :],
                     mask=col_ok[:, None] & out_ok[None, :], other=0.0)
         if PRECISE:     # three tf32 products: fp32 accuracy on tensor cores
@@ -89,9 +104,10 @@ def _dot_segment(acc, src_ptr, entries, valid, weight_ptr, affine_ptr, outs, out
 @triton.jit
 def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
                  n_vertices, n_out, src1_ptr, map1_ptr, src1_vertices, c1, src2_ptr, map2_ptr, src2_vertices, c2,
-                 L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr,
-                 TWO: tl.constexpr, AFFINE: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr,
-                 BLOCK_K: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+                 norm1_ptr, norm2_ptr, L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr,
+                 MAPPED2: tl.constexpr, TWO: tl.constexpr, AFFINE: tl.constexpr, NORM1: tl.constexpr,
+                 NORM2: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr,
+                 EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame = tl.program_id(2).to(tl.int64)
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
@@ -102,14 +118,16 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
     mapped = entries
     if MAPPED1:                                             # an unpooling: the coarse vertex of each neighbour
         mapped = tl.load(map1_ptr + entries, mask=valid, other=0)
-    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, mapped, valid, weight_ptr, affine_ptr, outs,
-                       out_ok, c1, 0, width, n_out, L, SLOTS, AFFINE, PRECISE, BLOCK_K)
+    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, mapped, valid, weight_ptr, affine_ptr,
+                       norm1_ptr + frame * 2 * c1, src1_vertices, outs, out_ok, c1, 0, width, n_out, L, SLOTS,
+                       AFFINE, NORM1, PRECISE, BLOCK_K, EPS, SLOPE)
     if TWO:
         mapped = entries
         if MAPPED2:
             mapped = tl.load(map2_ptr + entries, mask=valid, other=0)
-        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr, outs,
-                           out_ok, c2, c1, width, n_out, L, SLOTS, False, PRECISE, BLOCK_K)
+        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr,
+                           norm2_ptr + frame * 2 * c2, src2_vertices, outs, out_ok, c2, c1, width, n_out, L, SLOTS,
+                           False, NORM2, PRECISE, BLOCK_K, EPS, SLOPE)
     _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
             n_vertices, n_out, STATS)
 
@@ -166,9 +184,10 @@ def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_
 
 @triton.jit
 def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr,
-                        affine_ptr, n_vertices, n_out, src_ptr, map_ptr, src_vertices, C: tl.constexpr,
+                        affine_ptr, norm_ptr, n_vertices, n_out, src_ptr, map_ptr, src_vertices, C: tl.constexpr,
                         L: tl.constexpr, SLOTS: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
-                        STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+                        NORM: tl.constexpr, STATS: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
+                        BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame = tl.program_id(2).to(tl.int64)
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
@@ -177,6 +196,7 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
     if MAPPED:
         entries = tl.load(map_ptr + entries, mask=valid, other=0)
     src = src_ptr + frame * src_vertices * C
+    norm = norm_ptr + frame * 2 * C
     slots = tl.arange(0, SLOTS)
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
     # Per channel, every slot's value of the tile's rows in one (BLOCK_M, SLOTS) gather - C gathers in all, none
@@ -185,6 +205,11 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
         x = tl.load(src + entries.to(tl.int64) * C + c, mask=valid, other=0.0).to(tl.float32)
         if AFFINE:
             x = tl.where(valid, (x - tl.load(affine_ptr + c)) * tl.load(affine_ptr + C + c), 0.0)
+        if NORM:
+            mean = tl.load(norm + c) / src_vertices
+            factor = 1.0 / tl.sqrt(tl.maximum(tl.load(norm + C + c) / src_vertices - mean * mean, 0.0) + EPS)
+            x = (x - mean) * factor
+            x = tl.where(valid, tl.where(x > 0, x, x * SLOPE), 0.0)
         w = tl.load(weight_ptr + (slots[:, None] * C + c) * n_out + outs[None, :],
                     mask=(slots[:, None] < L) & out_ok[None, :], other=0.0).to(tl.float32)
         acc = tl.dot(x, w, acc, input_precision="ieee")
@@ -258,12 +283,14 @@ _FIXED = {"BLOCK_M": 16, "BLOCK_N": 16}
 
 @triton_op(f"{NAMESPACE}::fused_conv", mutates_args=())
 def fused_conv(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | None, src2: torch.Tensor | None,
-               map2: torch.Tensor | None, affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor,
-               out_dtype: torch.dtype, stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
+               map2: torch.Tensor | None, affine: torch.Tensor | None, norm1: torch.Tensor | None,
+               norm2: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
+               stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """One convolution: table (V, L) int32 +1 ids; one or two segments (source (B, V_src, C) contiguous, map
     (V_src_table, 1) int32 or None) filling the weight's (L * sum C, N) rows slot by slot; `affine` (2 C_1,)
-    = (offset, 1/scale) applied to the first segment on load, or None; bias (N,) fp32. Returns (B, V, N) and,
-    with `stats`, its sums (B, 2, N) (else an empty tensor)."""
+    = (offset, 1/scale) applied to the first segment on load, or None; `norm1`/`norm2`: the segment's source's
+    sums (B, 2, C) to normalise it on load (instance norm + leaky ReLU), or None; bias (N,) fp32. Returns
+    (B, V, N) and, with `stats`, its sums (B, 2, N) (else an empty tensor)."""
     n_vertices, size = table.shape
     n_out = weight.shape[1]
     batch, c1, c2 = src1.shape[0], src1.shape[2], 0 if src2 is None else src2.shape[2]
@@ -271,12 +298,14 @@ def fused_conv(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | Non
     second = src1 if src2 is None else src2
     args = (out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out,
             src1, table if map1 is None else map1, src1.shape[1], c1,
-            second, table if map2 is None else map2, second.shape[1], c2)
+            second, table if map2 is None else map2, second.shape[1], c2,
+            bias if norm1 is None else norm1, bias if norm2 is None else norm2)
     # K chunks as wide as the narrower segment allows (tl.dot needs 16): few-channel convs waste little.
     block_k = min(64, max(16, triton.next_power_of_2(min(c1, c2) if c2 else c1)))
     constants = dict(L=size, SLOTS=triton.next_power_of_2(size), MAPPED1=map1 is not None,
                      MAPPED2=map2 is not None, TWO=src2 is not None, AFFINE=affine is not None,
-                     STATS=stats, PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k)
+                     NORM1=norm1 is not None, NORM2=norm2 is not None, STATS=stats,
+                     PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE)
     _launch(_conv_kernel, _tuned_conv, args, constants, n_vertices, n_out, batch)
     return out, sums
 
@@ -344,8 +373,8 @@ def gather_sum(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | Non
 
 @triton_op(f"{NAMESPACE}::few_channel_conv", mutates_args=())
 def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tensor | None,
-                     affine: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
-                     stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                     affine: torch.Tensor | None, norm: torch.Tensor | None, weight: torch.Tensor,
+                     bias: torch.Tensor, out_dtype: torch.dtype, stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """`fused_conv` of one segment of few channels (a handful: the loops unroll over slots x channels) in fp32
     FMAs - the network's first convolution on raw features, an output layer's last - where tensor-core tiles
     would pad K to 16 and multiply mostly zeros."""
@@ -356,9 +385,10 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
     block_m, block_n = (16, 16) if INTERPRETED else (32, min(64, max(16, triton.next_power_of_2(n_out))))
     grid = (triton.cdiv(n_vertices, block_m), triton.cdiv(n_out, block_n), batch)
     wrap_triton(_few_channel_kernel)[grid](
-        out, *sums_args, table, weight, bias, bias if affine is None else affine, n_vertices, n_out, source,
-        table if rows is None else rows, src_vertices, C=channels, L=size, SLOTS=max(16, triton.next_power_of_2(size)),
-        MAPPED=rows is not None, AFFINE=affine is not None, STATS=stats, BLOCK_M=block_m, BLOCK_N=block_n,
+        out, *sums_args, table, weight, bias, bias if affine is None else affine, bias if norm is None else norm,
+        n_vertices, n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
+        SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None, AFFINE=affine is not None,
+        NORM=norm is not None, STATS=stats, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_N=block_n,
         num_warps=4)
     return out, sums
 

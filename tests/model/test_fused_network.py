@@ -86,6 +86,26 @@ def test_plan_has_one_launch_per_convolution_and_composed_maps():
     assert not convs[-1].stats and not convs[-2].stats
 
 
+@pytest.mark.parametrize("pool,arch", CASES)
+def test_folded_norms_give_the_plan_output_in_fewer_launches(pool, arch):
+    """fold_norms: no Prepare is left that only normalises (each normed value is normalised by its readers on
+    load), the poolings keep theirs, and the output is the unfolded plan's, aligned or not."""
+    net, mesh, offset, scale, x = _case(pool, arch)
+    plan, folded = fused_plan(net, mesh, 0.3), fused_plan(net, mesh, 0.3, fold_norms=True)
+    prepares = lambda p: [launch for launch in p if isinstance(launch, Prepare)]  # noqa: E731
+    assert not any(launch.rows is None for launch in prepares(folded))
+    assert [launch.rows.shape for launch in prepares(folded)] == [launch.rows.shape for launch in prepares(plan)
+                                                                  if launch.rows is not None]
+    assert len(folded) == len(plan) - sum(launch.rows is None for launch in prepares(plan))
+    readers = [s for launch in folded if isinstance(launch, FusedConv) for s in launch.segments if s.normalize]
+    assert readers and all(folded[s.source].stats for s in readers)
+    with torch.no_grad():
+        expected = _reference(net, mesh, offset, scale, x)
+        for steps in (folded, aligned_plan(folded, 16, 4)):
+            got = run_plan_reference(steps, list(mesh.conv), x, offset, scale, pool == "max")
+            assert _relative(got, expected) < FP32_TOLERANCE
+
+
 def test_fused_network_refuses_what_it_cannot_run():
     net, mesh, offset, scale, x = _case("avg", ARCHS[0])
     decoder = build_network(NetworkSpec("U8 U U3", "RC7", in_channels=5, coarse_vertices=mesh.vertex_counts[3]))
@@ -139,22 +159,32 @@ def test_slot_products_summed_over_the_table_are_the_convolution():
     assert float((got - expected).abs().max()) < 1e-10 * float(expected.abs().max())
 
 
+# The forms the kernels are checked in: every convolution a gather-GEMM; products first wherever they can be;
+# the norms folded into their readers' loads (those gather, the rest by the rules).
+VARIANTS = {"gather": dict(products=False), "products": dict(products=True), "fold": dict(fold_norms=True)}
+
+
 def _kernel_errors(device: str, dtype: torch.dtype) -> dict[str, float]:
-    """Per case and convolution form (every one a gather-GEMM, or products first wherever it can), the fused
-    network's largest error relative to the plan's reference; with "fast" in the key, FastNetwork's at the same
-    dtype (the bound bf16 is held to)."""
+    """Per case and form (`VARIANTS`), the fused network's largest error relative to the plan's reference; with
+    "fast" in the key, FastNetwork's at the same dtype (the bound bf16 is held to)."""
     errors = {}
-    for (pool, arch), products in [(case, products) for case in CASES for products in (False, True)]:
+    for (pool, arch), variant in [(case, variant) for case in CASES for variant in VARIANTS]:
         net, mesh, offset, scale, x = _case(pool, arch)
         expected = _reference(net, mesh, offset, scale, x)
-        fused = FusedNetwork(net, mesh, offset, scale, 0.3, dtype, products=products).to(device)
+        fused = FusedNetwork(net, mesh, offset, scale, 0.3, dtype, **VARIANTS[variant]).to(device)
         forms = sorted(fused.forms.values())
-        assert forms == (["few"] + ["products"] * (len(net.convs) - 1) if products else ["gather"] * len(net.convs))
+        if variant == "fold":
+            assert all(fused.forms[i] != "products" for i, launch in enumerate(fused.plan)
+                       if isinstance(launch, FusedConv) and any(s.normalize for s in launch.segments))
+            assert any(s.normalize for launch in fused.plan if isinstance(launch, FusedConv) for s in launch.segments)
+        else:
+            assert forms == (["few"] + ["products"] * (len(net.convs) - 1) if variant == "products"
+                             else ["gather"] * len(net.convs))
         with torch.no_grad():
-            errors[f"{pool} {arch} {products}"] = _relative(fused(x.to(device)), expected)
+            errors[f"{pool} {arch} {variant}"] = _relative(fused(x.to(device)), expected)
             single = fused(x[1:].to(device))            # a frame alone: the batch does not mix frames
-            errors[f"{pool} {arch} {products} alone"] = _relative(single, expected[1:])
-            if dtype != torch.float32 and products:
+            errors[f"{pool} {arch} {variant} alone"] = _relative(single, expected[1:])
+            if dtype != torch.float32 and variant == "products":
                 fast = FastNetwork(net, mesh, offset, scale, 0.3, dtype).to(device)
                 errors[f"{pool} {arch} fast"] = _relative(fast(x.to(device)), expected)
     return errors
@@ -170,7 +200,7 @@ def test_triton_kernels_interpreted_on_the_cpu_match_the_plan():
     assert done.returncode == 0, done.stderr[-2000:]
     errors = json.loads(done.stdout.splitlines()[-1])
     print(errors)
-    assert len(errors) == 4 * len(CASES) and max(errors.values()) < FP32_TOLERANCE
+    assert len(errors) == 2 * len(VARIANTS) * len(CASES) and max(errors.values()) < FP32_TOLERANCE
 
 
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
@@ -183,8 +213,7 @@ def test_triton_kernels_on_cuda_match_the_plan():
     print(errors)
     for pool, arch in CASES:        # bf16 hidden layers: no worse than the bf16 fast path on the same network
         bound = 2 * errors[f"{pool} {arch} fast"] + 1e-3
-        assert all(errors[f"{pool} {arch} {products}{alone}"] < bound
-                   for products in (False, True) for alone in ("", " alone"))
+        assert all(errors[f"{pool} {arch} {variant}{alone}"] < bound for variant in VARIANTS for alone in ("", " alone"))
 
 
 if __name__ == "__main__":      # the interpreted run of test_triton_kernels_interpreted_on_the_cpu_match_the_plan
