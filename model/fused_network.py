@@ -14,11 +14,11 @@ launches (model.triton_conv):
   each launcher is a functional custom operator, so that torch.export and AOTInductor take the network whole).
 * **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
   the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
-  averaged or maxed) is folded into the same kind of launch. With `fold_norms` (narrow networks, whose frame is
-  bound by the number of launches rather than by arithmetic) a norm without a pooling is applied instead by the
-  gathering convolutions that read the value, on load (`Segment.normalize`): one launch less per norm and per
-  skip connection, and those convolutions gather rather than take products first (the products' matmul would
-  read the un-normalised rows).
+  averaged or maxed) is folded into the same kind of launch. With `fold_norms` (for narrow networks, whose
+  frame is bound by the number of launches rather than by arithmetic) a norm without a pooling is applied
+  instead by the convolutions that read the value, on load (`Segment.normalize`): a products-first one computes
+  that segment's products in a Triton matmul whose prologue normalises (triton_conv.normed_products) instead of
+  cuBLAS's, a gathering one normalises what it gathers - one launch less per norm and per skip connection.
 * **row widths** -> `aligned_plan` pads every stored width to a multiple of 16 channels with zeros, so rows are
   16-byte aligned and loads vectorise (an exact transformation).
 * **input normalisation** -> the first convolution's prologue, (x - offset) / scale, on its few channels; the
@@ -183,8 +183,9 @@ def products_first(launch: FusedConv) -> bool:
 
 
 def can_take_products(launch: FusedConv) -> bool:
-    """Whether the convolution's inputs may be multiplied as stored: no affine or norm applied on load."""
-    return not any(s.affine or s.normalize for s in launch.segments)
+    """Whether the convolution's inputs may be multiplied before the gather: no input affine (whose few raw
+    channels the first convolution gathers)."""
+    return not any(s.affine for s in launch.segments)
 
 
 def few_channels(launch: FusedConv) -> bool:
@@ -341,7 +342,7 @@ class FusedNetwork(nn.Module):
         # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install. Each
         # launcher is a custom operator (torch.library.triton_op), so torch.export keeps it and AOTInductor
         # compiles its kernels (deploy/export.py).
-        from model.triton_conv import few_channel_conv, fused_conv, gather_sum, prepare
+        from model.triton_conv import few_channel_conv, fused_conv, gather_sum, normed_products, prepare
 
         outputs: list[torch.Tensor] = []
         sums: dict[int, torch.Tensor] = {}        # a normed conv's index -> its output's sums (B, 2, N)
@@ -362,7 +363,10 @@ class FusedNetwork(nn.Module):
                 products = []
                 for number, (source, rows) in enumerate(segments):
                     weights = getattr(self, f"slot_weights_{index}_{number}")
-                    product = torch.matmul(source.to(weights.dtype), weights)
+                    if norms[number] is not None:
+                        product = normed_products(source, norms[number], weights)
+                    else:
+                        product = torch.matmul(source.to(weights.dtype), weights)
                     products.append(product.view(*source.shape[:2], table.shape[1], -1))
                 out, sums[index] = gather_sum(table, products[0], segments[0][1],
                                               products[1] if len(products) == 2 else None, second[1], bias,

@@ -19,6 +19,10 @@
   rounding, not bit for bit).
 * `prepare`: instance norm + leaky ReLU from those sums, and/or a pooling chain (mean or max over P rows), once
   per value instead of once per gather.
+* `normed_products`: with the norms folded into their readers (FusedNetwork's `fold_norms`), a products-first
+  convolution's products of a normed value: a dense matmul whose prologue applies the norm and leaky ReLU to each
+  tile it loads, in place of `prepare` + cuBLAS. `fused_conv` and `few_channel_conv` likewise normalise what they
+  gather (NORM).
 
 Each launcher is a custom operator, `torch.library.triton_op` (learned_cloth::<name>), its kernels launched through
 `wrap_triton`: eager calls run them as before, `torch.export` keeps each as one operator of the program, and
@@ -259,6 +263,33 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums
              result.to(out_ptr.dtype.element_ty), mask=mask)
 
 
+@triton.jit
+def _normed_products_kernel(out_ptr, src_ptr, sums_ptr, weight_ptr, n_rows, channels, n_cols,
+                            PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr,
+                            BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
+    frame = tl.program_id(2).to(tl.int64)
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
+    row_ok, out_ok = rows < n_rows, outs < n_cols
+    src = src_ptr + frame * n_rows * channels
+    sums = sums_ptr + frame * 2 * channels
+    acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
+    for start in range(0, channels, BLOCK_K):
+        cols = start + tl.arange(0, BLOCK_K)
+        col_ok = cols < channels
+        mask = row_ok[:, None] & col_ok[None, :]
+        a = tl.load(src + rows[:, None].to(tl.int64) * channels + cols[None, :], mask=mask, other=0.0)
+        a = _norm_on_load(a, sums, cols, col_ok, mask, channels, n_rows, EPS, SLOPE)
+        w = tl.load(weight_ptr + cols[:, None] * n_cols + outs[None, :], mask=col_ok[:, None] & out_ok[None, :],
+                    other=0.0)
+        if PRECISE:
+            acc = tl.dot(a, w, acc, input_precision="tf32x3")
+        else:
+            acc = tl.dot(a.to(w.dtype), w, acc)
+    tl.store(out_ptr + frame * n_rows * n_cols + rows[:, None].to(tl.int64) * n_cols + outs[None, :],
+             acc.to(out_ptr.dtype.element_ty), mask=row_ok[:, None] & out_ok[None, :])
+
+
 # Few configurations: each costs seconds of compiling per distinct convolution on the first call.
 _CONFIGS = [triton.Config({"BLOCK_M": m, "BLOCK_N": n}, num_warps=w, num_stages=s)
             for m, n, w, s in ((64, 64, 4, 3), (64, 128, 4, 3), (128, 64, 4, 3), (128, 128, 8, 3))]
@@ -279,6 +310,7 @@ _tuned_conv = triton.autotune(_CONFIGS, key=["n_vertices", "n_out", "c1", "c2"],
                               prune_configs_by={"early_config_prune": _configs_for},
                               restore_value=["sums_ptr"])(_conv_kernel)
 _FIXED = {"BLOCK_M": 16, "BLOCK_N": 16}
+_tuned_products = triton.autotune(_CONFIGS, key=["n_rows", "channels", "n_cols"])(_normed_products_kernel)
 
 
 @triton_op(f"{NAMESPACE}::fused_conv", mutates_args=())
@@ -391,6 +423,20 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
         NORM=norm is not None, STATS=stats, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_N=block_n,
         num_warps=4)
     return out, sums
+
+
+@triton_op(f"{NAMESPACE}::normed_products", mutates_args=())
+def normed_products(source: torch.Tensor, sums: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """leaky(instance norm of source) @ weights: source (B, V, C) contiguous, its conv's sums (B, 2, C), weights
+    (C, M) (a segment's `slot_weights`). Returns (B, V, M) in the weights' dtype, as torch.matmul would."""
+    batch, n_rows, channels = source.shape
+    n_cols = weights.shape[1]
+    out = torch.empty(batch, n_rows, n_cols, device=source.device, dtype=weights.dtype)
+    args = (out, source, sums, weights, n_rows, channels, n_cols)
+    constants = dict(PRECISE=weights.dtype == torch.float32, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE,
+                     BLOCK_K=min(64, max(16, triton.next_power_of_2(channels))))
+    _launch(_normed_products_kernel, _tuned_products, args, constants, n_rows, n_cols, batch)
+    return out
 
 
 @triton_op(f"{NAMESPACE}::prepare", mutates_args=())

@@ -160,8 +160,9 @@ def test_slot_products_summed_over_the_table_are_the_convolution():
 
 
 # The forms the kernels are checked in: every convolution a gather-GEMM; products first wherever they can be;
-# the norms folded into their readers' loads (those gather, the rest by the rules).
-VARIANTS = {"gather": dict(products=False), "products": dict(products=True), "fold": dict(fold_norms=True)}
+# and both again with the norms folded into their readers' loads (`fold_norms`).
+VARIANTS = {"gather": dict(products=False), "products": dict(products=True), "fold": dict(fold_norms=True),
+            "fold gather": dict(products=False, fold_norms=True), "fold products": dict(products=True, fold_norms=True)}
 
 
 def _kernel_errors(device: str, dtype: torch.dtype) -> dict[str, float]:
@@ -173,13 +174,14 @@ def _kernel_errors(device: str, dtype: torch.dtype) -> dict[str, float]:
         expected = _reference(net, mesh, offset, scale, x)
         fused = FusedNetwork(net, mesh, offset, scale, 0.3, dtype, **VARIANTS[variant]).to(device)
         forms = sorted(fused.forms.values())
-        if variant == "fold":
-            assert all(fused.forms[i] != "products" for i, launch in enumerate(fused.plan)
-                       if isinstance(launch, FusedConv) and any(s.normalize for s in launch.segments))
-            assert any(s.normalize for launch in fused.plan if isinstance(launch, FusedConv) for s in launch.segments)
-        else:
-            assert forms == (["few"] + ["products"] * (len(net.convs) - 1) if variant == "products"
+        if variant.endswith("products") or variant.endswith("gather"):
+            assert forms == (["few"] + ["products"] * (len(net.convs) - 1) if variant.endswith("products")
                              else ["gather"] * len(net.convs))
+        else:                   # the rules': a few-channel convolution normalising what it gathers among them
+            assert any(fused.forms[i] == "few" and launch.segments[0].normalize
+                       for i, launch in enumerate(fused.plan) if isinstance(launch, FusedConv))
+        normalised = [s.normalize for launch in fused.plan if isinstance(launch, FusedConv) for s in launch.segments]
+        assert any(normalised) == variant.startswith("fold")
         with torch.no_grad():
             errors[f"{pool} {arch} {variant}"] = _relative(fused(x.to(device)), expected)
             single = fused(x[1:].to(device))            # a frame alone: the batch does not mix frames
