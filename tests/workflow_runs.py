@@ -29,8 +29,8 @@ def snakemake(workdir, *args):
 # The smoke test (tests/pipeline/test_workflow.py) runs the default way.
 TINY_BUILD = ("--force-use-threads", "--set-threads", *(f"{rule}=1" for rule in (
     "train", "evaluate", "study_train", "study_evaluate", "application_train", "application_evaluate",
-    "multi_train", "multi_evaluate", "tradeoff_train", "tradeoff_train_matched", "tradeoff_evaluate", "tradeoff",
-    "convs_train", "convs_evaluate")))
+    "multi_train", "multi_evaluate", "tradeoff_train", "tradeoff_train_matched", "tradeoff_train_matched_width",
+    "tradeoff_evaluate", "tradeoff", "convs_train", "convs_evaluate")))
 
 
 def build(workdir, *args):

@@ -41,6 +41,12 @@ def matched_budgets(settings: Settings) -> list[int]:
     return [n for n in sorted(set(settings["tradeoff"]["matched"])) if n != own_substeps(settings)]
 
 
+def matched_nets(settings: Settings) -> list[str]:
+    """The networks trained on a matched budget's own inputs (folder names under s<n>/): the scene's recipe, then
+    the same recipe at each width of `tradeoff.matched_widths` (the cheapest learned paths a user would deploy)."""
+    return ["matched", *[f"matched_{width_folder(w)}" for w in settings["tradeoff"]["matched_widths"]]]
+
+
 def reference_run(settings: Settings) -> HighResRun:
     """The scene's own high-res run: the reference."""
     return (settings["solver"]["substeps"], settings["solver"]["iterations"], settings["high_res"]["harmonic_every"])
@@ -93,16 +99,16 @@ def scene_trained_nets(settings: Settings) -> list[str]:
 
 
 def evaluation_file(scene: str, substeps: int | str, net: str) -> str:
-    """eval.h5 of network `net` (scene, matched or w<width>) fed budget `substeps`."""
+    """eval.h5 of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `substeps`."""
     return f"{point_folder(scene, substeps)}/{net}/eval.h5"
 
 
 def network_model(scene: str, substeps: int | str, net: str) -> str:
-    """model.pt of network `net` (scene, matched or w<width>) fed budget `substeps`."""
+    """model.pt of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `substeps`."""
     if net == "scene":
         return f"results/{scene}/model.pt"
-    if net == "matched":
-        return f"{point_folder(scene, substeps)}/matched/model.pt"
+    if net.startswith("matched"):
+        return f"{point_folder(scene, substeps)}/{net}/model.pt"
     return f"results/{scene}/tradeoff/{net}/model.pt"
 
 
@@ -130,8 +136,8 @@ def solve_timing_files(scene: str, sequences: list[str]) -> list[str]:
 def stage_arguments(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
     """`--solve-timing SCENE.h5 SIM_LOW.h5` [`--settled SETTLE_LOW.h5 SETTLE_HIGH.h5`], then `--point N SIM_LOW.h5`
     (the budget's run of the first sequence), `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5
-    MODEL.pt` for each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run, and
-    a sharded scene's `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
+    MODEL.pt` per matched network of each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for
+    each high-res run, and a sharded scene's `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
     timing = solve_timing_files(scene, sequences)
     words: list[Any] = ["--solve-timing", *timing[:2], *(["--settled", *timing[2:]] if timing[2:] else [])]
     for n in budgets(settings):
@@ -139,7 +145,8 @@ def stage_arguments(scene: str, settings: Settings, sequences: list[str]) -> lis
         words += [x for net in scene_trained_nets(settings)
                   for x in ("--eval", n, evaluation_file(scene, n, net), network_model(scene, n, net))]
         if n in matched_budgets(settings):
-            words += ["--matched", n, evaluation_file(scene, n, "matched"), network_model(scene, n, "matched")]
+            words += [x for net in matched_nets(settings)
+                      for x in ("--matched", n, evaluation_file(scene, n, net), network_model(scene, n, net))]
     for run in high_res_runs(settings):
         words += ["--high-res", *run, *high_res_files(scene, sequences, run)]
     words += [x for run, path in high_res_timings(scene, settings).items() for x in ("--high-res-timing", *run, path)]
@@ -154,8 +161,8 @@ def stage_inputs(scene: str, settings: Settings, sequences: list[str]) -> list[s
         + [path for n in budgets(settings)
            for path in (*[evaluation_file(scene, n, net) for net in scene_trained_nets(settings)],
                         low_runs(scene, settings, sequences, n)[0])]
-        + [path for n in matched_budgets(settings)
-           for path in (evaluation_file(scene, n, "matched"), network_model(scene, n, "matched"))]
+        + [path for n in matched_budgets(settings) for net in matched_nets(settings)
+           for path in (evaluation_file(scene, n, net), network_model(scene, n, net))]
         + [network_model(scene, n, net) for n in budgets(settings) for net in scene_trained_nets(settings)]
         + [path for run in high_res_runs(settings) for path in high_res_files(scene, sequences, run)]
         + list(high_res_timings(scene, settings).values())))
@@ -178,6 +185,13 @@ def network_settings(settings: Settings, width: float | str) -> Settings:
     shared = shared_settings(settings)
     return {**shared, "network": {**shared["network"], "width": float(width)},
             "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
+
+
+def matched_settings(settings: Settings, substeps: int | str, width: float | str) -> Settings:
+    """settings.json of the matched network of `width` at budget `substeps`: the budget's, with that width (the
+    scene's training recipe kept, as the matched network's)."""
+    point = point_settings(settings, substeps)
+    return {**point, "network": {**point["network"], "width": float(width)}}
 
 
 def high_res_simulation(settings: Settings, run: HighResRun) -> Settings:

@@ -16,8 +16,9 @@ sequence in the dataset's order: the ground truth) and timed against the high-re
   networks; each --eval EVAL.h5 MODEL.pt is the evaluate stage's measure of a network trained on the scene's own
   budget (--substeps) fed that budget's inputs (errors against the high-res runs, its conv and width as recorded)
   and the network itself. The input a cheaper solver makes lies outside that training data (paper Fig. 14): the
-  errors say what the shift costs. A --matched EVAL.h5 MODEL.pt is the same network recipe trained on the
-  budget's own inputs: whether matching the training input to the deployed budget removes the shift. Each budget
+  errors say what the shift costs. A --matched EVAL.h5 MODEL.pt is a network trained on the budget's own inputs
+  (the scene's recipe, or it at another width): whether matching the training input to the deployed budget
+  removes the shift. Each budget
   also gives a row for Loop subdivision alone (network "none").
 * High-res runs (--high-res): the high-res solver itself at SUBSTEPS x ITERATIONS with the harmonic projection
   every SCHEDULE (iteration or substep), held to the scene's low-res runs, one SIM_HIGH.h5 per sequence in the
@@ -157,7 +158,7 @@ class Budget:
     substeps: int
     low_runs: list[str]
     evals: list[Network]        # networks trained on the scene's budget, in the order given
-    matched: Network | None     # the network trained on this budget's own inputs
+    matched: list[Network]      # networks trained on this budget's own inputs, in the order given
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,31 +179,27 @@ def _positive(text: str, flag: str, what: str = "SUBSTEPS") -> int:
 
 
 def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[list[str]]) -> list[Budget]:
-    """The budgets in budget order, each with its runs, its evaluations in the order given, and its matched
-    network's evaluation if any."""
+    """The budgets in budget order, each with its runs, its evaluations and its matched networks' evaluations in
+    the order given."""
     runs: dict[int, list[str]] = {}
     for point in points:
         n = _positive(point[0], "--point")
         if len(point) < 2 or n in runs:
             raise PipelineError(f"--point {' '.join(point)}: give each SUBSTEPS once, with at least one SIM_LOW.h5")
         runs[n] = point[1:]
-    evaluations: dict[int, list[Network]] = {n: [] for n in runs}
-    matches: dict[int, Network] = {}
+    networks: dict[str, dict[int, list[Network]]] = {flag: {n: [] for n in runs} for flag in ("--eval", "--matched")}
     for flag, triples in (("--eval", evals), ("--matched", matched)):
         for n_text, path, model in triples:
             n = _positive(n_text, flag)
             if n not in runs:
                 raise PipelineError(f"{flag} {n_text} {path}: no --point {n_text} gives that budget's runs")
-            if flag == "--eval":
-                evaluations[n].append(Network(path, model))
-            elif n in matches:
-                raise PipelineError(f"--matched {n_text} {path}: budget {n} has a matched network already")
-            else:
-                matches[n] = Network(path, model)
-    missing = [n for n, paths in evaluations.items() if not paths]
+            if any(network.eval == path for network in networks["--eval"][n] + networks["--matched"][n]):
+                raise PipelineError(f"{flag} {n_text} {path}: that evaluation is given twice")
+            networks[flag][n].append(Network(path, model))
+    missing = [n for n, paths in networks["--eval"].items() if not paths]
     if missing:
         raise PipelineError(f"--point {missing[0]}: no --eval of that budget")
-    return [Budget(n, runs[n], evaluations[n], matches.get(n)) for n in sorted(runs)]
+    return [Budget(n, runs[n], networks["--eval"][n], networks["--matched"][n]) for n in sorted(runs)]
 
 
 def _high_res_key(group: list[str], flag: str) -> tuple[int, int, str]:
@@ -240,7 +237,7 @@ def parse_high_res(groups_: list[list[str]], reference: Reference,
 
 
 def networks_of(budget: Budget) -> list[Network]:
-    return [*budget.evals, *filter(None, [budget.matched])]
+    return [*budget.evals, *budget.matched]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -277,12 +274,11 @@ def make_row(method: str, network: str, substeps: int, iterations: int, trained_
 
 def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low: float, ms_subdiv: float,
                 ms_sim_high: float, ms_net: Mapping[str, NetworkMs]) -> list[dict[str, Any]]:
-    """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched one; `ms_net`
+    """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched ones; `ms_net`
     by model path), then Loop subdivision alone (the predictor of the budget's dataset)."""
     rows = []
-    trained = [(network, scene_substeps) for network in budget.evals]
-    if budget.matched is not None:
-        trained.append((budget.matched, budget.substeps))
+    trained = ([(network, scene_substeps) for network in budget.evals]
+               + [(network, budget.substeps) for network in budget.matched])
     for network, trained_substeps in trained:
         evaluated = read_network_timing(network.eval)
         rows.append(make_row(LEARNED, evaluated.name, budget.substeps, iterations, trained_substeps, evaluated.params,
@@ -355,7 +351,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="a network trained on the scene's budget, evaluated on that budget's inputs")
     parser.add_argument("--matched", nargs=3, action="append", default=[],
                         metavar=("SUBSTEPS", "EVAL.h5", "MODEL.pt"),
-                        help="the network trained on that budget's own inputs, evaluated on them")
+                        help="a network trained on that budget's own inputs, evaluated on them")
     parser.add_argument("--high-res", nargs="+", action="append", default=[],
                         metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
                         help="high-res runs of another budget or schedule, one per sequence as --sim-high")

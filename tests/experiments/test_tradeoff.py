@@ -86,7 +86,7 @@ def write_eval(path, network, predictor, inference_ms, params, conv="RC9", width
     return str(path)
 
 
-def test_a_budgets_rows_are_its_networks_then_the_matched_one_then_loop_alone_with_summed_times(tmp_path):
+def test_a_budgets_rows_are_its_networks_then_the_matched_ones_then_loop_alone_with_summed_times(tmp_path):
     predictor = {"test": (3.0, 4.0), "held_out": (5.0, 6.0)}
     scene = write_eval(tmp_path / "s.h5", {"test": (1.0, 1.5), "held_out": (2.0, 2.5)}, predictor, [2.0, 9.0, 4.0],
                        1000)
@@ -94,17 +94,21 @@ def test_a_budgets_rows_are_its_networks_then_the_matched_one_then_loop_alone_wi
                        width=0.125)
     matched = write_eval(tmp_path / "m.h5", {"test": (0.9, 1.1), "held_out": (1.8, 1.9)}, predictor, [3.0, 5.0],
                          1000)
-    budget = Budget(1, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")], Network(matched, "m.pt"))
+    matched_small = write_eval(tmp_path / "mw.h5", {"test": (1.1, 1.3), "held_out": (2.0, 2.1)}, predictor, [1.0],
+                               250, width=0.125)
+    budget = Budget(1, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")],
+                    [Network(matched, "m.pt"), Network(matched_small, "mw.pt")])
     rows = budget_rows(budget, scene_substeps=4, iterations=30, ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
-                       ms_net={"s.pt": NetworkMs(4.0), "w.pt": NetworkMs(1.0),
-                                                                    "m.pt": NetworkMs(4.0)})
+                       ms_net={"s.pt": NetworkMs(4.0), "w.pt": NetworkMs(1.0), "m.pt": NetworkMs(4.0),
+                               "mw.pt": NetworkMs(0.5)})
     assert [(r["method"], r["network"], r["trained_substeps"], r["params"]) for r in rows] == [
         (LEARNED, "RC9 x0.25", 4, 1000), (LEARNED, "RC9 x0.125", 4, 250), (LEARNED, "RC9 x0.25", 1, 1000),
-        (LOOP, "none", 0, 0)]
-    assert [r["ms_net"] for r in rows] == [4.0, 1.0, 4.0, 0.0]    # each model's own timing, not its evaluation's
-    assert [r["ms_total"] for r in rows] == [14.5, 11.5, 14.5, 10.5]        # 10 + 0.5 + network
-    assert [r["speedup"] for r in rows] == [200 / 14.5, 200 / 11.5, 200 / 14.5, 200 / 10.5]
-    assert [(r["l1_test"], r["l2_heldout"]) for r in rows] == [(1.0, 2.5), (1.2, 2.7), (0.9, 1.9), (3.0, 6.0)]
+        (LEARNED, "RC9 x0.125", 1, 250), (LOOP, "none", 0, 0)]
+    assert [r["ms_net"] for r in rows] == [4.0, 1.0, 4.0, 0.5, 0.0]    # each model's own timing, not its evaluation's
+    assert [r["ms_total"] for r in rows] == [14.5, 11.5, 14.5, 11.0, 10.5]        # 10 + 0.5 + network
+    assert [r["speedup"] for r in rows] == [200 / 14.5, 200 / 11.5, 200 / 14.5, 200 / 11.0, 200 / 10.5]
+    assert [(r["l1_test"], r["l2_heldout"]) for r in rows] == [(1.0, 2.5), (1.2, 2.7), (0.9, 1.9), (1.1, 2.1),
+                                                                (3.0, 6.0)]
     assert all(r["substeps"] == 1 and r["iterations"] == 30 and r["harmonic_every"] == "" for r in rows)
 
 
@@ -241,6 +245,20 @@ def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_r
                "25 ms a frame (4.00x)" in line for line in lines)
     assert lines[-1] == ("For 60 Hz (16.7 ms a frame) on this device: 1 sub, RC9 x0.25 (matched), test L1 2.000 in "
                          "10 ms.")
+    assert "No learned path has a test L1 below Loop subdivision alone's at its budget." in lines   # no Loop rows
+
+
+def test_findings_name_the_fastest_learned_path_below_loop_subdivision_with_the_fused_network_where_faster():
+    """Budget 1: Loop alone 3.0; the scene-trained network (2.9, 10 ms) and the matched one (2.0, 12 ms, fused
+    6 ms) beat it; budget 4's network (1.0) is slower (40 ms). The matched one with its fused network is fastest."""
+    def loop(n, l1, ms):
+        return make_row(LOOP, "none", n, 30, 0, 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED, 100.0)
+    rows = [learned(1, 4, 2.9e-3, 10.0), make_row(LEARNED, "RC9 x0.125", 1, 30, 1, 50, {"test": {"l1": 2e-3, "l2": 2e-3}},
+                                                  4.0, 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
+            loop(1, 3e-3, 4.0), learned(4, 4, 1e-3, 40.0), loop(4, 1.5e-3, 39.0)]
+    lines = findings(table(rows))
+    assert ("Fastest learned path below Loop subdivision's test L1: 1 sub, RC9 x0.125 (matched) with the fused bf16 "
+            "network, test L1 2.000 against Loop's 3.000, 6 ms a frame: **16.7x** the reference high-res run.") in lines
 
 
 def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_methods(tmp_path):
@@ -274,8 +292,8 @@ def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_meth
     ([["2", "l.h5"], ["2", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "once"),
     ([["2", "l.h5"]], [["3", "e.h5", "e.pt"]], [], "no --point 3"),
     ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["3", "m.h5", "m.pt"]], "--matched 3 m.h5: no --point 3"),
-    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "m.h5", "m.pt"], ["2", "n.h5", "n.pt"]],
-     "matched network already"),
+    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "m.h5", "m.pt"], ["2", "m.h5", "n.pt"]], "given twice"),
+    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "e.h5", "e.pt"]], "given twice"),
     ([["2", "l.h5"], ["1", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "--point 1: no --eval")])
 def test_bad_grids_are_refused(points, evals, matched, message):
     with pytest.raises(PipelineError, match=message):
@@ -285,8 +303,8 @@ def test_bad_grids_are_refused(points, evals, matched, message):
 def test_the_grid_is_in_budget_order_with_each_budgets_evaluations_in_the_order_given():
     grid = parse_grid([["4", "a", "b"], ["1", "c"]], [["4", "e4", "p"], ["1", "e1", "p"], ["4", "f4", "q"]],
                       [["1", "m1", "r"]])
-    assert grid == [Budget(1, ["c"], [Network("e1", "p")], Network("m1", "r")),
-                    Budget(4, ["a", "b"], [Network("e4", "p"), Network("f4", "q")], None)]
+    assert grid == [Budget(1, ["c"], [Network("e1", "p")], [Network("m1", "r")]),
+                    Budget(4, ["a", "b"], [Network("e4", "p"), Network("f4", "q")], [])]
 
 
 @pytest.mark.parametrize("group, message", [

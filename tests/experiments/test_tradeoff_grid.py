@@ -12,8 +12,8 @@ SEQUENCES = ["train_000", "held_out_000"]
 
 def scene_settings(shard=1, **tradeoff):
     """A scene simulated at 2 substeps x 10 iterations, harmonic projection every substep, with a small grid."""
-    block = {"substeps": [1, 2], "matched": [1], "widths": [0.5], "epochs": 3, "high_res_budgets": [[1, 5]],
-             "harmonic_every": [], **tradeoff}
+    block = {"substeps": [1, 2], "matched": [1], "matched_widths": [], "widths": [0.5], "epochs": 3,
+             "high_res_budgets": [[1, 5]], "harmonic_every": [], **tradeoff}
     return {"solver": {"substeps": 2, "iterations": 10, "relaxation": 1.0}, "high_res": {"harmonic_every": "substep"},
             "network": {"conv": "RC9", "width": 0.25}, "training": {"epochs": 8, "batch_size": 4},
             "operators": {"levels": 6}, "evaluation": {"render_frames": 3}, "device": "cpu",
@@ -47,6 +47,8 @@ def test_the_scenes_own_budget_reuses_the_scenes_runs_and_dataset():
 def test_each_network_is_the_scenes_model_a_width_folder_or_the_budgets_matched_one():
     assert grid.network_model(SCENE, 1, "scene") == "results/cloth/model.pt"
     assert grid.network_model(SCENE, 1, "matched") == "results/cloth/tradeoff/s1/matched/model.pt"
+    assert grid.network_model(SCENE, "1", "matched_w0.25") == "results/cloth/tradeoff/s1/matched_w0.25/model.pt"
+    assert grid.matched_nets(scene_settings(matched_widths=[0.25, 1])) == ["matched", "matched_w0.25", "matched_w1"]
     assert grid.network_model(SCENE, "1", "w0.5") == "results/cloth/tradeoff/w0.5/model.pt"
     assert grid.scene_trained_nets(scene_settings(widths=[0.5, 0.125, 1])) == ["scene", "w0.5", "w0.125", "w1"]
 
@@ -75,10 +77,19 @@ def test_the_argument_list_of_a_small_grid():
         "results/cloth/tradeoff/h1x5_substep/sequences/held_out_000/sim_high.h5"]
 
 
+def test_each_matched_budget_has_the_scenes_recipe_then_each_matched_width_and_the_scenes_own_none():
+    words = grid.stage_arguments(SCENE, scene_settings(substeps=[1], matched=[1, 2], matched_widths=[0.25]),
+                                 SEQUENCES)
+    matched = [words[i + 1:i + 4] for i, word in enumerate(words) if word == "--matched"]
+    assert matched == [
+        ["1", "results/cloth/tradeoff/s1/matched/eval.h5", "results/cloth/tradeoff/s1/matched/model.pt"],
+        ["1", "results/cloth/tradeoff/s1/matched_w0.25/eval.h5", "results/cloth/tradeoff/s1/matched_w0.25/model.pt"]]
+
+
 @pytest.mark.parametrize("shard", [1, 2])
 def test_the_stage_inputs_are_the_files_of_its_arguments_each_once(shard):
     settings = scene_settings(shard=shard, substeps=[1, 4], matched=[1, 2, 4], widths=[0.5, 0.125],
-                              high_res_budgets=[[1, 5], [2, 10]], harmonic_every=["iteration"])
+                              matched_widths=[0.25], high_res_budgets=[[1, 5], [2, 10]], harmonic_every=["iteration"])
     words = grid.stage_arguments(SCENE, settings, SEQUENCES)
     inputs = grid.stage_inputs(SCENE, settings, SEQUENCES)
     assert len(inputs) == len(set(inputs))
@@ -128,6 +139,7 @@ def test_each_overlay_changes_only_its_keys_and_leaves_out_what_its_file_never_h
     assert grid.point_simulation(settings, "1") == {**simulation_file, "solver": {**settings["solver"], "substeps": 1}}
     assert grid.network_settings(settings, "0.125") == {**scene_file, "network": {"conv": "RC9", "width": 0.125},
                                                         "training": {"epochs": 3, "batch_size": 4}}
+    assert grid.matched_settings(settings, "1", "0.5") == {**point, "network": {"conv": "RC9", "width": 0.5}}
     assert grid.high_res_simulation(settings, ("4", "20", "iteration")) == {
         **simulation_file, "solver": {"substeps": 4, "iterations": 20, "relaxation": 1.0},
         "high_res": {"harmonic_every": "iteration"}}

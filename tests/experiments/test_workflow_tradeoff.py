@@ -11,7 +11,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
-from workflow_runs import planned_counts, planned_jobs, snakemake, tail, tiny_pants
+from workflow_runs import REPO, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, read_tradeoff
 from pipeline.artifacts.dataset import load_dataset
@@ -155,6 +155,26 @@ def run_plan(tmp_path, target, *args):
     run = snakemake(tmp_path, "-n", "-p", target, *args)
     assert run.returncode == 0, tail(run)
     return run
+
+
+def test_matched_widths_train_the_scenes_recipe_at_each_width_on_the_matched_budgets_inputs(tmp_path):
+    """`tradeoff.matched_widths` on the CI patch: at the matched budget 1 (not its own 4), a network of each width
+    trained on the budget's dataset (settings: the budget's, with that width), evaluated there and fed to the
+    stage as another --matched network."""
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("profiles: {cpu: {scenes: {patch: {tradeoff: {matched_widths: [0.125, 0.5]}}}}}\n")
+    run = run_plan(tmp_path, "--configfile", str(REPO / "workflow_config.yaml"), str(overlay), "--",
+                   "results/patch/tradeoff/")
+    counts = planned_counts(run)
+    assert (counts["tradeoff_matched_settings"], counts["tradeoff_train_matched_width"]) == (2, 2)
+    assert counts["tradeoff_train_matched"] == 1 and counts["tradeoff_evaluate"] == 9
+    stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
+    for width in ("0.125", "0.5"):
+        folder = f"results/patch/tradeoff/s1/matched_w{width}"
+        assert f" --matched 1 {folder}/eval.h5 {folder}/model.pt" in stage
+        assert any("-m pipeline.train results/patch/tradeoff/s1/dataset.h5 " in line and f"{folder}/model.pt" in line
+                   and f"--settings {folder}/settings.json" in line for line in run.stdout.splitlines())
+    assert "s4/matched" not in run.stdout
 
 
 def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_only_paths_in_shells(tmp_path):

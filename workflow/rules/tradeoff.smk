@@ -10,7 +10,8 @@
 #   scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings with that width and
 #   `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of `tradeoff.matched` other than
 #   the scene's own, the scene's network recipe trained on that budget's own dataset (s<n>/matched/): does
-#   matching the training input to the deployed solver budget remove the input shift?
+#   matching the training input to the deployed solver budget remove the input shift? - and the same recipe at
+#   each width of `tradeoff.matched_widths` (s<n>/matched_w<width>/): the cheapest accurate learned path.
 # * High-res runs beside the scene's (folder h<substeps>x<iterations>_<schedule>/): each [substeps, iterations] of
 #   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
 #   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
@@ -33,6 +34,7 @@ TRADEOFF_POINT = "results/{scene}/tradeoff/s{substeps}"
 TRADEOFF_SEQ = "results/{scene}/tradeoff/s{substeps}/sequences/{seq}"
 TRADEOFF_NET = "results/{scene}/tradeoff/w{width}"       # a smaller network: settings.json, model.pt, train.h5
 TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained on the budget's inputs: model.pt
+TRADEOFF_MATCHED_NET = "results/{scene}/tradeoff/s{substeps}/matched_w{width}"    # the same at another width
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
 TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
 
@@ -45,7 +47,7 @@ HIGH_RES_ALONE = ("{PY:q} -m pipeline.simulate high {input.settings:q} {input.sc
 wildcard_constraints:
     substeps="[1-9][0-9]*",
     width="[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
-    net="scene|matched|w[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
+    net="scene|(matched_)?w[0-9]+(\\.[0-9]+)?(e-[0-9]+)?|matched",
     hsubsteps="[1-9][0-9]*",
     hiterations="[1-9][0-9]*",
     schedule="iteration|substep",
@@ -291,8 +293,37 @@ rule tradeoff_train_matched:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; or w<width>): errors and
-# timing only (no renders, one exported frame, no predicted positions in eval.h5).
+rule tradeoff_matched_settings:
+    output: f"{TRADEOFF_MATCHED_NET}/settings.json"
+    params: settings=lambda w: tradeoff_grid.matched_settings(SETTINGS[w.scene], w.substeps, w.width)
+    log: f"{TRADEOFF_MATCHED_NET}/logs/settings.log"
+    benchmark: f"{TRADEOFF_MATCHED_NET}/benchmarks/settings.tsv"
+    localrule: True
+    threads: 1
+    resources: mem_mb=500
+    run:
+        write_settings(params.settings, output[0])
+        with open(log[0], "w") as f:
+            print(f"{output[0]}: the budget's settings with network.width {wildcards.width}", file=f)
+
+
+# The scene's recipe at another width, trained on the budget's own dataset.
+rule tradeoff_train_matched_width:
+    input:
+        settings=f"{TRADEOFF_MATCHED_NET}/settings.json", dataset=f"{TRADEOFF_POINT}/dataset.h5",
+        operators=f"{OUT}/operators.h5",
+    output: model=f"{TRADEOFF_MATCHED_NET}/model.pt", history=f"{TRADEOFF_MATCHED_NET}/train.h5"
+    log: f"{TRADEOFF_MATCHED_NET}/logs/train.log"
+    benchmark: f"{TRADEOFF_MATCHED_NET}/benchmarks/train.tsv"
+    threads: workflow.cores
+    resources: mem_mb=8000, gpu=gpus_on_device
+    shell:
+        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
+        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+
+
+# A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; `matched_w<width>`; or
+# w<width>): errors and timing only (no renders, one exported frame, no predicted positions in eval.h5).
 rule tradeoff_evaluate:
     input:
         settings=f"{TRADEOFF_POINT}/settings.json",
