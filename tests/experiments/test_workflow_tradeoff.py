@@ -17,8 +17,8 @@ from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, read_tradeoff
 from pipeline.artifacts.dataset import load_dataset
 
 # Tiny pants simulate 2 substeps x 10 iterations, harmonic projection every substep (the defaults' schedule).
-GRID = {"substeps": [1], "widths": [0.125], "epochs": 1, "matched": [1], "high_res_budgets": [[1, 5]],
-        "harmonic_every": ["iteration", "substep"]}
+GRID = {"substeps": [1], "widths": [0.125], "epochs": 1, "matched": [1], "matched_widths": [],
+        "high_res_budgets": [[1, 5]], "harmonic_every": ["iteration", "substep"]}
 
 
 def tiny_grid(tmp_path, grid=GRID, **kwargs):
