@@ -5,6 +5,7 @@ on CUDA, beside what a user deploys there: the fused bf16 network (model.fused_n
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib.util
 import time
 import warnings
@@ -14,7 +15,8 @@ import numpy as np
 import torch
 
 from model.features import FrameStore
-from model.inference import FastRegressor, captured_frames
+from model.inference import CapturedCall, FastRegressor, captured_frames
+from model.tasks import VectorStore
 from pipeline.artifacts.evaluation import FusedTiming
 
 WARMUP_RUNS = 3
@@ -65,27 +67,32 @@ def _relative(got: torch.Tensor, expected: torch.Tensor) -> float:
     return float((got - expected).abs().max() / expected.abs().max().clamp_min(1e-30))
 
 
+def _per_frame(run: Callable, store, ids: torch.Tensor, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
+    """ms of `run(batch)` for each frame of `ids` alone (batch of one) after WARMUP_RUNS untimed calls,
+    synchronised on CUDA, and the outputs (cloned: a replayed graph overwrites its own)."""
+    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
+    times, outputs = [], []
+    with grad_mode():
+        for i in range(-WARMUP_RUNS, len(ids)):
+            batch = store.batch(ids[max(i, 0):max(i, 0) + 1])
+            sync()
+            start = time.perf_counter()
+            output = run(batch)
+            sync()
+            if i >= 0:
+                times.append((time.perf_counter() - start) * 1e3)
+                outputs.append(output.clone())
+    return np.asarray(times), torch.cat(outputs)
+
+
 def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> InferenceTimes:
     """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
     of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
     on the same frames, eager PyTorch; on CUDA (with Triton) also the fused bf16 network (`FusedTiming`), replayed
     the same way."""
-    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-
     def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
-        times, outputs = [], []
-        with grad_mode():
-            for i in range(-WARMUP_RUNS, len(ids)):
-                frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
-                sync()
-                start = time.perf_counter()
-                output = run(frame)
-                sync()
-                if i >= 0:
-                    times.append((time.perf_counter() - start) * 1e3)
-                    outputs.append(output.clone())
-        return np.asarray(times), torch.cat(outputs)
+        return _per_frame(run, store, ids, grad_mode)
 
     eager_ms, expected = per_frame(lambda frame: model(frame, mesh), torch.no_grad)
     deployed, path = _deployed(FastRegressor(model, mesh).to(ids.device), store, ids,
@@ -110,21 +117,23 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
     return times
 
 
-def time_decoder(model, mesh, store, ids: torch.Tensor) -> InferenceTimes:
+def time_decoder(model, mesh, store: VectorStore, ids: torch.Tensor) -> InferenceTimes:
     """time_inference for a decoder task (model.inference's fast path covers the encoder-decoder only, and so
-    does the fused network: `fused` is None): eager PyTorch under inference_mode, batch of one (the input vector
-    given), after warm-up runs; synchronised on CUDA."""
-    sync = torch.cuda.synchronize if ids.is_cuda else (lambda: None)
-    times = []
-    with torch.inference_mode():
-        for i in range(-WARMUP_RUNS, len(ids)):
-            frame = store.batch(ids[max(i, 0):max(i, 0) + 1])
-            sync()
-            start = time.perf_counter()
-            model(frame, mesh)
-            sync()
-            if i >= 0:
-                times.append((time.perf_counter() - start) * 1e3)
-    measured = np.asarray(times).view(InferenceTimes)
-    measured.eager, measured.path, measured.fused = measured, "eager PyTorch, fp32, inference_mode", None
+    does the fused network: `fused` is None): the network, its input vector given, batch of one, after warm-up
+    runs, synchronised on CUDA - eager PyTorch under inference_mode and, on CUDA, that network replayed as one
+    CUDA graph (its deployment path there: a decoder of ~100 small launches is bound by launching them)."""
+    eager_ms, expected = _per_frame(lambda batch: model(batch, mesh), store, ids, torch.inference_mode)
+    measured, path = eager_ms.view(InferenceTimes), "eager PyTorch, fp32, inference_mode"
+    if ids.is_cuda:
+        try:
+            example = store.batch(ids[:1])
+            captured = CapturedCall(lambda values: model(dataclasses.replace(example, values=values), mesh),
+                                    example.values)
+            graph_ms, got = _per_frame(lambda batch: captured(batch.values), store, ids, torch.inference_mode)
+            measured = graph_ms.view(InferenceTimes)
+            path = (f"eager PyTorch fp32 replayed as one CUDA graph; within {_relative(got, expected):.0e} of the "
+                    f"eager output")
+        except RuntimeError as err:   # an operation that cannot be captured: the eager figure is the deployed one
+            path += f" (no CUDA graph: {str(err).splitlines()[0]})"
+    measured.eager, measured.path, measured.fused = eager_ms, path, None
     return measured

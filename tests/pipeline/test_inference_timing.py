@@ -17,6 +17,7 @@ from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameBatch
 from model.mesh_hierarchy import mesh_hierarchy
 from model.networks import NetworkSpec, build_network
+from model.tasks import VectorRegressor, VectorSpec, VectorStore
 from pipeline.artifacts.evaluation import Evaluation, FusedTiming, read_network_timing, write_evaluation
 from pipeline.core.errors import PipelineError
 from pipeline.tasks.timing import time_decoder, time_inference
@@ -92,3 +93,35 @@ def test_on_cuda_the_fused_network_is_timed_on_the_same_frames_within_bf16_of_fp
     assert times.fused.ms.shape == times.shape and np.all(np.isfinite(times.fused.ms) & (times.fused.ms > 0))
     assert 0 < times.fused.error < FUSED_TOLERANCE
     assert "CUDA graph" in times.fused.path
+
+
+def _decoder(device: str):
+    """A decoder of three unpoolings from 5 scalars onto the 12 x 12 grid, its store of 6 frames and 4 timed ids."""
+    torch.manual_seed(0)
+    vertices, faces = grid(12)
+    levels = build_operators(vertices, faces, conv=["RC9"], pooling_steps=3)
+    mesh = mesh_hierarchy([lv.conv["RC9"] for lv in levels], [lv.coarsening.pool for lv in levels[:-1]],
+                          [lv.coarsening.unpool for lv in levels[:-1]])
+    net = build_network(NetworkSpec("U8 U U3", "RC9", in_channels=5, coarse_vertices=mesh.vertex_counts[-1]))
+    model = VectorRegressor(net, VectorSpec(("pose",)), torch.randn(5), torch.rand(5) + 0.5, 0.01).eval()
+    store = VectorStore(torch.zeros(6, len(vertices), 3), torch.randn(6, 5))
+    move = lambda x: x.to(device)  # noqa: E731
+    return model.to(device), mesh.to(device), VectorStore(move(store.positions), move(store.values)), \
+        torch.arange(4, device=device)
+
+
+def test_a_decoder_is_timed_eager_on_the_cpu_on_the_frames_asked():
+    model, mesh, store, ids = _decoder("cpu")
+    times = time_decoder(model, mesh, store, ids)
+    assert times.shape == (4,) and np.all(times > 0) and times.fused is None
+    assert times.path == "eager PyTorch, fp32, inference_mode" and np.array_equal(times, times.eager)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a CUDA device")
+def test_on_cuda_a_decoder_is_timed_as_one_replayed_graph_giving_the_eager_output():
+    model, mesh, store, ids = _decoder("cuda")
+    times = time_decoder(model, mesh, store, ids)
+    print(f"decoder: graph {np.median(times):.3f} ms, eager {np.median(times.eager):.3f} ms; {times.path}")
+    assert times.shape == times.eager.shape == (4,) and np.all(times > 0) and times.fused is None
+    assert times.path.startswith("eager PyTorch fp32 replayed as one CUDA graph; within ")
+    assert float(times.path.split("within ")[1].split(" ")[0]) < 1e-5
