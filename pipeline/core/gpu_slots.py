@@ -6,6 +6,10 @@ stage about to touch CUDA (pipeline.core.cli.check_device) then locks the first 
 only that GPU (CUDA_VISIBLE_DEVICES), as cuda:0. The lock is an flock on an open file: the kernel releases it when
 the process ends, a crash or a kill included, so no slot is ever left taken. Where CUDA_VISIBLE_DEVICES already
 lists GPUs (a scheduler's allocation) the slots are the first N of those.
+
+With `jobs_per_gpu: k` (LEARNED_CLOTH_JOBS_PER_GPU, and `--resources gpu=N*k`) each GPU has k slots, so k jobs
+share it: a job of small batches leaves a GPU mostly idle (launches, its Python and its start-up), and several of
+them overlap there. Jobs take every GPU's first slot before any GPU's second, so they spread before they stack.
 """
 from __future__ import annotations
 
@@ -19,6 +23,7 @@ from pathlib import Path
 from pipeline.core.errors import PipelineError
 
 GPUS_VARIABLE = "LEARNED_CLOTH_GPUS"
+JOBS_PER_GPU_VARIABLE = "LEARNED_CLOTH_JOBS_PER_GPU"
 LOCKS_VARIABLE = "LEARNED_CLOTH_GPU_LOCKS"    # the lock files' folder (default: one per user under the temp dir)
 
 _held: tuple[str, int] | None = None         # (the GPU's id, the locked file's descriptor) for the process's life
@@ -33,12 +38,15 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
     ids = _slot_ids(os.environ.get(GPUS_VARIABLE), os.environ.get("CUDA_VISIBLE_DEVICES"))
     if ids is None:
         return None
+    per_gpu = _jobs_per_gpu(os.environ.get(JOBS_PER_GPU_VARIABLE))
+    slots = [(gpu, k) for k in range(per_gpu) for gpu in ids]
     folder = Path(os.environ.get(LOCKS_VARIABLE) or Path(tempfile.gettempdir()) / f"learned-cloth-gpus-{os.getuid()}")
     folder.mkdir(mode=0o700, parents=True, exist_ok=True)
     announced = False
     while True:
-        for gpu in ids:
-            fd = os.open(folder / f"gpu-{gpu}.lock", os.O_RDWR | os.O_CREAT, 0o600)
+        for gpu, k in slots:
+            fd = os.open(folder / (f"gpu-{gpu}.lock" if k == 0 else f"gpu-{gpu}-slot{k}.lock"),
+                         os.O_RDWR | os.O_CREAT, 0o600)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -47,12 +55,23 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
             _held = (gpu, fd)
             os.environ["CUDA_VISIBLE_DEVICES"] = gpu
             os.environ[GPUS_VARIABLE] = "1"     # what this process starts shares its GPU, as torch's own workers do
-            print(f"GPU {gpu} (a free one of {len(ids)}: {GPUS_VARIABLE}) is this job's cuda:0", file=sys.stderr)
+            shared = f", slot {k + 1} of its {per_gpu}" if per_gpu > 1 else ""
+            print(f"GPU {gpu} (a free one of {len(ids)}: {GPUS_VARIABLE}{shared}) is this job's cuda:0",
+                  file=sys.stderr)
             return gpu
         if not announced:
-            print(f"all {len(ids)} GPUs held by other jobs: waiting for one", file=sys.stderr)
+            print(f"all {len(slots)} GPU slots held by other jobs: waiting for one", file=sys.stderr)
             announced = True
         time.sleep(poll_seconds)
+
+
+def _jobs_per_gpu(text: str | None) -> int:
+    """The jobs one GPU takes at once (absent: 1)."""
+    if text is None or text.strip() == "":
+        return 1
+    if not text.strip().isdigit() or not 1 <= int(text) <= 64:
+        raise PipelineError(f"{JOBS_PER_GPU_VARIABLE}={text!r}: give a whole number of jobs a GPU, 1 to 64")
+    return int(text)
 
 
 def _slot_ids(count_text: str | None, visible: str | None) -> list[str] | None:

@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.gpu_slots import GPUS_VARIABLE, LOCKS_VARIABLE, _slot_ids
+from pipeline.core.gpu_slots import GPUS_VARIABLE, JOBS_PER_GPU_VARIABLE, LOCKS_VARIABLE, _jobs_per_gpu, _slot_ids
 
 # A job: take a GPU, say which (and what its children would be told), then live until stdin closes.
 JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu; gpu = claim_gpu(poll_seconds=0.05); "
@@ -15,8 +15,11 @@ JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu; gpu = cla
        "sys.stdin.read()")
 
 
-def start_job(tmp_path, count, visible=None):
+def start_job(tmp_path, count, visible=None, per_gpu=None):
     env = {**os.environ, GPUS_VARIABLE: str(count), LOCKS_VARIABLE: str(tmp_path / "locks")}
+    env.pop(JOBS_PER_GPU_VARIABLE, None)
+    if per_gpu is not None:
+        env[JOBS_PER_GPU_VARIABLE] = str(per_gpu)
     env.pop("CUDA_VISIBLE_DEVICES", None)
     if visible is not None:
         env["CUDA_VISIBLE_DEVICES"] = visible
@@ -55,3 +58,29 @@ def test_slot_ids(count, visible, ids):
 def test_bad_counts_are_one_error(count, visible):
     with pytest.raises(PipelineError, match=GPUS_VARIABLE):
         _slot_ids(count, visible)
+
+
+def test_with_two_jobs_a_gpu_they_spread_over_the_gpus_before_they_share_one(tmp_path):
+    jobs, gpus = [], []
+    for _ in range(4):                      # one at a time, so the order of the slots they take is the test's
+        jobs.append(start_job(tmp_path, 2, per_gpu=2))
+        gpus.append(jobs[-1].stdout.readline().split()[0])
+    assert gpus == ["0", "1", "0", "1"]
+    fifth = start_job(tmp_path, 2, per_gpu=2)
+    assert "waiting" in fifth.stderr.readline() and fifth.poll() is None
+    jobs[2].kill()                          # the third took GPU 0's second slot: the fifth gets it
+    jobs[2].wait()
+    assert fifth.stdout.readline().split()[0] == "0"
+    for job in (*jobs[:2], jobs[3], fifth):
+        job.communicate("")
+
+
+@pytest.mark.parametrize("text, count", [(None, 1), ("", 1), ("3", 3)])
+def test_jobs_per_gpu(text, count):
+    assert _jobs_per_gpu(text) == count
+
+
+@pytest.mark.parametrize("text", ["0", "two", "-2", "65"])
+def test_bad_jobs_per_gpu_are_one_error(text):
+    with pytest.raises(PipelineError, match=JOBS_PER_GPU_VARIABLE):
+        _jobs_per_gpu(text)

@@ -35,6 +35,7 @@ FILE_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if wor
 
 # Several GPUs: each CUDA job takes a free one (pipeline.core.gpu_slots), told how many through its environment.
 os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))
+os.environ[gpu_slots.JOBS_PER_GPU_VARIABLE] = str(config.get("jobs_per_gpu", 1))
 
 wildcard_constraints:
     scene=workflow_paths.one_of(SETTINGS),
