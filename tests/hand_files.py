@@ -64,6 +64,18 @@ def bone_document(joints: dict[str, np.ndarray], names: dict[str, str] | None = 
     return document
 
 
+def change_joints(document: dict, **change) -> dict:
+    """A bone document (bone_document's form) with each named joint's fields updated, or the joint removed where
+    its change is None: the same document, changed in place, for chaining."""
+    joints = {j["name"]: j for j in document["joints"]}
+    for name, fields in change.items():
+        if fields is None:
+            document["joints"].remove(joints[name])
+        else:
+            joints[name].update(fields)
+    return document
+
+
 def write_hand_files(folder: Path, spacing: float = 0.008, scale: float = 1.0, offset=(0.0, 0.0, 0.0),
                      units: str = "m", names: dict[str, str] | None = None) -> tuple[Path, Path]:
     """hand.obj (the procedural skin, meshed at `spacing`) and bones.yaml (its joints), both scaled by `scale`

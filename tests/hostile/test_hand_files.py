@@ -10,7 +10,7 @@ import shutil
 import pytest
 import yaml
 
-from hand_files import write_hand_files
+from hand_files import change_joints, write_hand_files
 from hostile import REPO, assert_refused, files_in, run_in_process
 from pipeline import hand_scene
 from pipeline.core.config import load_config, resolve_scene, simulation_settings, write_settings
@@ -50,13 +50,7 @@ def refused(folder, capsys, *words) -> None:
 
 def spoil_joints(folder, **change) -> None:
     """bones.yaml with each named joint's fields updated (None: the joint removed)."""
-    document = yaml.safe_load((folder / "bones.yaml").read_text())
-    joints = {j["name"]: j for j in document["joints"]}
-    for name, fields in change.items():
-        if fields is None:
-            document["joints"].remove(joints[name])
-        else:
-            joints[name].update(fields)
+    document = change_joints(yaml.safe_load((folder / "bones.yaml").read_text()), **change)
     (folder / "bones.yaml").write_text(yaml.safe_dump(document))
 
 

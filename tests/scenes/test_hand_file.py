@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from geometry.tets import tet_volumes
 from hand_fem import solve
-from hand_files import bone_document, procedural_joints, write_hand_files
+from hand_files import bone_document, change_joints, procedural_joints, write_hand_files
 from pipeline.core.meshio import load_mesh
 from scenes.garment_file import UNITS
 from scenes.hand_file import LAYOUT, file_hand, read_rig, rig_skeleton, skin_from_file
@@ -115,14 +115,7 @@ def test_a_rigs_own_names_and_joints_between_the_roles_make_the_same_hand(tmp_pa
 
 
 def document(**change):
-    doc = bone_document(procedural_joints())
-    joints = {j["name"]: j for j in doc["joints"]}
-    for name, fields in change.items():
-        if fields is None:
-            doc["joints"].remove(joints[name])
-        else:
-            joints[name].update(fields)
-    return doc
+    return change_joints(bone_document(procedural_joints()), **change)
 
 
 @pytest.mark.parametrize("doc, message", [
