@@ -61,12 +61,27 @@ def _slot_rows(table_ptr, rows, row_ok, L: tl.constexpr, SLOTS: tl.constexpr):
 
 
 @triton.jit
+def _tile(n_rows, n_cols, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    """A program's frame (grid axis 2), its BLOCK_M rows and BLOCK_N columns, and which of them exist."""
+    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
+    cols = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
+    return tl.program_id(2).to(tl.int64), rows, cols, rows < n_rows, cols < n_cols
+
+
+@triton.jit
+def _norm_stats(sums_ptr, cols, col_ok, channels, n_src, EPS: tl.constexpr):
+    """An instance norm's mean and 1/std of channels `cols` from a frame's sums (sums_ptr: its (2, channels),
+    the sums then the sums of squares) over `n_src` vertices."""
+    mean = tl.load(sums_ptr + cols, mask=col_ok, other=0.0) / n_src
+    squares = tl.load(sums_ptr + channels + cols, mask=col_ok, other=0.0) / n_src
+    return mean, 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
+
+
+@triton.jit
 def _norm_on_load(x, sums_ptr, cols, col_ok, mask, channels, n_src, EPS: tl.constexpr, SLOPE: tl.constexpr):
     """Instance norm (mean and 1/std from the frame's sums of the source, `n_src` vertices) + leaky ReLU of the
     loaded (rows, cols) values, in fp32; 0 where `mask` is off (padding slots)."""
-    mean = tl.load(sums_ptr + cols, mask=col_ok, other=0.0) / n_src
-    squares = tl.load(sums_ptr + channels + cols, mask=col_ok, other=0.0) / n_src
-    factor = 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
+    mean, factor = _norm_stats(sums_ptr, cols, col_ok, channels, n_src, EPS)
     x = (x.to(tl.float32) - mean[None, :]) * factor[None, :]
     return tl.where(mask, tl.where(x > 0, x, x * SLOPE), 0.0)
 
@@ -112,10 +127,7 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
                  MAPPED2: tl.constexpr, TWO: tl.constexpr, AFFINE: tl.constexpr, NORM1: tl.constexpr,
                  NORM2: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr,
                  EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
-    row_ok, out_ok = rows < n_vertices, outs < n_out
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -167,10 +179,7 @@ def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_
                        src1_ptr, map1_ptr, src1_vertices, src2_ptr, map2_ptr, src2_vertices,
                        L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
                        STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
-    row_ok, out_ok = rows < n_vertices, outs < n_out
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
     src1 = src1_ptr + frame * src1_vertices * L * n_out
     src2 = src2_ptr + frame * src2_vertices * L * n_out
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -192,10 +201,7 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
                         L: tl.constexpr, SLOTS: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
                         NORM: tl.constexpr, STATS: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
                         BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
-    row_ok, out_ok = rows < n_vertices, outs < n_out
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     if MAPPED:
         entries = tl.load(map_ptr + entries, mask=valid, other=0)
@@ -222,21 +228,15 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
 
 
 @triton.jit
-def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums_second, n_rows, src_vertices,
+def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_rows, src_vertices,
                     channels, P: tl.constexpr, MAPPED: tl.constexpr, NORMALIZE: tl.constexpr,
                     POOL_MAX: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
                     BLOCK_M: tl.constexpr, BLOCK_C: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    cols = tl.program_id(1) * BLOCK_C + tl.arange(0, BLOCK_C)
-    row_ok, col_ok = rows < n_rows, cols < channels
+    frame, rows, cols, row_ok, col_ok = _tile(n_rows, channels, BLOCK_M, BLOCK_C)
     mask = row_ok[:, None] & col_ok[None, :]
     src = src_ptr + frame * src_vertices * channels
     if NORMALIZE:
-        sums = sums_ptr + frame * sums_batch_stride
-        mean = tl.load(sums + cols, mask=col_ok, other=0.0) / src_vertices
-        squares = tl.load(sums + sums_second + cols, mask=col_ok, other=0.0) / src_vertices
-        factor = 1.0 / tl.sqrt(tl.maximum(squares - mean * mean, 0.0) + EPS)
+        mean, factor = _norm_stats(sums_ptr + frame * sums_batch_stride, cols, col_ok, channels, src_vertices, EPS)
     result = tl.zeros((BLOCK_M, BLOCK_C), dtype=tl.float32)
     paths = tl.arange(0, P)
     if MAPPED:      # all P source rows at once (P is a power of two), so the P gathers below overlap
@@ -267,10 +267,7 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, sums
 def _normed_products_kernel(out_ptr, src_ptr, sums_ptr, weight_ptr, n_rows, channels, n_cols,
                             PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr,
                             BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
-    frame = tl.program_id(2).to(tl.int64)
-    rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
-    outs = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
-    row_ok, out_ok = rows < n_rows, outs < n_cols
+    frame, rows, outs, row_ok, out_ok = _tile(n_rows, n_cols, BLOCK_M, BLOCK_N)
     src = src_ptr + frame * n_rows * channels
     sums = sums_ptr + frame * 2 * channels
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -451,7 +448,7 @@ def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: torch.Tensor 
     block_c = min(triton.next_power_of_2(channels), 128)
     block_m = 16 if INTERPRETED else max(16, 4096 // block_c)
     grid = (triton.cdiv(n_rows, block_m), triton.cdiv(channels, block_c), batch)
-    sums_args = (sums, 2 * channels, channels) if sums is not None else (source, 0, 0)
+    sums_args = (sums, 2 * channels) if sums is not None else (source, 0)
     wrap_triton(_prepare_kernel)[grid](
         out, source, source if rows is None else rows, *sums_args, n_rows, src_vertices, channels,
         P=1 if rows is None else rows.shape[1], MAPPED=rows is not None, NORMALIZE=sums is not None,
