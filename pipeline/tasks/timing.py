@@ -91,13 +91,10 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
     on the same frames, eager PyTorch; on CUDA (with Triton) also the fused bf16 network (`FusedTiming`), replayed
     the same way."""
-    def per_frame(run: Callable, grad_mode) -> tuple[np.ndarray, torch.Tensor]:
-        return _per_frame(run, store, ids, grad_mode)
-
-    eager_ms, expected = per_frame(lambda frame: model(frame, mesh), torch.no_grad)
+    eager_ms, expected = _per_frame(lambda frame: model(frame, mesh), store, ids, torch.no_grad)
     deployed, path = _deployed(FastRegressor(model, mesh).to(ids.device), store, ids,
                                "model.inference fast path, fp32")
-    deployed_ms, got = per_frame(deployed, torch.inference_mode)
+    deployed_ms, got = _per_frame(deployed, store, ids, torch.inference_mode)
     times = deployed_ms.view(InferenceTimes)
     times.eager, times.path = eager_ms, f"{path}; within {_relative(got, expected):.0e} of the eager output"
     times.fused = None
@@ -108,7 +105,7 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
             with _bf16_sums_in_fp32():
                 fused, fused_path = _deployed(FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device),
                                               store, ids, FUSED_PATH)
-                fused_ms, fused_out = per_frame(fused, torch.inference_mode)
+                fused_ms, fused_out = _per_frame(fused, store, ids, torch.inference_mode)
             times.fused = FusedTiming(fused_ms, _relative(fused_out, got), fused_path)
         except Exception as err:     # noqa: BLE001 -- Triton's compile errors derive from no common base
             reason = str(err).splitlines()[0] if str(err) else type(err).__name__
