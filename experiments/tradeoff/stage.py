@@ -18,8 +18,7 @@ sequence in the dataset's order: the ground truth) and timed against the high-re
   and the network itself. The input a cheaper solver makes lies outside that training data (paper Fig. 14): the
   errors say what the shift costs. A --matched EVAL.h5 MODEL.pt is a network trained on the budget's own inputs
   (the scene's recipe, or it at another width): whether matching the training input to the deployed budget
-  removes the shift. Each budget
-  also gives a row for Loop subdivision alone (network "none").
+  removes the shift. Each budget also gives a row for Loop subdivision alone (network "none").
 * High-res runs (--high-res): the high-res solver itself at SUBSTEPS x ITERATIONS with the harmonic projection
   every SCHEDULE (iteration or substep), held to the scene's low-res runs, one SIM_HIGH.h5 per sequence in the
   order of --sim-high; scored against the scene's high-res runs on the dataset's test and held-out frames
