@@ -289,6 +289,10 @@ class CapturedCall:
 
     def __init__(self, fn, *example_inputs: torch.Tensor, warmup: int = 3):
         device = example_inputs[0].device
+        # The graph reads the buffers of whatever `fn` closes over (a network's weights and index tables) by
+        # address: keep `fn` alive as long as the graph, or a caller's temporary module is freed after capture and
+        # the replay reads reused memory (out-of-bounds indices: a device-side assert).
+        self.fn = fn
         self.inputs = tuple(x.clone() for x in example_inputs)
         stream = torch.cuda.Stream(device)
         stream.wait_stream(torch.cuda.current_stream(device))
