@@ -62,7 +62,7 @@ from pipeline.artifacts.train_log import TrainLog, read_train_log
 from pipeline.core import cli
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import atomic_write, check_same_mesh, write_bytes
-from pipeline.core.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch, timing_device
 from pipeline.tasks import streams_frames, task_of
 from pipeline.tasks.scoring import FrameOutputs, evaluation_frames, network_predict
 from pipeline.tasks.task import HostFrames, Task
@@ -272,7 +272,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                        {"dataset": args.dataset, "operators": args.operators, "model": args.model,
                         "scene": args.scene, "train log": args.train_log})
     device = configure_torch(args.device, 0, args.threads)
-    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
+    where = timing_device(device)
     stream, n_bytes = streams_frames(args.dataset, args.device_cache_gb, device)
     data = load_dataset(args.dataset, frames=not stream)
     check_same_mesh(args.operators, args.dataset)   # operators of a moved copy of the mesh have the same faces

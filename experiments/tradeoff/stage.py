@@ -69,7 +69,7 @@ from pipeline.core import cli
 from pipeline.core.config import read_settings
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import atomic_write
-from pipeline.core.torch_setup import configure_torch
+from pipeline.core.torch_setup import configure_torch, timing_device
 from pipeline.tasks import frames_of
 from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_inference
 from viz.tradeoff_plot import tradeoff_plot
@@ -396,7 +396,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
                            for h in high_res for i, p in enumerate([*h.runs, *h.timed])}})
     device = configure_torch(args.device, 0, args.threads)
-    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"cpu, {torch.get_num_threads()} threads"
+    where = timing_device(device)
     S = read_subdivision(args.subdiv).S
     settings = read_settings(settings_path)
     timed = TimedSequence(*args.solve_timing, *(args.settled or (None, None)))

@@ -27,12 +27,13 @@ JOBS_PER_GPU_VARIABLE = "LEARNED_CLOTH_JOBS_PER_GPU"
 LOCKS_VARIABLE = "LEARNED_CLOTH_GPU_LOCKS"    # the lock files' folder (default: one per user under the temp dir)
 
 _held: tuple[str, int] | None = None         # (the GPU's id, the locked file's descriptor) for the process's life
+_sharing = 1                                 # the jobs the held GPU takes at once (jobs_per_gpu), 1 without a slot
 
 
 def claim_gpu(poll_seconds: float = 0.5) -> str | None:
     """Take a free GPU of LEARNED_CLOTH_GPUS and make it the only one CUDA shows this process; its id, or None
     where the variable is absent or 1. Waits while every slot is held (more CUDA jobs than `--resources gpu`)."""
-    global _held
+    global _held, _sharing
     if _held is not None:
         return _held[0]
     ids = _slot_ids(os.environ.get(GPUS_VARIABLE), os.environ.get("CUDA_VISIBLE_DEVICES"))
@@ -52,7 +53,7 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
             except BlockingIOError:
                 os.close(fd)
                 continue
-            _held = (gpu, fd)
+            _held, _sharing = (gpu, fd), per_gpu
             os.environ["CUDA_VISIBLE_DEVICES"] = gpu
             os.environ[GPUS_VARIABLE] = "1"     # what this process starts shares its GPU, as torch's own workers do
             shared = f", slot {k + 1} of its {per_gpu}" if per_gpu > 1 else ""
@@ -63,6 +64,12 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
             print(f"all {len(slots)} GPU slots held by other jobs: waiting for one", file=sys.stderr)
             announced = True
         time.sleep(poll_seconds)
+
+
+def jobs_sharing_the_gpu() -> int:
+    """How many jobs the GPU this process claimed takes at once (`jobs_per_gpu`; 1 without a claimed slot): a
+    time measured here with more than 1 may include the other jobs' kernels."""
+    return _sharing
 
 
 def _jobs_per_gpu(text: str | None) -> int:

@@ -6,6 +6,7 @@ import os
 
 import torch
 
+from pipeline.core import gpu_slots
 from pipeline.core.cli import check_device
 from pipeline.core.errors import PipelineError
 
@@ -54,3 +55,13 @@ def keep_resident(n_bytes: int, budget_gb: float | None, device: torch.device) -
                 else os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
         return n_bytes <= free / 2
     return n_bytes <= budget_gb * 2 ** 30
+
+
+def timing_device(device: torch.device) -> str:
+    """Where a stage's times were measured, in words (eval.h5's and tradeoff.h5's `device`): the GPU's name, and
+    how many jobs shared it where `jobs_per_gpu` let others run beside this one; the CPU with its threads."""
+    if device.type != "cuda":
+        return f"cpu, {torch.get_num_threads()} threads"
+    shared = gpu_slots.jobs_sharing_the_gpu()
+    beside = f" (one of {shared} jobs a GPU: times include the others' kernels)" if shared > 1 else ""
+    return torch.cuda.get_device_name(device) + beside

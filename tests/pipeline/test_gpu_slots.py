@@ -10,8 +10,10 @@ from pipeline.core.errors import PipelineError
 from pipeline.core.gpu_slots import GPUS_VARIABLE, JOBS_PER_GPU_VARIABLE, LOCKS_VARIABLE, _jobs_per_gpu, _slot_ids
 
 # A job: take a GPU, say which (and what its children would be told), then live until stdin closes.
-JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu; gpu = claim_gpu(poll_seconds=0.05); "
-       "print(gpu, os.environ['CUDA_VISIBLE_DEVICES'], os.environ['LEARNED_CLOTH_GPUS'], flush=True); "
+# The fourth word: how many jobs share its GPU, which the times it measures name (pipeline.core.torch_setup).
+JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu, jobs_sharing_the_gpu; "
+       "gpu = claim_gpu(poll_seconds=0.05); print(gpu, os.environ['CUDA_VISIBLE_DEVICES'], "
+       "os.environ['LEARNED_CLOTH_GPUS'], jobs_sharing_the_gpu(), flush=True); "
        "sys.stdin.read()")
 
 
@@ -37,7 +39,7 @@ def test_jobs_take_distinct_gpus_wait_and_get_a_released_one(tmp_path):
     first.kill()                            # a killed holder's lock goes with it
     first.wait()
     # The freed GPU, seen alone; its own children are not told to share again.
-    assert third.stdout.readline().split() == [first_gpu, first_gpu, "1"]
+    assert third.stdout.readline().split() == [first_gpu, first_gpu, "1", "1"]
     for job in (second, third):
         job.communicate("")
 
@@ -64,7 +66,9 @@ def test_with_two_jobs_a_gpu_they_spread_over_the_gpus_before_they_share_one(tmp
     jobs, gpus = [], []
     for _ in range(4):                      # one at a time, so the order of the slots they take is the test's
         jobs.append(start_job(tmp_path, 2, per_gpu=2))
-        gpus.append(jobs[-1].stdout.readline().split()[0])
+        gpu, _, _, sharing = jobs[-1].stdout.readline().split()
+        gpus.append(gpu)
+        assert sharing == "2"
     assert gpus == ["0", "1", "0", "1"]
     fifth = start_job(tmp_path, 2, per_gpu=2)
     assert "waiting" in fifth.stderr.readline() and fifth.poll() is None
