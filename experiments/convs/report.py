@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from experiments.convs.artifact import KINDS, OURS, SPLITS, Convs
 from viz.html_report import Links, Paragraphs, Picture, Section, Strong, Table
@@ -104,9 +105,55 @@ def margin(row: Row, column: str) -> float | None:
     return min(spiral) / max(min(ours), 1e-30)
 
 
+@dataclasses.dataclass(frozen=True)
+class FamilyTest:
+    """RC/EC against SP/SPD paired by training: per row and seed, the best spiral operator's error over the best
+    of ours (above 1: RC/EC lower), on the split a user meets (held-out where measured, else test)."""
+    split: str
+    ratios: np.ndarray          # (rows x seeds,) best SP/SPD over best RC/EC
+    p_value: float              # Wilcoxon signed-rank on the log ratios, two-sided (1 where nothing differs)
+
+
+def family_test(table_rows: list[Row], term: str = "l1", task: str | None = None) -> FamilyTest | None:
+    """Whether one family is lower more consistently than the trainings' noise would make it: each (row, seed)
+    is an independent training of every operator, so the sign of log(best SP/SPD / best RC/EC) over them is
+    tested against a median of zero (Wilcoxon signed-rank, exact for few pairs). A row's splits are not
+    independent (one network), so one split is tested. None without rows of both families."""
+    chosen = [row for row in table_rows if (task is None or row.task == task)
+              and any(k in OURS for k in row.kinds) and any(k not in OURS for k in row.kinds)]
+    if not chosen:
+        return None
+    split = "heldout" if all(f"{term}_heldout" in row.values for row in chosen) else "test"
+    ratios = []
+    for row in chosen:
+        values = row.values[f"{term}_{split}"]
+        for s in range(len(row.seeds)):
+            ours = min(values[k][s] for k in row.kinds if k in OURS)
+            spiral = min(values[k][s] for k in row.kinds if k not in OURS)
+            ratios.append(spiral / ours)
+    logs = np.log(np.asarray(ratios))
+    p_value = 1.0 if not np.any(logs != 0) else float(stats.wilcoxon(logs, alternative="two-sided").pvalue)
+    return FamilyTest(split, np.asarray(ratios), p_value)
+
+
+def _family_words(test: FamilyTest, term: str) -> str:
+    median = float(np.median(test.ratios))
+    if test.p_value < 0.05:
+        answer = f"{'RC/EC' if median > 1 else 'SP/SPD'} lower, beyond the trainings' noise"
+    else:
+        answer = "neither family lower beyond the trainings' noise (p >= 0.05"
+        # The exact two-sided test's smallest p with n pairs is 2 / 2^n: below 6 pairs no result reaches 0.05.
+        answer += f"; with {len(test.ratios)} trainings it cannot reach 0.05)" if len(test.ratios) < 6 else ")"
+    return (f" Paired by training ({len(test.ratios)}: rows x seeds) on the {SPLIT_WORDS[test.split]} "
+            f"{term.upper()}: best SP/SPD over best RC/EC {median:.3f} in the median training "
+            f"({test.ratios.min():.3f} to {test.ratios.max():.3f}), Wilcoxon signed-rank p = {test.p_value:.3g}: "
+            f"{answer}.")
+
+
 def verdict(table_rows: list[Row], term: str = "l1") -> list[str]:
     """The answer in sentences: per task, how often RC/EC and SP/SPD have the lowest error, how many of those wins
-    stand clear of the seeds' spread, and the ratio of the two families' best (median and range over the cases)."""
+    stand clear of the seeds' spread, the ratio of the two families' best (median and range over the cases) and
+    whether one family is lower beyond the trainings' noise (`family_test`)."""
     lines = []
     for task in dict.fromkeys(row.task for row in table_rows):
         count = wins(table_rows, term, task)
@@ -123,10 +170,13 @@ def verdict(table_rows: list[Row], term: str = "l1") -> list[str]:
             text += (f" Clear of the spread of {seeds} seeds (every seed of the winner below every seed of the "
                      f"others): RC/EC {ours_clear}, SP/SPD {spiral_clear}.")
         else:
-            text += " One seed per run: no win can be told from the seeds' noise (the paper profile runs 3)."
+            text += " One seed per run: no single win can be told from the seeds' noise (the paper profile runs 3)."
         if margins:
             text += (f" Best SP/SPD over best RC/EC (above 1: RC/EC lower): {np.median(margins):.3f} in the median "
                      f"case, {min(margins):.3f} to {max(margins):.3f}.")
+        test = family_test(table_rows, term, task)
+        if test is not None:
+            text += _family_words(test, term)
         lines.append(text)
     return lines
 

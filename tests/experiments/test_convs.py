@@ -1,13 +1,14 @@
 """experiments.convs: the table, the wins and their spread, the report and the refusals, from hand-made runs
 (eval.h5 and train.h5 as the evaluate and train stages write them) whose answers are known; the workflow's run of
 the stage: test_workflow_convs.py."""
+import itertools
 import re
 
 import numpy as np
 import pytest
 
 from experiments.convs.artifact import COLUMNS, read_convs
-from experiments.convs.report import lowest, margin, rows, wins
+from experiments.convs.report import family_test, lowest, margin, rows, verdict, wins
 from experiments.convs.stage import RECIPE as RECIPE_FLAGS
 from experiments.convs.stage import gather, main
 from pipeline.artifacts.evaluation import Evaluation, write_evaluation
@@ -109,6 +110,52 @@ def test_the_margin_is_the_best_spiral_over_the_best_of_ours(tmp_path):
     assert margin(row, "l1_test") == pytest.approx(2.0 / 1.6)
     assert margin(rows(gather(grid_runs(tmp_path / "one", lambda k, n, s: 1.0, kinds=("RC", "EC")))[0])[0],
                   "l1_test") is None                                   # no spiral operator to compare with
+
+
+def exact_signed_rank_p(differences):
+    """Two-sided exact p of Wilcoxon's signed-rank statistic by enumerating every sign assignment of the ranks
+    (no ties, no zeros): the reference `family_test` is checked against."""
+    ranks = np.argsort(np.argsort(np.abs(differences))) + 1
+    observed = ranks[differences > 0].sum()
+    totals = np.array([sum(r for r, sign in zip(ranks, signs) if sign)
+                       for signs in itertools.product((0, 1), repeat=len(ranks))])
+    return min(1.0, 2 * min(np.mean(totals <= observed), np.mean(totals >= observed)))
+
+
+def test_a_family_lower_in_every_training_has_the_exact_signed_rank_p(tmp_path):
+    # RC 2 % below SP/SPD and EC in each of 2 rows x 3 seeds: all 6 log ratios positive, p = 2 / 2^6.
+    base = {(n, s): 1.0 + 0.1 * s + 0.01 * n for n in (9, 13) for s in range(3)}
+    runs = grid_runs(tmp_path, lambda k, n, s: 1e-3 * base[n, s] * (0.98 if k == "RC" else 1.0),
+                     seeds=(0, 1, 2), lengths=(9, 13))
+    table_rows = rows(gather(runs)[0])
+    test = family_test(table_rows)
+    assert test.split == "heldout" and len(test.ratios) == 6
+    np.testing.assert_allclose(test.ratios, 1 / 0.98)
+    assert test.p_value == pytest.approx(2 / 2 ** 6)
+    assert "RC/EC lower, beyond the trainings' noise" in verdict(table_rows)[0]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_family_test_matches_an_enumeration_of_the_sign_assignments(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    factor = {(k, n, s): rng.uniform(0.95, 1.05) for k in KINDS for n in (9, 13) for s in range(4)}
+    runs = grid_runs(tmp_path, lambda k, n, s: 1e-3 * factor[k, n, s], seeds=(0, 1, 2, 3), lengths=(9, 13),
+                     task_splits=("train", "test"))
+    test = family_test(rows(gather(runs)[0]))
+    expected = [min(factor[k, n, s] for k in KINDS[2:]) / min(factor[k, n, s] for k in KINDS[:2])
+                for n in (9, 13) for s in range(4)]
+    assert test.split == "test"                           # no held-out split measured
+    np.testing.assert_allclose(test.ratios, expected)
+    assert test.p_value == pytest.approx(exact_signed_rank_p(np.log(expected)))
+
+
+def test_operators_alike_are_no_family_win_and_a_single_family_has_no_test(tmp_path):
+    runs = grid_runs(tmp_path / "alike", lambda k, n, s: 1e-3, seeds=(0, 1, 2))
+    table_rows = rows(gather(runs)[0])
+    assert family_test(table_rows).p_value == 1.0
+    assert "neither family lower beyond the trainings' noise (p >= 0.05; with 3 trainings" in verdict(table_rows)[0]
+    ours_only = grid_runs(tmp_path / "ours", lambda k, n, s: 1e-3, kinds=("RC", "EC"))
+    assert family_test(rows(gather(ours_only)[0])) is None
 
 
 def test_the_report_bolds_the_lowest_of_each_split_and_counts_the_wins(tmp_path):
