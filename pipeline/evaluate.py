@@ -41,6 +41,7 @@ import secrets
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
@@ -227,6 +228,7 @@ def flags_from_settings(settings: dict) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
+    started = time.perf_counter()
     parser = argparse.ArgumentParser(prog="python -m pipeline.evaluate", description=__doc__.splitlines()[0])
     for name in ("dataset", "operators", "model"):
         parser.add_argument(name)
@@ -288,7 +290,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         frames = evaluation_frames(task, data, reader, device)
         predict = network_predict(model, mesh, frames, stream, n_bytes, args.dataset)
         _evaluate(args, folders, Evaluated(data, task, model, mesh, state, frames, predict,
-                                           task.host_frames(data, args.dataset, reader), device, where))
+                                           task.host_frames(data, args.dataset, reader), device, where, started))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -305,6 +307,7 @@ class Evaluated:
     host: HostFrames             # the frames on the host, a run at a time
     device: torch.device
     where: str                   # the device in words
+    started: float               # time.perf_counter() at the stage's start: its phases are timed from there
 
 
 def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> None:
@@ -313,6 +316,14 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
     data, task, report_dir = run.data, run.task, Path(args.report).parent
     train_log = read_train_log(args.train_log) if args.train_log else None
     steps = tqdm(total=5, desc="evaluate", unit="step", disable=args.quiet)
+    # Where the stage's time goes (eval.h5's phase_seconds): in grids of evaluations the loading and the timing
+    # can outweigh the scoring.
+    phases, mark = {"load": time.perf_counter() - run.started}, time.perf_counter()
+
+    def phase(name: str) -> None:
+        nonlocal mark
+        phases[name], mark = time.perf_counter() - mark, time.perf_counter()
+
     weights = LossWeights(**run.state["training"]["loss_weights"])
     n_frames = len(data.sequence)
     # With an unseen motion, half the stills show it.
@@ -330,9 +341,11 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
         scores = score_frames(run.predict, run.frames, n_frames, on_chunk=outputs)
         errors = {who: {split: scores.split(who, ids, weights) for split, ids in data.splits().items()}
                   for who in WHO}
+        phase("score")
         steps.update()
         timed = pick_frames(data.test, args.timing_frames)
         times = task.time(run.model, run.mesh, run.frames.all_frames()[0], torch.as_tensor(timed, device=run.device))
+        phase("time")
         steps.update()
         per_frame = scores.per_frame
         windows = read_library_windows(args.dataset)
@@ -359,9 +372,11 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
             pictures.append(staged["renders"] / f"frame_{frame:04d}.png")
             write_bytes(pictures[-1], png_bytes(image))
         plots = _write_plots(staged["renders"], per_frame, data, train_log, task) if args.render_frames else {}
+        phase("pictures")
         steps.update()
         videos = [(_write_video(staged["videos"] / name, comparison, clip_frames, fps, frame_meshes, frame_title),
                    caption) for name, clip_frames, fps, caption in clips]
+        phase("videos")
         steps.update()
         exports = _write_exports(staged["export"], n_export, stills[:1], frame_meshes, run.host.input_faces,
                                  data.faces, task)
@@ -387,9 +402,10 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
         title = f"Evaluation of {args.model}"
         markdown = report_markdown(title, sections, href).encode()
         page = report_html(title, sections).encode() if args.html else None
+        phase("exports and report")
         out.finish(Evaluation(errors, per_frame, None, times, timed, run.where, WARMUP_RUNS,
                               run.state["parameter_count"], trained_frame_count(run.state["training"], data), by_kind,
-                              times.fused, task.predictor_label))
+                              times.fused, task.predictor_label, phases))
         with atomic_write(args.report) as f:
             f.write(markdown)
         if page is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import os
 from typing import Any, Iterator, Mapping
 
@@ -62,6 +63,7 @@ class Evaluation:
                                                                                 # dataset without library windows
     fused: FusedTiming | None = None    # None: not timed (the CPU, where it does not run; a decoder)
     predictor: str = "the predictor"    # what the predictor is, in words (the task's: "Loop subdivision", ...)
+    phase_seconds: dict[str, float] = dataclasses.field(default_factory=dict)   # the stage's wall time by phase
 
 
 def write_evaluation(path: str | os.PathLike, config: Mapping[str, Any], evaluation: Evaluation) -> None:
@@ -133,6 +135,14 @@ def _write_results(f: h5py.File, evaluation: Evaluation, predictions_stored: boo
                    warmup_runs=evaluation.warmup_runs, parameter_count=evaluation.parameter_count,
                    trained_frames=evaluation.trained_frames,
                    timing="input features and network, batch of one frame")
+    if evaluation.phase_seconds:
+        f.attrs["phase_seconds"] = json.dumps(evaluation.phase_seconds)
+        f.attrs["phase_seconds_meaning"] = (
+            "the evaluate stage's wall seconds by phase, in order: load (from the stage's start after its imports: "
+            "dataset, model, frames onto the device), score (every frame through the network and the predictor, "
+            "the scored frames' OBJ export), time (inference timing: eager, the deployment path and, on CUDA, the "
+            "fused network, captures and kernel compiles included), pictures, videos, exports and report (up to "
+            "this file; the report's writing follows)")
     if evaluation.fused is not None:
         f.create_dataset(FUSED_MS, data=np.asarray(evaluation.fused.ms, dtype=np.float64))
         f[FUSED_MS].attrs.update(meaning="ms per timed frame (inference_frames) of the fused bf16 network, "

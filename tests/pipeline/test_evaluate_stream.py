@@ -6,6 +6,9 @@ no file for an evaluation that did not finish. (A network that reads its previou
 dataset: tests/pipeline/test_train_stream.py.)"""
 from __future__ import annotations
 
+import json
+import time
+
 import h5py
 import numpy as np
 import pytest
@@ -21,7 +24,7 @@ from stage_inputs import stage
 FRAMES = 40         # per sequence: 3 sequences, 120 frames, 4 chunks (CHUNK_FRAMES 32)
 # Every frame exported and stored; two stills; no video (rendering one costs seconds and shows nothing new here).
 EVALUATE = ["--render-frames", 2, "--video-frames", 0, "--export-frames", 0, "--timing-frames", 1, "--quiet"]
-TIMING = {"inference_ms", "inference_ms_median"}       # wall times: the one thing two runs do not share
+TIMING = {"inference_ms", "inference_ms_median", "phase_seconds"}   # wall times: what two runs do not share
 
 
 @pytest.fixture(scope="module")
@@ -69,8 +72,15 @@ def test_a_streamed_evaluation_writes_what_a_resident_one_writes_holding_only_th
     runs = {}
     for mode, cache in (("resident", "64"), ("streamed", "0")):
         out = tmp_path / mode
+        start = time.perf_counter()
         _evaluate(scene, out, "--device-cache-gb", cache)
+        wall = time.perf_counter() - start
         runs[mode] = _contents(out / "eval.h5"), out
+        # Where the stage's time went: every phase, in order, together no longer than the call.
+        with h5py.File(out / "eval.h5") as f:
+            phases = json.loads(f.attrs["phase_seconds"])
+        assert list(phases) == ["load", "score", "time", "pictures", "videos", "exports and report"]
+        assert all(seconds >= 0 for seconds in phases.values()) and sum(phases.values()) <= wall
     (resident, resident_config), resident_out = runs["resident"]
     (streamed, streamed_config), streamed_out = runs["streamed"]
     assert resident.keys() == streamed.keys() and {"predicted", "per_frame/network_l1",
