@@ -187,6 +187,15 @@ def test_a_train_job_of_several_ranks_runs_them_under_torchrun_with_a_gpu_each(t
     assert "gpu=2" in job["resources"] and job["threads"] == "2"
     assert " -m torch.distributed.run --standalone --nproc_per_node=2 -m pipeline.train " in job["shell"]
     assert " --threads 1 " in job["shell"]
+    # The trade-off's matched networks are the scene's recipe on cheaper inputs: trained on its ranks too; its
+    # width networks (their own epochs, a grid) one process each.
+    run = snakemake(tmp_path, "-n", "-p", "--configfile", str(REPO / "workflow_config.yaml"), str(overlay),
+                    "--config", "device=cuda:0", "--", "results/patch/tradeoff/")
+    assert run.returncode == 0, tail(run)
+    jobs = planned_jobs(run)
+    matched, width = jobs["tradeoff_train_matched"], jobs["tradeoff_train"]
+    assert "gpu=2" in matched["resources"] and " --nproc_per_node=2 -m pipeline.train " in matched["shell"]
+    assert "gpu=1" in width["resources"] and "torch.distributed.run" not in width["shell"]
 
 
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],

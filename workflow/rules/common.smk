@@ -60,6 +60,22 @@ def gpus_on_device(wildcards):
     return device_gpus(wildcards.scene)
 
 
+# The trainings of the scene's own recipe (its network, and the trade-off's matched networks: that recipe on the
+# inputs a cheaper low-res run gives) run its `training.ranks` processes under torchrun, a GPU each, so that a
+# matched network is trained as the network it is compared with. The grids' trainings of their own step budgets
+# (study, trade-off widths, operator comparison, applications) run one process each, many at a time.
+def recipe_train_launcher(wildcards):
+    return workflow_paths.train_launcher(SETTINGS[wildcards.scene])
+
+
+def recipe_train_gpus(wildcards):
+    return workflow_paths.train_gpus(SETTINGS[wildcards.scene])
+
+
+def recipe_train_threads(wildcards, threads):
+    return workflow_paths.rank_threads(SETTINGS[wildcards.scene], threads)
+
+
 def high_batch_threads(scene, sequences):
     """Threads of a high-res batch job: on a GPU one a sequence, up to 8, for the per-sequence work outside the
     solver (harmonic targets, residual: most of a 64-sequence job's time besides stepping); a CPU batch steps on

@@ -36,13 +36,11 @@ rule dataset:
 rule train:
     input: settings=f"{OUT}/settings.json", dataset=f"{OUT}/dataset.h5", operators=f"{OUT}/operators.h5"
     output: model=f"{OUT}/model.pt", history=f"{OUT}/train.h5"
-    params:
-        launcher=lambda w: workflow_paths.train_launcher(SETTINGS[w.scene]),
-        threads=lambda w, threads: workflow_paths.rank_threads(SETTINGS[w.scene], threads),
+    params: launcher=recipe_train_launcher, threads=recipe_train_threads
     log: log_of("train")
     benchmark: benchmark_of("train")
     threads: workflow.cores
-    resources: mem_mb=8000, gpu=lambda w: workflow_paths.train_gpus(SETTINGS[w.scene])
+    resources: mem_mb=8000, gpu=recipe_train_gpus
     # Ahead of the study's, trade-off's and applications' jobs when they wait for the same GPU slots (`--resources
     # gpu=N`): the scene's own model and report are what the others compare against. (On the H100 the trade-off's
     # evaluations took every slot first and the lease ended before the scene's report was made.)

@@ -284,13 +284,14 @@ rule tradeoff_train_matched:
         settings=f"{TRADEOFF_POINT}/settings.json", dataset=f"{TRADEOFF_POINT}/dataset.h5",
         operators=f"{OUT}/operators.h5",
     output: model=f"{TRADEOFF_MATCHED}/model.pt", history=f"{TRADEOFF_MATCHED}/train.h5"
+    params: launcher=recipe_train_launcher, threads=recipe_train_threads
     log: f"{TRADEOFF_MATCHED}/logs/train.log"
     benchmark: f"{TRADEOFF_MATCHED}/benchmarks/train.tsv"
     threads: workflow.cores
-    resources: mem_mb=8000, gpu=gpus_on_device
+    resources: mem_mb=8000, gpu=recipe_train_gpus
     shell:
-        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
-        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
+        "{output.history:q} --settings {input.settings:q} --threads {params.threads} --quiet 2>&1 | tee {log:q}"
 
 
 rule tradeoff_matched_settings:
@@ -313,13 +314,14 @@ rule tradeoff_train_matched_width:
         settings=f"{TRADEOFF_MATCHED_NET}/settings.json", dataset=f"{TRADEOFF_POINT}/dataset.h5",
         operators=f"{OUT}/operators.h5",
     output: model=f"{TRADEOFF_MATCHED_NET}/model.pt", history=f"{TRADEOFF_MATCHED_NET}/train.h5"
+    params: launcher=recipe_train_launcher, threads=recipe_train_threads
     log: f"{TRADEOFF_MATCHED_NET}/logs/train.log"
     benchmark: f"{TRADEOFF_MATCHED_NET}/benchmarks/train.tsv"
     threads: workflow.cores
-    resources: mem_mb=8000, gpu=gpus_on_device
+    resources: mem_mb=8000, gpu=recipe_train_gpus
     shell:
-        "{PY:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} {output.history:q} "
-        "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
+        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
+        "{output.history:q} --settings {input.settings:q} --threads {params.threads} --quiet 2>&1 | tee {log:q}"
 
 
 # A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; `matched_w<width>`; or
