@@ -10,10 +10,14 @@ lists GPUs (a scheduler's allocation) the slots are the first N of those.
 With `jobs_per_gpu: k` (LEARNED_CLOTH_JOBS_PER_GPU, and `--resources gpu=N*k`) each GPU has k slots, so k jobs
 share it: a job of small batches leaves a GPU mostly idle (launches, its Python and its start-up), and several of
 them overlap there. Jobs take every GPU's first slot before any GPU's second, so they spread before they stack.
+The ranks of one job (torchrun's, `training.ranks`) never share a GPU, which NCCL refuses: each rank notes its GPU
+in a small file of the job's run (TORCHELASTIC_RUN_ID) in the locks' folder, and its siblings pass that GPU by.
 """
 from __future__ import annotations
 
+import contextlib
 import fcntl
+import hashlib
 import os
 import sys
 import tempfile
@@ -25,6 +29,7 @@ from pipeline.core.errors import PipelineError
 GPUS_VARIABLE = "LEARNED_CLOTH_GPUS"
 JOBS_PER_GPU_VARIABLE = "LEARNED_CLOTH_JOBS_PER_GPU"
 LOCKS_VARIABLE = "LEARNED_CLOTH_GPU_LOCKS"    # the lock files' folder (default: one per user under the temp dir)
+RUN_VARIABLE = "TORCHELASTIC_RUN_ID"         # torchrun's id of one launch: the ranks of one job share it
 
 _held: tuple[str, int] | None = None         # (the GPU's id, the locked file's descriptor) for the process's life
 _sharing = 1                                 # the jobs the held GPU takes at once (jobs_per_gpu), 1 without a slot
@@ -43,16 +48,15 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
     slots = [(gpu, k) for k in range(per_gpu) for gpu in ids]
     folder = Path(os.environ.get(LOCKS_VARIABLE) or Path(tempfile.gettempdir()) / f"learned-cloth-gpus-{os.getuid()}")
     folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    run = _run_of_ranks(os.environ)
     announced = False
     while True:
-        for gpu, k in slots:
-            fd = os.open(folder / (f"gpu-{gpu}.lock" if k == 0 else f"gpu-{gpu}-slot{k}.lock"),
-                         os.O_RDWR | os.O_CREAT, 0o600)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                os.close(fd)
-                continue
+        with _siblings_lock(folder, run) as siblings:
+            claimed = _claim_free_slot(folder, slots, siblings.read())
+            if claimed is not None:
+                siblings.add(claimed[0])
+        if claimed is not None:
+            gpu, k, fd = claimed
             _held, _sharing = (gpu, fd), per_gpu
             os.environ["CUDA_VISIBLE_DEVICES"] = gpu
             os.environ[GPUS_VARIABLE] = "1"     # what this process starts shares its GPU, as torch's own workers do
@@ -61,9 +65,64 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
                   file=sys.stderr)
             return gpu
         if not announced:
-            print(f"all {len(slots)} GPU slots held by other jobs: waiting for one", file=sys.stderr)
+            print(f"all {len(slots)} GPU slots held by other jobs (or on this job's other ranks' GPUs): waiting "
+                  f"for one", file=sys.stderr)
             announced = True
         time.sleep(poll_seconds)
+
+
+def _claim_free_slot(folder: Path, slots: list[tuple[str, int]], passed_by: set[str]) -> tuple[str, int, int] | None:
+    """The first free slot (gpu, k) on a GPU not in `passed_by`, locked: (gpu, k, the lock's descriptor)."""
+    for gpu, k in slots:
+        if gpu in passed_by:
+            continue
+        fd = os.open(folder / (f"gpu-{gpu}.lock" if k == 0 else f"gpu-{gpu}-slot{k}.lock"), os.O_RDWR | os.O_CREAT,
+                     0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        return gpu, k, fd
+    return None
+
+
+def _run_of_ranks(environ) -> str | None:
+    """A name for this process's job among its ranks' (a digest of torchrun's run id: a file name whatever the
+    id holds), or None for a job of one process."""
+    run, world = environ.get(RUN_VARIABLE), environ.get("WORLD_SIZE", "1").strip()
+    if run is None or world in ("", "0", "1"):
+        return None
+    return hashlib.sha256(run.encode()).hexdigest()[:16]
+
+
+class _Siblings:
+    """The GPUs a job's other ranks took (the run's file in the locks' folder); nothing without ranks."""
+
+    def __init__(self, path: Path | None):
+        self.path = path
+
+    def read(self) -> set[str]:
+        return set(self.path.read_text().split()) if self.path is not None and self.path.exists() else set()
+
+    def add(self, gpu: str) -> None:
+        if self.path is not None:
+            with open(self.path, "a") as f:
+                f.write(f"{gpu}\n")
+
+
+@contextlib.contextmanager
+def _siblings_lock(folder: Path, run: str | None):
+    """The job's ranks claim one at a time (under the run's lock), each seeing the GPUs the others took."""
+    if run is None:
+        yield _Siblings(None)
+        return
+    fd = os.open(folder / f"ranks-{run}.lock", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield _Siblings(folder / f"ranks-{run}.gpus")
+    finally:
+        os.close(fd)      # closing the descriptor releases the lock
 
 
 def jobs_sharing_the_gpu() -> int:

@@ -7,7 +7,8 @@ import sys
 import pytest
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.gpu_slots import GPUS_VARIABLE, JOBS_PER_GPU_VARIABLE, LOCKS_VARIABLE, _jobs_per_gpu, _slot_ids
+from pipeline.core.gpu_slots import (GPUS_VARIABLE, JOBS_PER_GPU_VARIABLE, LOCKS_VARIABLE, RUN_VARIABLE,
+                                     _jobs_per_gpu, _slot_ids)
 
 # A job: take a GPU, say which (and what its children would be told), then live until stdin closes.
 # The fourth word: how many jobs share its GPU, which the times it measures name (pipeline.core.torch_setup).
@@ -17,8 +18,13 @@ JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu, jobs_shar
        "sys.stdin.read()")
 
 
-def start_job(tmp_path, count, visible=None, per_gpu=None):
+def start_job(tmp_path, count, visible=None, per_gpu=None, rank_of=None):
+    """A job process; `rank_of`: a torchrun run id, making it one of that job's two ranks."""
     env = {**os.environ, GPUS_VARIABLE: str(count), LOCKS_VARIABLE: str(tmp_path / "locks")}
+    env.pop(RUN_VARIABLE, None)
+    env.pop("WORLD_SIZE", None)
+    if rank_of is not None:
+        env.update({RUN_VARIABLE: rank_of, "WORLD_SIZE": "2"})
     env.pop(JOBS_PER_GPU_VARIABLE, None)
     if per_gpu is not None:
         env[JOBS_PER_GPU_VARIABLE] = str(per_gpu)
@@ -76,6 +82,30 @@ def test_with_two_jobs_a_gpu_they_spread_over_the_gpus_before_they_share_one(tmp
     jobs[2].wait()
     assert fifth.stdout.readline().split()[0] == "0"
     for job in (*jobs[:2], jobs[3], fifth):
+        job.communicate("")
+
+
+def test_the_ranks_of_one_job_never_share_a_gpu(tmp_path):
+    # Two GPUs of two slots, all four held; then GPU 0's two slots freed: a job's first rank takes one, and its
+    # second passes the other by (NCCL refuses two ranks on one GPU) until GPU 1 has a free slot.
+    jobs, gpus = [], []
+    for _ in range(4):                      # one after another: each takes the first free slot
+        jobs.append(start_job(tmp_path, 2, per_gpu=2))
+        gpus.append(jobs[-1].stdout.readline().split()[0])
+    assert gpus == ["0", "1", "0", "1"]
+    for job in (jobs[0], jobs[2]):
+        job.kill()
+        job.wait()
+    first = start_job(tmp_path, 2, per_gpu=2, rank_of="run-a")
+    assert first.stdout.readline().split()[0] == "0"
+    second = start_job(tmp_path, 2, per_gpu=2, rank_of="run-a")
+    assert "waiting" in second.stderr.readline() and second.poll() is None
+    other = start_job(tmp_path, 2, per_gpu=2, rank_of="run-b")    # another job's rank takes GPU 0's free slot
+    assert other.stdout.readline().split()[0] == "0"
+    jobs[1].kill()
+    jobs[1].wait()
+    assert second.stdout.readline().split()[0] == "1"
+    for job in (jobs[3], first, second, other):
         job.communicate("")
 
 
