@@ -13,7 +13,9 @@ fast-bf16-graph, fast-compiled, fast-bf16-compiled-graph (the fast network throu
 max-autotune on CUDA; minutes of compiling per size), fused, fused-graph, fused-bf16, fused-bf16-graph (CUDA:
 model/fused_network.py, Triton kernels tuned on the first call, each convolution in the form its rule picks),
 fused-gather-bf16-graph (every convolution a gather-GEMM, the form before products-first), fused-fold-bf16-graph
-(norms applied on load by the gathering convolutions that read them: fewer launches for narrow networks), exported (the torch.export
+(norms applied on load by the gathering convolutions that read them: fewer launches for narrow networks),
+fused-pdl-bf16-graph and fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's
+overlap of a launch with the kernel before it), exported (the torch.export
 program of deploy/export.py, loaded back: net is not separate there), exported-graph, exported-fused (CUDA: the
 export's AOTInductor package of the fused bf16 path, loaded back with aoti_load_package, as deploy/runner.py --fused
 runs it). Graph modes copy each
@@ -73,6 +75,8 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-bf16-graph": ("fused", torch.bfloat16, True, False, False),
          "fused-gather-bf16-graph": ("fused-gather", torch.bfloat16, True, False, False),
          "fused-fold-bf16-graph": ("fused-fold", torch.bfloat16, True, False, False),
+         "fused-pdl-bf16-graph": ("fused-pdl", torch.bfloat16, True, False, False),
+         "fused-fold-pdl-bf16-graph": ("fused-fold-pdl", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
          "exported-graph": ("exported", torch.float32, True, False, False),
          "exported-fused": ("exported-fused", torch.bfloat16, False, False, False)}
@@ -161,10 +165,11 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
-    if kind in ("fast", "fused", "fused-gather", "fused-fold"):
+    if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl"):
         products = False if kind == "fused-gather" else None
         upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind != "fast", products=products,
-                                                fold_norms=kind == "fused-fold"), subdivision).to(device)
+                                                fold_norms="fold" in kind, pdl="pdl" in kind),
+                                  subdivision).to(device)
         if compiled:     # inductor may fuse the elementwise passes (pad, norm, pooling) into fewer kernels
             upsampler.regressor.network = torch.compile(
                 upsampler.regressor.network, dynamic=False,

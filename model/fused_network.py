@@ -287,6 +287,18 @@ def run_plan_reference(plan: list[FusedConv | Prepare], tables: list[torch.Tenso
     return outputs[-1]
 
 
+def _pdl_supported() -> bool:
+    """Whether the kernels can be dependent launches here: a Hopper or later GPU (sm_90: grid dependency control)
+    and a compiling Triton that has it (Triton comes with PyTorch's CUDA builds only)."""
+    if not torch.cuda.is_available() or torch.cuda.get_device_capability()[0] < 9:
+        return False
+    try:
+        from model.triton_conv import PDL_SUPPORTED
+    except ImportError:
+        return False
+    return PDL_SUPPORTED
+
+
 class FusedNetwork(nn.Module):
     """`FastNetwork`'s function (raw features (B, V_0, C) in the level-0 order of `mesh` -> scaled displacement
     (B, V_0, out) fp32) in the plan's launches, on CUDA. `dtype` is the hidden layers' storage and matmul type
@@ -295,12 +307,18 @@ class FusedNetwork(nn.Module):
 
     def __init__(self, net: EncoderDecoder, mesh: MeshHierarchy, input_offset: torch.Tensor,
                  input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32,
-                 products: bool | None = None, fold_norms: bool = False):
+                 products: bool | None = None, fold_norms: bool = False, pdl: bool = False):
         """`products`: how the convolutions run - None: each by the rules (`products_first`, then
         `few_channels`, else a gather-GEMM); True: products first wherever nothing applied on load forbids it;
         False: every one a gather-GEMM (the form before products-first, for comparison). `fold_norms`: norms
-        without a pooling applied on load by the convolutions reading them (fewer launches; see the module)."""
+        without a pooling applied on load by the convolutions reading them (fewer launches; see the module).
+        `pdl`: each Triton kernel a programmatic dependent launch (model.triton_conv; Hopper, CUDA only): its
+        launch overlaps the kernel before it. Off by default until measured faster; the export keeps it off."""
         super().__init__()
+        if pdl and not _pdl_supported():
+            raise ValueError("pdl: needs a CUDA build of Triton with grid dependency control (not the interpreter) "
+                             "and a Hopper or later GPU")
+        self.pdl = pdl
         mesh = mesh.to("cpu")
         self.plan = aligned_plan(fused_plan(net, mesh, output_scale, fold_norms), ALIGN, FEW_CHANNELS)
         self.pool_max = net.pool_kind == "max"
@@ -351,7 +369,7 @@ class FusedNetwork(nn.Module):
             if isinstance(launch, Prepare):
                 outputs.append(prepare(source_of(launch.source), getattr(self, f"rows_{index}_0", None),
                                        sums[launch.source] if launch.normalize else None, self.dtype,
-                                       self.pool_max))
+                                       self.pool_max, self.pdl))
                 continue
             segments = [(source_of(segment.source), getattr(self, f"rows_{index}_{number}", None))
                         for number, segment in enumerate(launch.segments)]
@@ -364,22 +382,22 @@ class FusedNetwork(nn.Module):
                 for number, (source, rows) in enumerate(segments):
                     weights = getattr(self, f"slot_weights_{index}_{number}")
                     if norms[number] is not None:
-                        product = normed_products(source, norms[number], weights)
+                        product = normed_products(source, norms[number], weights, self.pdl)
                     else:
                         product = torch.matmul(source.to(weights.dtype), weights)
                     products.append(product.view(*source.shape[:2], table.shape[1], -1))
                 out, sums[index] = gather_sum(table, products[0], segments[0][1],
                                               products[1] if len(products) == 2 else None, second[1], bias,
-                                              out_dtype, launch.stats)
+                                              out_dtype, launch.stats, self.pdl)
             else:
                 affine = self.affine if launch.segments[0].affine else None
                 weight = getattr(self, f"weight_{index}")
                 if self.forms[index] == "few":
                     out, sums[index] = few_channel_conv(table, *segments[0], affine, norms[0], weight, bias,
-                                                        out_dtype, launch.stats)
+                                                        out_dtype, launch.stats, self.pdl)
                 else:
                     out, sums[index] = fused_conv(table, *segments[0], *second, affine, norms[0],
                                                   norms[1] if len(norms) == 2 else None, weight, bias, out_dtype,
-                                                  launch.stats)
+                                                  launch.stats, self.pdl)
             outputs.append(out)
         return outputs[-1]

@@ -158,10 +158,10 @@ class FastRegressor(nn.Module):
     the displacement (B, V, 3) in the dataset's frame and the caller's order."""
 
     def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32,
-                 fused: bool = False, products: bool | None = None, fold_norms: bool = False):
+                 fused: bool = False, products: bool | None = None, fold_norms: bool = False, pdl: bool = False):
         """`fused`: the network in model.fused_network's few launches (Triton; CUDA only) instead of
-        FastNetwork's gather + matmul per convolution; `products`, `fold_norms`: FusedNetwork's choice of
-        convolution form and of where norms are applied."""
+        FastNetwork's gather + matmul per convolution; `products`, `fold_norms`, `pdl`: FusedNetwork's choice of
+        convolution form, of where norms are applied and of dependent launches."""
         super().__init__()
         if not isinstance(model, FeatureRegressor):
             raise ValueError(f"fast inference runs the encoder-decoder's FeatureRegressor only, got a "
@@ -170,7 +170,7 @@ class FastRegressor(nn.Module):
         orders = locality_orders(mesh)
         args = (model.net, reorder_hierarchy(mesh, orders), model.input_offset, model.input_scale,
                 float(model.output_scale), dtype)
-        self.network = (FusedNetwork(*args, products=products, fold_norms=fold_norms) if fused
+        self.network = (FusedNetwork(*args, products=products, fold_norms=fold_norms, pdl=pdl) if fused
                         else FastNetwork(*args))
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()

@@ -30,8 +30,13 @@ AOTInductor compiles their kernels into a package that runs without this module 
 operators are functional: each allocates and returns its output and, for a norm, that output's per-channel sums
 (B, 2, N) fp32, [b, 0] the sums and [b, 1] the sums of squares, which `prepare` reads.
 
+With `pdl` (Hopper and later, a Triton that has it) each kernel is launched as a programmatic dependent launch:
+it may start while the kernel before it runs, and waits for that kernel's results (`gdc_wait`) before it reads
+anything, after letting the next one start (`gdc_launch_dependents`); a small network's frame is a chain of ~40
+such few-microsecond kernels, whose launch gaps this overlaps. The arithmetic is unchanged.
+
 Set TRITON_INTERPRET=1 before importing this module to run the kernels on the CPU with Triton's interpreter (the
-tests do); there the tile sizes are fixed instead of tuned.
+tests do); there the tile sizes are fixed instead of tuned, and there is no dependent launch.
 """
 from __future__ import annotations
 
@@ -45,6 +50,20 @@ from torch.library import triton_op, wrap_triton
 from model.layers import LEAKY_SLOPE, NORM_EPS
 
 INTERPRETED = os.environ.get("TRITON_INTERPRET") == "1"
+
+try:        # Triton's grid dependency control (programmatic dependent launch), where this Triton has it
+    from triton.language.extra.cuda import gdc_launch_dependents, gdc_wait
+    PDL_SUPPORTED = not INTERPRETED
+except ImportError:
+    PDL_SUPPORTED = False
+
+    @triton.jit
+    def gdc_wait():     # never called: PDL is refused without the real one (a name for the dead branch below)
+        pass
+
+    @triton.jit
+    def gdc_launch_dependents():
+        pass
 
 
 NAMESPACE = "learned_cloth"      # the operators' namespace: torch.ops.learned_cloth.<launcher>
@@ -61,8 +80,12 @@ def _slot_rows(table_ptr, rows, row_ok, L: tl.constexpr, SLOTS: tl.constexpr):
 
 
 @triton.jit
-def _tile(n_rows, n_cols, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    """A program's frame (grid axis 2), its BLOCK_M rows and BLOCK_N columns, and which of them exist."""
+def _tile(n_rows, n_cols, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, PDL: tl.constexpr):
+    """A program's frame (grid axis 2), its BLOCK_M rows and BLOCK_N columns, and which of them exist; with PDL,
+    first the wait for the kernel before (whose output every kernel here reads) and the next kernel's go-ahead."""
+    if PDL:
+        gdc_wait()
+        gdc_launch_dependents()
     rows = tl.program_id(0) * BLOCK_M + tl.arange(0, BLOCK_M)
     cols = tl.program_id(1) * BLOCK_N + tl.arange(0, BLOCK_N)
     return tl.program_id(2).to(tl.int64), rows, cols, rows < n_rows, cols < n_cols
@@ -126,8 +149,8 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
                  norm1_ptr, norm2_ptr, L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr,
                  MAPPED2: tl.constexpr, TWO: tl.constexpr, AFFINE: tl.constexpr, NORM1: tl.constexpr,
                  NORM2: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr,
-                 EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
+                 EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -178,8 +201,8 @@ def _add_products(acc, products_ptr, map_ptr, entry, valid, slot, outs, mask, n_
 def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, bias_ptr, n_vertices, n_out,
                        src1_ptr, map1_ptr, src1_vertices, src2_ptr, map2_ptr, src2_vertices,
                        L: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr, TWO: tl.constexpr,
-                       STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
+                       STATS: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
     src1 = src1_ptr + frame * src1_vertices * L * n_out
     src2 = src2_ptr + frame * src2_vertices * L * n_out
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -200,8 +223,8 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
                         affine_ptr, norm_ptr, n_vertices, n_out, src_ptr, map_ptr, src_vertices, C: tl.constexpr,
                         L: tl.constexpr, SLOTS: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr,
                         NORM: tl.constexpr, STATS: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
-                        BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
-    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N)
+                        PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+    frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     if MAPPED:
         entries = tl.load(map_ptr + entries, mask=valid, other=0)
@@ -231,8 +254,8 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
 def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_rows, src_vertices,
                     channels, P: tl.constexpr, MAPPED: tl.constexpr, NORMALIZE: tl.constexpr,
                     POOL_MAX: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
-                    BLOCK_M: tl.constexpr, BLOCK_C: tl.constexpr):
-    frame, rows, cols, row_ok, col_ok = _tile(n_rows, channels, BLOCK_M, BLOCK_C)
+                    PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_C: tl.constexpr):
+    frame, rows, cols, row_ok, col_ok = _tile(n_rows, channels, BLOCK_M, BLOCK_C, PDL)
     mask = row_ok[:, None] & col_ok[None, :]
     src = src_ptr + frame * src_vertices * channels
     if NORMALIZE:
@@ -265,9 +288,9 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_ro
 
 @triton.jit
 def _normed_products_kernel(out_ptr, src_ptr, sums_ptr, weight_ptr, n_rows, channels, n_cols,
-                            PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, BLOCK_M: tl.constexpr,
+                            PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr,
                             BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
-    frame, rows, outs, row_ok, out_ok = _tile(n_rows, n_cols, BLOCK_M, BLOCK_N)
+    frame, rows, outs, row_ok, out_ok = _tile(n_rows, n_cols, BLOCK_M, BLOCK_N, PDL)
     src = src_ptr + frame * n_rows * channels
     sums = sums_ptr + frame * 2 * channels
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
@@ -314,12 +337,13 @@ _tuned_products = triton.autotune(_CONFIGS, key=["n_rows", "channels", "n_cols"]
 def fused_conv(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | None, src2: torch.Tensor | None,
                map2: torch.Tensor | None, affine: torch.Tensor | None, norm1: torch.Tensor | None,
                norm2: torch.Tensor | None, weight: torch.Tensor, bias: torch.Tensor, out_dtype: torch.dtype,
-               stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
+               stats: bool, pdl: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """One convolution: table (V, L) int32 +1 ids; one or two segments (source (B, V_src, C) contiguous, map
     (V_src_table, 1) int32 or None) filling the weight's (L * sum C, N) rows slot by slot; `affine` (2 C_1,)
     = (offset, 1/scale) applied to the first segment on load, or None; `norm1`/`norm2`: the segment's source's
     sums (B, 2, C) to normalise it on load (instance norm + leaky ReLU), or None; bias (N,) fp32. Returns
-    (B, V, N) and, with `stats`, its sums (B, 2, N) (else an empty tensor)."""
+    (B, V, N) and, with `stats`, its sums (B, 2, N) (else an empty tensor); `pdl`: launched as a programmatic
+    dependent launch (the module's note), as every launcher's `pdl`."""
     n_vertices, size = table.shape
     n_out = weight.shape[1]
     batch, c1, c2 = src1.shape[0], src1.shape[2], 0 if src2 is None else src2.shape[2]
@@ -335,7 +359,7 @@ def fused_conv(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | Non
                      MAPPED2=map2 is not None, TWO=src2 is not None, AFFINE=affine is not None,
                      NORM1=norm1 is not None, NORM2=norm2 is not None, STATS=stats,
                      PRECISE=weight.dtype == torch.float32, BLOCK_K=block_k, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE)
-    _launch(_conv_kernel, _tuned_conv, args, constants, n_vertices, n_out, batch)
+    _launch(_conv_kernel, _tuned_conv, args, constants, n_vertices, n_out, batch, pdl)
     return out, sums
 
 
@@ -350,16 +374,25 @@ def _output(table: torch.Tensor, batch: int, n_out: int, out_dtype: torch.dtype,
     return out, sums, (sums, 2 * n_out, n_out)
 
 
-def _launch(kernel, tuned, args: tuple, constants: dict, n_vertices: int, n_out: int, batch: int) -> None:
+def _pdl(pdl: bool) -> dict:
+    """A kernel's PDL constant and, with it, the launch option that makes its launch a dependent one."""
+    if pdl and not PDL_SUPPORTED:
+        raise ValueError("programmatic dependent launch needs a CUDA build of Triton with grid dependency control "
+                         "(triton.language.extra.cuda.gdc_wait), not the interpreter")
+    return {"PDL": True, "launch_pdl": True} if pdl else {"PDL": False}
+
+
+def _launch(kernel, tuned, args: tuple, constants: dict, n_vertices: int, n_out: int, batch: int,
+            pdl: bool) -> None:
     """A convolution kernel over (row tiles, column tiles, frames): the tuned tiles, or small fixed ones in
-    Triton's interpreter."""
+    Triton's interpreter; `pdl`: as a programmatic dependent launch."""
     if INTERPRETED:
         grid = (triton.cdiv(n_vertices, _FIXED["BLOCK_M"]), triton.cdiv(n_out, _FIXED["BLOCK_N"]), batch)
-        wrap_triton(kernel)[grid](*args, **constants, **_FIXED)
+        wrap_triton(kernel)[grid](*args, **constants, **_FIXED, **_pdl(pdl))
     else:
         grid = lambda meta: (triton.cdiv(n_vertices, meta["BLOCK_M"]),  # noqa: E731
                              triton.cdiv(n_out, meta["BLOCK_N"]), batch)
-        wrap_triton(tuned)[grid](*args, **constants)
+        wrap_triton(tuned)[grid](*args, **constants, **_pdl(pdl))
 
 
 # Narrow column blocks give coarse levels (a few hundred rows) enough programs to fill the SMs.
@@ -383,7 +416,7 @@ _tuned_gather_sum = triton.autotune(_GATHER_SUM_CONFIGS, key=["n_vertices", "n_o
 @triton_op(f"{NAMESPACE}::gather_sum", mutates_args=())
 def gather_sum(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | None, src2: torch.Tensor | None,
                map2: torch.Tensor | None, bias: torch.Tensor, out_dtype: torch.dtype,
-               stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
+               stats: bool, pdl: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """A convolution's second half when its products came first: out[b, v] = bias + sum over the segments and
     the table's slots k of products[b, map(table[v, k]), k] (each segment's products (B, V_src, L, N) contiguous,
     its input already multiplied by its slot weights; map (V_src_table, 1) int32 or None). Returns (B, V, N) and
@@ -396,14 +429,15 @@ def gather_sum(table: torch.Tensor, src1: torch.Tensor, map1: torch.Tensor | Non
             second, table if map2 is None else map2, second.shape[1])
     constants = dict(L=size, MAPPED1=map1 is not None, MAPPED2=map2 is not None, TWO=src2 is not None,
                      STATS=stats)
-    _launch(_gather_sum_kernel, _tuned_gather_sum, args, constants, n_vertices, n_out, batch)
+    _launch(_gather_sum_kernel, _tuned_gather_sum, args, constants, n_vertices, n_out, batch, pdl)
     return out, sums
 
 
 @triton_op(f"{NAMESPACE}::few_channel_conv", mutates_args=())
 def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tensor | None,
                      affine: torch.Tensor | None, norm: torch.Tensor | None, weight: torch.Tensor,
-                     bias: torch.Tensor, out_dtype: torch.dtype, stats: bool) -> tuple[torch.Tensor, torch.Tensor]:
+                     bias: torch.Tensor, out_dtype: torch.dtype, stats: bool,
+                     pdl: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """`fused_conv` of one segment of few channels (a handful: the loops unroll over slots x channels) in fp32
     FMAs - the network's first convolution on raw features, an output layer's last - where tensor-core tiles
     would pad K to 16 and multiply mostly zeros."""
@@ -418,12 +452,13 @@ def few_channel_conv(table: torch.Tensor, source: torch.Tensor, rows: torch.Tens
         n_vertices, n_out, source, table if rows is None else rows, src_vertices, C=channels, L=size,
         SLOTS=max(16, triton.next_power_of_2(size)), MAPPED=rows is not None, AFFINE=affine is not None,
         NORM=norm is not None, STATS=stats, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_N=block_n,
-        num_warps=4)
+        num_warps=4, **_pdl(pdl))
     return out, sums
 
 
 @triton_op(f"{NAMESPACE}::normed_products", mutates_args=())
-def normed_products(source: torch.Tensor, sums: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+def normed_products(source: torch.Tensor, sums: torch.Tensor, weights: torch.Tensor,
+                    pdl: bool = False) -> torch.Tensor:
     """leaky(instance norm of source) @ weights: source (B, V, C) contiguous, its conv's sums (B, 2, C), weights
     (C, M) (a segment's `slot_weights`). Returns (B, V, M) in the weights' dtype, as torch.matmul would."""
     batch, n_rows, channels = source.shape
@@ -432,13 +467,13 @@ def normed_products(source: torch.Tensor, sums: torch.Tensor, weights: torch.Ten
     args = (out, source, sums, weights, n_rows, channels, n_cols)
     constants = dict(PRECISE=weights.dtype == torch.float32, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE,
                      BLOCK_K=min(64, max(16, triton.next_power_of_2(channels))))
-    _launch(_normed_products_kernel, _tuned_products, args, constants, n_rows, n_cols, batch)
+    _launch(_normed_products_kernel, _tuned_products, args, constants, n_rows, n_cols, batch, pdl)
     return out
 
 
 @triton_op(f"{NAMESPACE}::prepare", mutates_args=())
 def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: torch.Tensor | None, out_dtype: torch.dtype,
-            pool_max: bool) -> torch.Tensor:
+            pool_max: bool, pdl: bool = False) -> torch.Tensor:
     """source (B, V_src, C) -> (B, V, C): normalised (instance norm from the source's `sums` (B, 2, C) +
     leaky ReLU) if sums is given, then reduced over each row of `rows` (V, P) int32 (mean, or max if pool_max),
     or row by row if None."""
@@ -452,5 +487,6 @@ def prepare(source: torch.Tensor, rows: torch.Tensor | None, sums: torch.Tensor 
     wrap_triton(_prepare_kernel)[grid](
         out, source, source if rows is None else rows, *sums_args, n_rows, src_vertices, channels,
         P=1 if rows is None else rows.shape[1], MAPPED=rows is not None, NORMALIZE=sums is not None,
-        POOL_MAX=pool_max, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_C=block_c, num_warps=4)
+        POOL_MAX=pool_max, EPS=NORM_EPS, SLOPE=LEAKY_SLOPE, BLOCK_M=block_m, BLOCK_C=block_c, num_warps=4,
+        **_pdl(pdl))
     return out
