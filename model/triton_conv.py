@@ -149,7 +149,8 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
                  norm1_ptr, norm2_ptr, L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr,
                  MAPPED2: tl.constexpr, TWO: tl.constexpr, AFFINE: tl.constexpr, NORM1: tl.constexpr,
                  NORM2: tl.constexpr, STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_K: tl.constexpr,
-                 EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
+                 EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr,
+                 BLOCK_N: tl.constexpr):
     frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
@@ -239,8 +240,7 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
         if AFFINE:
             x = tl.where(valid, (x - tl.load(affine_ptr + c)) * tl.load(affine_ptr + C + c), 0.0)
         if NORM:
-            mean = tl.load(norm + c) / src_vertices
-            factor = 1.0 / tl.sqrt(tl.maximum(tl.load(norm + C + c) / src_vertices - mean * mean, 0.0) + EPS)
+            mean, factor = _norm_stats(norm, c, True, C, src_vertices, EPS)
             x = (x - mean) * factor
             x = tl.where(valid, tl.where(x > 0, x, x * SLOPE), 0.0)
         w = tl.load(weight_ptr + (slots[:, None] * C + c) * n_out + outs[None, :],
@@ -288,8 +288,8 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_ro
 
 @triton.jit
 def _normed_products_kernel(out_ptr, src_ptr, sums_ptr, weight_ptr, n_rows, channels, n_cols,
-                            PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr,
-                            BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
+                            PRECISE: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr,
+                            BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, BLOCK_K: tl.constexpr):
     frame, rows, outs, row_ok, out_ok = _tile(n_rows, n_cols, BLOCK_M, BLOCK_N, PDL)
     src = src_ptr + frame * n_rows * channels
     sums = sums_ptr + frame * 2 * channels
@@ -375,10 +375,8 @@ def _output(table: torch.Tensor, batch: int, n_out: int, out_dtype: torch.dtype,
 
 
 def _pdl(pdl: bool) -> dict:
-    """A kernel's PDL constant and, with it, the launch option that makes its launch a dependent one."""
-    if pdl and not PDL_SUPPORTED:
-        raise ValueError("programmatic dependent launch needs a CUDA build of Triton with grid dependency control "
-                         "(triton.language.extra.cuda.gdc_wait), not the interpreter")
+    """A kernel's PDL constant and, with it, the launch option that makes its launch a dependent one (where it
+    can run is FusedNetwork's check, at construction)."""
     return {"PDL": True, "launch_pdl": True} if pdl else {"PDL": False}
 
 

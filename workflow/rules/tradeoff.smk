@@ -37,6 +37,10 @@ TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained o
 TRADEOFF_MATCHED_NET = "results/{scene}/tradeoff/s{substeps}/matched_w{width}"    # the same at another width
 TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
 TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
+# A matched network's training: the scene's recipe, on its ranks (common.smk's recipe_train_*).
+MATCHED_TRAIN = ("{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
+                 "{output.history:q} --settings {input.settings:q} --threads {params.threads} --quiet 2>&1 | "
+                 "tee {log:q}")
 
 # One sequence's high-res run held to the scene's low-res run of it (the rule's settings say which budget). A
 # library's window starts, at every budget, from the scene's settle run of its level (`params.settled`): the budgets
@@ -289,9 +293,7 @@ rule tradeoff_train_matched:
     benchmark: f"{TRADEOFF_MATCHED}/benchmarks/train.tsv"
     threads: workflow.cores
     resources: mem_mb=8000, gpu=recipe_train_gpus
-    shell:
-        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
-        "{output.history:q} --settings {input.settings:q} --threads {params.threads} --quiet 2>&1 | tee {log:q}"
+    shell: MATCHED_TRAIN
 
 
 rule tradeoff_matched_settings:
@@ -319,9 +321,7 @@ rule tradeoff_train_matched_width:
     benchmark: f"{TRADEOFF_MATCHED_NET}/benchmarks/train.tsv"
     threads: workflow.cores
     resources: mem_mb=8000, gpu=recipe_train_gpus
-    shell:
-        "{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
-        "{output.history:q} --settings {input.settings:q} --threads {params.threads} --quiet 2>&1 | tee {log:q}"
+    shell: MATCHED_TRAIN
 
 
 # A network on a budget's inputs (`net`: `scene`, the scene's own model.pt; `matched`; `matched_w<width>`; or
