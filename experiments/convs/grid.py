@@ -139,12 +139,14 @@ def runs(scene: str, settings: Settings) -> list[tuple[str, int, str, str]]:
 
 
 def stage_arguments(scene: str, settings: Settings) -> list[str]:
-    """`--run TASK SEED EVAL.h5 TRAIN.h5` for each run."""
-    return [str(word) for run in runs(scene, settings) for word in ("--run", *run)]
+    """`--run TASK SEED EVAL.h5 TRAIN.h5` for each run, `--part CONVS.h5` for each of `convs.parts`."""
+    return [str(word) for run in runs(scene, settings) for word in ("--run", *run)] + [
+        word for part in settings["convs"]["parts"] for word in ("--part", part)]
 
 
 def stage_inputs(scene: str, settings: Settings) -> list[str]:
-    return [path for _, _, evaluation, train_log in runs(scene, settings) for path in (evaluation, train_log)]
+    return [path for _, _, evaluation, train_log in runs(scene, settings) for path in (evaluation, train_log)] + [
+        *settings["convs"]["parts"]]
 
 
 def task_dataset(scene: str, task: str) -> str:

@@ -1,7 +1,7 @@
 """Stage `convs`: the paper's operator comparison (RC, EC, SP, SPD side by side) from the evaluations of its runs.
 
-    python -m experiments.convs CONVS.h5 CHART.png REPORT.md REPORT.html --run TASK SEED EVAL.h5 TRAIN.h5
-        [--run ...] [--scene-report REPORT.md]
+    python -m experiments.convs CONVS.h5 CHART.png REPORT.md REPORT.html [--run TASK SEED EVAL.h5 TRAIN.h5 ...]
+        [--part EARLIER_CONVS.h5 ...] [--scene-report REPORT.md]
 
 Each run is a network of task TASK (upsampling, or pose: the pose-to-cloth decoder) trained with seed SEED
 (TRAIN.h5, the train stage's log: its flags and time) and evaluated (EVAL.h5, the evaluate stage's: its errors per
@@ -13,6 +13,10 @@ agree); anything else is refused, since a table of unlike runs would compare unl
 per run; the report the paper's layout (a row per task, architecture and length, a column per operator, the
 lowest in bold), a bar chart, which operator wins how often and whether by more than the seeds' spread
 (workflow/rules/convs.smk makes the runs).
+
+A grid may be run in parts (some seeds on one machine or day, the others elsewhere): each `--part` is the convs.h5
+of such a part, whose rows join the table as if their runs were given, held to the same checks (its rows carry
+their errors; its config the recipe each task was trained with).
 """
 from __future__ import annotations
 
@@ -24,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from experiments.convs.artifact import COLUMNS, KINDS, TERMS, Convs, write_convs
+from experiments.convs.artifact import COLUMNS, KINDS, TERMS, Convs, read_convs, write_convs
 from experiments.convs.grid import POSE, UPSAMPLING
 from experiments.convs.report import PAPER_UNIT, TASK_WORDS, rows, sections
 from model.architecture import ArchitectureError, parse_conv
@@ -89,14 +93,35 @@ def read_run(task: str, seed: str, path: str, train_log: str) -> tuple[dict, dic
     return row, recipe
 
 
-def gather(runs: list[tuple[str, str, str, str]]) -> tuple[Convs, dict[str, dict]]:
-    """The table from (task, seed, eval.h5, train.h5) per run, in the order given, and each task's recipe; one
-    error unless they fill a grid."""
-    read = [(*read_run(*run), run) for run in runs]         # (row, recipe, run)
+def read_part(path: str) -> list[tuple[dict, dict, tuple[str, str, str, str]]]:
+    """The rows of an earlier convs.h5, each with its task's recipe and, where an error names the row's files,
+    the part's path."""
+    table = read_convs(path)
+    with open_artifact(path) as f:
+        recipes = config_of(f).get("recipes")
+    tasks = set(table.columns["task"].tolist())
+    if not isinstance(recipes, dict) or not tasks <= set(recipes) or any(
+            not isinstance(recipes[task], dict) or set(RECIPE) - set(recipes[task]) for task in tasks):
+        raise PipelineError(f"{path}: its config has no recipe of each task's runs: not a convs.h5 of this stage "
+                            f"(or one from before parts could be joined)")
+    parts = []
+    for k in range(len(table)):
+        row = {name: table.columns[name][k].item() for name in COLUMNS}
+        row["device"] = table.device
+        parts.append((row, {key: recipes[row["task"]][key] for key in RECIPE}, (row["task"], "", path, path)))
+    return parts
+
+
+def gather(runs: list[tuple[str, str, str, str]], parts: Sequence[str] = ()) -> tuple[Convs, dict[str, dict]]:
+    """The table from (task, seed, eval.h5, train.h5) per run, in the order given, then the rows of each earlier
+    convs.h5 of `parts`, and each task's recipe; one error unless they fill a grid."""
+    read = [(*read_run(*run), run) for run in runs] + [entry for part in parts for entry in read_part(part)]
+    if not read:
+        raise PipelineError("no runs: give --run or --part")
     keys = [(r["task"], r["arch"], r["length"], r["kind"], r["seed"]) for r, _, _ in read]
     for k, key in enumerate(keys):
         if key in keys[:k]:
-            raise PipelineError(f"{runs[k][2]}: the same run as {runs[keys.index(key)][2]} (task {key[0]}, "
+            raise PipelineError(f"{read[k][2][2]}: the same run as {read[keys.index(key)][2][2]} (task {key[0]}, "
                                 f"'{key[1]}', {key[3]}{key[2]}, seed {key[4]})")
     kinds = {r["kind"] for r, _, _ in read}
     recipes = {}
@@ -143,15 +168,17 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("chart", help="bar chart (PNG) to write")
     parser.add_argument("report", help="report.md to write")
     parser.add_argument("html", help="report.html to write")
-    parser.add_argument("--run", nargs=4, action="append", required=True,
-                        metavar=("TASK", "SEED", "EVAL.h5", "TRAIN.h5"))
+    parser.add_argument("--run", nargs=4, action="append", default=[], metavar=("TASK", "SEED", "EVAL.h5", "TRAIN.h5"))
+    parser.add_argument("--part", action="append", default=[], metavar="CONVS.h5",
+                        help="the convs.h5 of a part of the grid run elsewhere (other seeds): its rows join the table")
     parser.add_argument("--scene-report", help="the scene's report.md, linked from the report")
     args = parser.parse_args(argv)
     outputs = {"CONVS.h5": args.table, "CHART.png": args.chart, "REPORT.md": args.report, "REPORT.html": args.html}
-    cli.refuse_aliases(outputs, {f"{name} {i}": path for i, run in enumerate(args.run)
-                                 for name, path in (("EVAL.h5", run[2]), ("TRAIN.h5", run[3]))})
-    table, recipes = gather([tuple(run) for run in args.run])
-    write_convs(args.table, {"runs": [list(run) for run in args.run]}, table)
+    cli.refuse_aliases(outputs, {**{f"{name} {i}": path for i, run in enumerate(args.run)
+                                    for name, path in (("EVAL.h5", run[2]), ("TRAIN.h5", run[3]))},
+                                 **{f"--part {i}": path for i, path in enumerate(args.part)}})
+    table, recipes = gather([tuple(run) for run in args.run], args.part)
+    write_convs(args.table, {"runs": [list(run) for run in args.run], "parts": args.part, "recipes": recipes}, table)
     with atomic_write(args.chart) as f:
         f.write(chart_png(table))
     report = Path(args.report)
@@ -159,7 +186,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     links = ([("the scene's report", href(args.scene_report))] if args.scene_report else []) + [
         ("convs.h5: every run's errors, parameters and inference time", href(args.table))] + [
         (f"{os.path.relpath(Path(path).parent, Path(args.table).parent)}: the run's report",
-         href(Path(path).parent / "report.md")) for _, _, path, _ in args.run]
+         href(Path(path).parent / "report.md")) for _, _, path, _ in args.run] + [
+        (f"{path}: the rows of a part of the grid run elsewhere", href(path)) for path in args.part]
     pieces = sections(table, Path(args.chart), links,
                       recipe_words(recipes, sorted(set(table.columns["seed"].tolist()))))
     title = "Operator comparison: " + ", ".join(kind for kind in KINDS if kind in set(table.columns["kind"]))

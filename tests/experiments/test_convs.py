@@ -229,3 +229,63 @@ def test_nothing_is_written_when_a_run_is_refused(tmp_path):
     with pytest.raises(PipelineError):
         main([*out, *[w for run in runs[:-1] for w in ("--run", *run)], "--run", "upsampling", "x", *runs[-1][2:]])
     assert not any((tmp_path / name).exists() for name in ("convs.h5", "convs.png", "report.md", "report.html"))
+
+
+def part_of(tmp_path, name, runs):
+    """The convs.h5 main writes from `runs`: a part of a grid run elsewhere."""
+    out = [str(tmp_path / name / file) for file in ("convs.h5", "convs.png", "report.md", "report.html")]
+    (tmp_path / name).mkdir()
+    main([*out, *[word for run in runs for word in ("--run", *run)]])
+    return out[0]
+
+
+def by_run(table):
+    """Each row's values keyed by (task, arch, length, kind, seed): tables compared whatever their rows' order."""
+    c = table.columns
+    return {(c["task"][k], c["arch"][k], c["length"][k], c["kind"][k], c["seed"][k]):
+            [c[name][k].item() for name in COLUMNS] for k in range(len(table))}
+
+
+def test_a_grid_run_in_parts_gives_the_table_of_all_its_runs_at_once(tmp_path):
+    l1 = lambda kind, length, seed: 0.001 * (KINDS.index(kind) + 1) + 1e-4 * seed + 1e-5 * length   # noqa: E731
+    runs = grid_runs(tmp_path, l1, seeds=(0, 1, 2), lengths=(9, 13))
+    whole, recipes = gather(runs)
+    seed_of = lambda run: run[1]                                   # noqa: E731
+    first = part_of(tmp_path, "first", [run for run in runs if seed_of(run) == "0"])
+    second = part_of(tmp_path, "second", [run for run in runs if seed_of(run) == "1"])
+    joined, joined_recipes = gather([run for run in runs if seed_of(run) == "2"], [first, second])
+    assert by_run(joined) == by_run(whole) and joined_recipes == recipes == {"upsampling": RECIPE}
+    only_parts, _ = gather([], [part_of(tmp_path, "all", runs)])    # a part alone: its own table again
+    assert by_run(only_parts) == by_run(whole)
+    for mine, theirs in zip(rows(joined), rows(whole), strict=True):     # the report's rows: every seed's error
+        for kind in KINDS:
+            np.testing.assert_array_equal(np.sort(mine.values["l1_test"][kind]), np.sort(theirs.values["l1_test"][kind]))
+
+
+def test_a_part_unlike_the_runs_or_overlapping_them_is_refused(tmp_path):
+    runs = grid_runs(tmp_path / "a", lambda k, n, s: 1.0, seeds=(0, 1))
+    seed1 = [run for run in runs if run[1] == "1"]
+    part = part_of(tmp_path, "part", seed1)
+    with pytest.raises(PipelineError, match="the same run as"):
+        gather(runs, [part])                                       # seed 1 twice
+    other = grid_runs(tmp_path / "b", lambda k, n, s: 1.0, seeds=(1,), recipe={**RECIPE, "epochs": 3})
+    with pytest.raises(PipelineError, match="trained with different epochs"):
+        gather([run for run in runs if run[1] == "0"], [part_of(tmp_path, "other", other)])
+    fewer = part_of(tmp_path, "fewer", grid_runs(tmp_path / "c", lambda k, n, s: 1.0, seeds=(1,), kinds=KINDS[:3]))
+    with pytest.raises(PipelineError, match="has no run of SPD with seed 1"):
+        gather([run for run in runs if run[1] == "0"], [fewer])
+    with pytest.raises(PipelineError, match="no runs: give --run or --part"):
+        gather([])
+
+
+def test_a_part_without_its_recipes_or_not_a_convs_file_is_one_error_naming_it(tmp_path):
+    import h5py
+    part = part_of(tmp_path, "part", grid_runs(tmp_path, lambda k, n, s: 1.0, seeds=(1,)))
+    with h5py.File(part, "r+") as f:
+        f.attrs["config"] = f.attrs["config"].replace('"recipes"', '"recipes_gone"')
+    with pytest.raises(PipelineError, match=re.escape(f"{part}: its config has no recipe of each task's runs")):
+        gather([], [part])
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(b"not HDF5 at all" * 10)
+    with pytest.raises(PipelineError, match=re.escape(str(garbage))):
+        gather([], [str(garbage)])

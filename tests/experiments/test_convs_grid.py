@@ -83,6 +83,15 @@ def test_every_run_has_its_own_folder_and_the_stage_gets_each_eval_and_train_log
     assert runs[-1][:3] == ("pose", 2, "results/pants/convs/pose/a0/SPD13/s2/eval.h5")
     words = grid.stage_arguments("pants", s)
     assert words[:5] == ["--run", "upsampling", "0", runs[0][2], runs[0][3]] and words.count("--run") == len(runs)
+    assert "--part" not in words and len(grid.stage_inputs("pants", s)) == 2 * len(runs)
+
+
+def test_the_parts_of_a_grid_run_elsewhere_are_the_stages_inputs_and_flags():
+    s = settings("pants", profile="paper")
+    s["convs"] = {**s["convs"], "seeds": [2], "parts": ["elsewhere/seeds01.h5", "b c.h5"]}
+    words, inputs = grid.stage_arguments("pants", s), grid.stage_inputs("pants", s)
+    assert words[-4:] == ["--part", "elsewhere/seeds01.h5", "--part", "b c.h5"]
+    assert inputs[-2:] == ["elsewhere/seeds01.h5", "b c.h5"] and len(inputs) == 2 * len(grid.runs("pants", s)) + 2
 
 
 def test_the_architectures_are_the_scenes_and_templates_sized_to_it_at_each_length():
