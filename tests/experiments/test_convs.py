@@ -259,7 +259,8 @@ def test_a_grid_run_in_parts_gives_the_table_of_all_its_runs_at_once(tmp_path):
     assert by_run(only_parts) == by_run(whole)
     for mine, theirs in zip(rows(joined), rows(whole), strict=True):     # the report's rows: every seed's error
         for kind in KINDS:
-            np.testing.assert_array_equal(np.sort(mine.values["l1_test"][kind]), np.sort(theirs.values["l1_test"][kind]))
+            np.testing.assert_array_equal(np.sort(mine.values["l1_test"][kind]),
+                                          np.sort(theirs.values["l1_test"][kind]))
 
 
 def test_a_part_unlike_the_runs_or_overlapping_them_is_refused(tmp_path):
