@@ -3,7 +3,7 @@
     python -m pipeline.evaluate DATASET.h5 OPERATORS.h5 MODEL.pt EVAL.h5 REPORT.md [--settings SETTINGS.json]
         [--html REPORT.html] [--train-log TRAIN.h5] [--scene SCENE.h5] [--renders DIR] [--videos DIR]
         [--export DIR] [--render-frames 3] [--video-frames 120] [--export-frames 60] [--timing-frames 30]
-        [--device cpu] [--device-cache-gb GB] [--threads N] [--quiet]
+        [--no-fused-timing] [--device cpu] [--device-cache-gb GB] [--threads N] [--quiet]
 
 Errors are those of paper Table 3 (L1 eq. 4 and L2 eq. 5, reported x 1e-3 scene units) on the train and test
 frames, for the network and for its predictor alone (no network), so the network's gain shows. The dataset's task
@@ -252,6 +252,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--study-report", help="the scene's study/report.md, likewise")
     parser.add_argument("--convs-report", help="the scene's convs/report.md (the operator comparison), likewise")
     parser.add_argument("--timing-frames", type=int, default=30, help="test frames timed one by one")
+    parser.add_argument("--no-fused-timing", action="store_true",
+                        help="on CUDA, time the fp32 deployment path only, not the fused bf16 network beside it: "
+                             "grids whose tables do not read the fused figure skip its compiling and autotuning "
+                             "(8-60 s an evaluation on a shared GPU, docs/performance.md)")
     parser.add_argument("--no-predictions", action="store_true",
                         help="eval.h5 without every frame's predicted positions (errors and times only: a grid of "
                              "evaluations at the paper profile would otherwise store 1.8 GB each)")
@@ -344,7 +348,8 @@ def _evaluate(args, folders: dict[str, tuple[Path, bool]], run: Evaluated) -> No
         phase("score")
         steps.update()
         timed = pick_frames(data.test, args.timing_frames)
-        times = task.time(run.model, run.mesh, run.frames.all_frames()[0], torch.as_tensor(timed, device=run.device))
+        times = task.time(run.model, run.mesh, run.frames.all_frames()[0], torch.as_tensor(timed, device=run.device),
+                          fused=not args.no_fused_timing)
         phase("time")
         steps.update()
         per_frame = scores.per_frame

@@ -63,8 +63,8 @@ class DecoderTask(Task):
         return HostFrames(data.faces, data.targets.shape[1], predictor, predictor,
                           lambda first, stop: data.targets[first:stop])
 
-    def time(self, model, mesh, store, ids: torch.Tensor):
-        return time_decoder(model, mesh, store, ids)
+    def time(self, model, mesh, store, ids: torch.Tensor, fused: bool = True):
+        return time_decoder(model, mesh, store, ids)     # a decoder has no fused network
 
 
 def decoder_frames(run: SequenceRun, inputs: np.ndarray, predictor: np.ndarray) -> SequenceFrames:

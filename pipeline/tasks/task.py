@@ -181,8 +181,10 @@ class Task(abc.ABC):
         its frames (load_dataset(frames=False)), through `reader`."""
 
     @abc.abstractmethod
-    def time(self, model: Regressor, mesh: MeshHierarchy, store, ids: torch.Tensor) -> InferenceTimes:
-        """Milliseconds per frame of the network on each frame of `ids`, as pipeline.tasks.timing measures it."""
+    def time(self, model: Regressor, mesh: MeshHierarchy, store, ids: torch.Tensor,
+             fused: bool = True) -> InferenceTimes:
+        """Milliseconds per frame of the network on each frame of `ids`, as pipeline.tasks.timing measures it;
+        `fused`: also the fused bf16 network where the task has one and the device runs it."""
 
     def check_arch(self, arch: str) -> None:
         """One error naming --arch unless `arch` writes this task's kind of network."""

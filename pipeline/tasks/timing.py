@@ -85,12 +85,12 @@ def _per_frame(run: Callable, store, ids: torch.Tensor, grad_mode) -> tuple[np.n
     return np.asarray(times), torch.cat(outputs)
 
 
-def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> InferenceTimes:
+def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor, fused: bool = True) -> InferenceTimes:
     """Milliseconds per frame (batch of one: its input features and the network, S x_low given) for each frame
     of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
-    on the same frames, eager PyTorch; on CUDA (with Triton) also the fused bf16 network (`FusedTiming`), replayed
-    the same way."""
+    on the same frames, eager PyTorch; on CUDA (with Triton), where `fused`, also the fused bf16 network
+    (`FusedTiming`), replayed the same way."""
     eager_ms, expected = _per_frame(lambda frame: model(frame, mesh), store, ids, torch.no_grad)
     deployed, path = _deployed(FastRegressor(model, mesh).to(ids.device), store, ids,
                                "model.inference fast path, fp32")
@@ -98,7 +98,9 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor) -> Inferen
     times = deployed_ms.view(InferenceTimes)
     times.eager, times.path = eager_ms, f"{path}; within {_relative(got, expected):.0e} of the eager output"
     times.fused = None
-    if ids.is_cuda and importlib.util.find_spec("triton") is not None:    # PyTorch's CUDA builds bring Triton
+    if ids.is_cuda and not fused:
+        times.path += "; the fused bf16 network not timed (not asked for)"
+    elif ids.is_cuda and importlib.util.find_spec("triton") is not None:    # PyTorch's CUDA builds bring Triton
         # An extra figure beside the fp32 path's: a network the fused kernels cannot run (or a Triton that cannot
         # compile them) leaves it out with its reason rather than failing the stage that asked for the times.
         try:

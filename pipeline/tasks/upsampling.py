@@ -93,8 +93,8 @@ class UpsamplingTask(Task):
                           lambda first, stop: data.subdivided(low(first, stop)),
                           reader.targets if reader is not None else lambda first, stop: data.targets[first:stop])
 
-    def time(self, model, mesh, store, ids: torch.Tensor):
-        return time_inference(model, mesh, store, ids)
+    def time(self, model, mesh, store, ids: torch.Tensor, fused: bool = True):
+        return time_inference(model, mesh, store, ids, fused)
 
 
 def displacements(S, low: np.ndarray, high: np.ndarray) -> np.ndarray:

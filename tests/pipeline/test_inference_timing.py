@@ -93,6 +93,8 @@ def test_on_cuda_the_fused_network_is_timed_on_the_same_frames_within_bf16_of_fp
     assert times.fused.ms.shape == times.shape and np.all(np.isfinite(times.fused.ms) & (times.fused.ms > 0))
     assert 0 < times.fused.error < FUSED_TOLERANCE
     assert "CUDA graph" in times.fused.path
+    alone = time_inference(model, mesh, frames, ids, fused=False)     # what the grids' evaluations ask for
+    assert alone.fused is None and alone.path.endswith("the fused bf16 network not timed (not asked for)")
 
 
 def _decoder(device: str):

@@ -20,13 +20,14 @@ SETTINGS, SEQUENCES = exit_on_error(workflow_plan.plan, config, workflow.is_main
 # which works from any working directory once the project is installed (`pip install -e .`).
 PY = sys.executable
 OUT = "results/{scene}"
-# The evaluate stage's errors and timing only (no renders, one exported frame, no predicted positions in eval.h5):
-# the shell of the grids' evaluations (study, trade-off, operator comparison), whose rules name their inputs
-# dataset, operators, model, settings and their outputs eval, report, export.
+# The evaluate stage's errors and timing only (no renders, one exported frame, no predicted positions in eval.h5,
+# the fp32 deployment path timed but not the fused bf16 network, which no grid's table reads: the trade-off times
+# its networks itself): the shell of the grids' evaluations (study, trade-off, operator comparison), whose rules
+# name their inputs dataset, operators, model, settings and their outputs eval, report, export.
 ERRORS_ONLY_EVALUATE = (
     "{PY:q} -m pipeline.evaluate {input.dataset:q} {input.operators:q} {input.model:q} {output.eval:q} "
     "{output.report:q} --export {output.export:q} --render-frames 0 --video-frames 0 --export-frames 1 "
-    "--no-predictions --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}")
+    "--no-predictions --no-fused-timing --settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}")
 SEQ = "results/{scene}/sequences/{seq}"    # one sequence's scene.h5, sim_low.h5, sim_high.h5
 # The scenes with a motion library, whose windows start from their settle sequence's runs (results/<scene>/settle/)
 LIBRARY_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if library_of(settings) is not None)
