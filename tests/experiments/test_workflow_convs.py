@@ -12,6 +12,7 @@ import yaml
 from workflow_runs import REPO, build, planned_counts, planned_jobs, snakemake, tail, tiny_pants
 
 from experiments.convs.artifact import read_convs
+from experiments.convs.stage import main
 from model.networks import NetworkSpec, build_network
 
 KINDS = ["RC", "EC", "SP", "SPD"]
@@ -51,6 +52,17 @@ def test_the_table_has_a_row_per_operator_made_from_its_own_run(patch_convs):
         assert np.all(np.isfinite(c[name]) & (c[name] > 0)), name
     assert np.all(np.isnan(c["l1_heldout"])) and np.all(np.isnan(c["loop_l2_heldout"]))    # a grid scene: none
     assert len(set(c["l1_train"])) == 4         # four different networks, not one trained four times
+
+
+def test_the_workflows_table_joins_another_as_a_part_with_its_rows_unchanged(patch_convs, tmp_path):
+    """A convs.h5 the workflow wrote is a part another machine's grid can join (convs.parts): its recipes are in
+    it, and the stage given it alone writes the same rows again."""
+    out = [str(tmp_path / name) for name in ("convs.h5", "convs.png", "report.md", "report.html")]
+    main([*out, "--part", str(patch_convs / "results/patch/convs/convs.h5")])
+    mine, theirs = read_convs(out[0]), read_convs(patch_convs / "results/patch/convs/convs.h5")
+    assert mine.device == theirs.device and set(mine.columns) == set(theirs.columns)
+    for name, values in theirs.columns.items():
+        np.testing.assert_array_equal(mine.columns[name], values, err_msg=name)
 
 
 def test_one_operators_file_holds_every_operators_table_and_they_differ(patch_convs):
