@@ -9,7 +9,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from pipeline.core.errors import PipelineError
-from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
+from pipeline.core.h5 import ColumnTable, atomic_h5, config_of, open_artifact
 
 STAGE = "convs"
 SPLITS = ("train", "test", "heldout")       # column suffixes; eval.h5 calls the last one held_out
@@ -32,6 +32,7 @@ class Convs:
     scene units, NaN for a split the scene lacks; ms per frame; training wall seconds)."""
     columns: dict[str, np.ndarray]
     device: str             # where the networks were timed, in words (each evaluation's own)
+    recipes: dict = dataclasses.field(default_factory=dict)   # task -> the train.h5 flags its runs share (config)
 
     def __len__(self) -> int:
         return len(self.columns["task"])
@@ -53,4 +54,5 @@ def read_convs(path: str | os.PathLike) -> Convs:
         device = f.attrs.get("device")
         if not isinstance(device, str):
             raise PipelineError(f"{path}: attribute 'device' missing: not a convs.h5 of experiments.convs")
-        return Convs(columns, device)
+        recipes = config_of(f).get("recipes")
+        return Convs(columns, device, recipes if isinstance(recipes, dict) else {})

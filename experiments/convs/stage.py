@@ -97,10 +97,8 @@ def read_part(path: str) -> list[tuple[dict, dict, tuple[str, str, str, str]]]:
     """The rows of an earlier convs.h5, each with its task's recipe and, where an error names the row's files,
     the part's path."""
     table = read_convs(path)
-    with open_artifact(path) as f:
-        recipes = config_of(f).get("recipes")
-    tasks = set(table.columns["task"].tolist())
-    if not isinstance(recipes, dict) or not tasks <= set(recipes) or any(
+    recipes, tasks = table.recipes, set(table.columns["task"].tolist())
+    if not tasks <= set(recipes) or any(
             not isinstance(recipes[task], dict) or set(RECIPE) - set(recipes[task]) for task in tasks):
         raise PipelineError(f"{path}: its config has no recipe of each task's runs: not a convs.h5 of this stage "
                             f"(or one from before parts could be joined)")
@@ -145,7 +143,7 @@ def gather(runs: list[tuple[str, str, str, str]], parts: Sequence[str] = ()) -> 
                 raise PipelineError(f"{run[2]}, {first_run[2]}: their predictor errors differ: not evaluations of "
                                     f"the same frames")
     devices = " / ".join(sorted({r["device"] for r, _, _ in read}))
-    return Convs({name: np.array([r[name] for r, _, _ in read]) for name in COLUMNS}, devices), recipes
+    return Convs({name: np.array([r[name] for r, _, _ in read]) for name in COLUMNS}, devices, recipes), recipes
 
 
 def recipe_words(recipes: dict[str, dict], seeds: list[int]) -> str:

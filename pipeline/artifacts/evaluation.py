@@ -140,8 +140,8 @@ def _write_results(f: h5py.File, evaluation: Evaluation, predictions_stored: boo
         f.attrs["phase_seconds_meaning"] = (
             "the evaluate stage's wall seconds by phase, in order: load (from the stage's start after its imports: "
             "dataset, model, frames onto the device), score (every frame through the network and the predictor, "
-            "the scored frames' OBJ export), time (inference timing: eager, the deployment path and, on CUDA, the "
-            "fused network, captures and kernel compiles included), pictures, videos, exports and report (up to "
+            "the scored frames' OBJ export), time (inference timing: eager, the deployment path and, on CUDA "
+            "unless --no-fused-timing, the fused network, captures and kernel compiles included), pictures, videos, exports and report (up to "
             "this file; the report's writing follows)")
     if evaluation.fused is not None:
         f.create_dataset(FUSED_MS, data=np.asarray(evaluation.fused.ms, dtype=np.float64))
