@@ -14,7 +14,8 @@ by this solver and by NVIDIA Newton's XPBD in the same run (bench/newton_peer.py
 not installed). `--lanes 1,4` times each B with those threads per vertex in the sweeps (ClothSolver's
 sweep_lanes; default: the solver's). `--frame-kernels sweeps,block` times each B with each way of launching a
 frame (settings.frame_kernel: a kernel per sweep, or the frame in one launch of a block per world where the cloth
-fits, sim/xpbd/block_frame.py: the low-res pants; default: auto, the solver's choice); each row names the one
+fits, sim/xpbd/block_frame.py: the low-res pants; default: the simulate stage's, SolverSettings' frame_kernel,
+so that an unqualified run times what the stage runs); each row names the one
 that ran and its speed over the sweeps of the same B; `--block-threads 512,1024` times the block with those
 threads a world (default: the solver's, one vertex a thread up to 1024). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
@@ -197,7 +198,8 @@ def main():
     parser.add_argument("--contacts", action="store_true", help="also time the low-res batches with body and self "
                         "collision switched off")
     parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
-    parser.add_argument("--frame-kernels", default="auto", help="ways to launch a frame, e.g. sweeps,block")
+    parser.add_argument("--frame-kernels", default=SolverSettings().frame_kernel,
+                        help="ways to launch a frame, e.g. sweeps,block,auto")
     parser.add_argument("--block-threads", default="", help="threads a world in the block frame, e.g. 512,1024")
     parser.add_argument("--out")
     args = parser.parse_args()
