@@ -3,9 +3,9 @@
 matplotlib's 3D axes sort whole faces by depth (painter's algorithm), so a large body face whose centre is nearer
 than a small cloth face in front of it is drawn over the cloth: penetration and a sorting error look the same.
 Here every pixel keeps the nearest surface point, so the body shows through the cloth only where it really is in
-front of it. Every triangle is expanded into the pixel centres of its bounding box at once (triangles of the
-meshes we draw cover a few to a few hundred pixels), the centres inside it are kept, and the nearest one per pixel
-wins; no loop over triangles or pixels.
+front of it. Every triangle is expanded at once into the pixel centres of its bounding box's rows, each row only
+between the triangle's edges (triangles of the meshes we draw cover a few to a few hundred pixels), the centres
+inside it are kept, and the nearest one per pixel wins; no loop over triangles or pixels.
 """
 from __future__ import annotations
 
@@ -46,12 +46,37 @@ def rasterize(screen: np.ndarray, triangles: np.ndarray, height: int, width: int
         s_coef = np.stack([ac[:, 1], -ac[:, 0], origin[:, 0] * ac[:, 1] - origin[:, 1] * ac[:, 0]], 1) / det[:, None]
         t_coef = np.stack([-ab[:, 1], ab[:, 0], origin[:, 1] * ab[:, 0] - origin[:, 0] * ab[:, 1]], 1) / det[:, None]
     # Per-triangle values are spread over its candidates with np.repeat (a sequential copy, several times faster
-    # than gathering them with the candidates' triangle ids).
-    tri = np.repeat(np.arange(len(corners), dtype=np.int32), count)
-    local = np.arange(len(tri), dtype=np.int32) - np.repeat((np.cumsum(count) - count).astype(np.int32), count)
-    drow, dcol = np.divmod(local, np.repeat(span[:, 0], count))
+    # than gathering them with the candidates' triangle ids). Candidates are not the whole bounding box: on each
+    # row of it, only the columns between where the three edge functions (s, t, 1 - s - t, linear along the row)
+    # cross zero, widened by a column each side so that rounding cannot lose a centre; the exact test below
+    # decides. A bounding box is twice a triangle's area or more (a body's long capsule facets: far more).
+    rows = np.where(count > 0, span[:, 1], 0)
+    row_tri = np.repeat(np.arange(len(corners), dtype=np.int32), rows)
+    drow = (np.arange(len(row_tri), dtype=np.int32)
+            - np.repeat((np.cumsum(rows) - rows).astype(np.int32), rows))
+    s_row = np.repeat(s_coef[:, 1], rows) * drow + np.repeat(s_coef[:, 2], rows)       # s at the row's column 0
+    t_row = np.repeat(t_coef[:, 1], rows) * drow + np.repeat(t_coef[:, 2], rows)
+    s_col, t_col = np.repeat(s_coef[:, 0], rows), np.repeat(t_coef[:, 0], rows)
+    low = np.zeros(len(row_tri))
+    high = np.repeat(span[:, 0] - 1, rows).astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for slope, offset in ((s_col, s_row), (t_col, t_row), (-s_col - t_col, 1 - s_row - t_row)):
+            cross = -offset / slope                           # value + slope * column >= 0 beyond this column
+            low = np.where(slope > 0, np.maximum(low, cross), low)
+            high = np.where(slope < 0, np.minimum(high, cross), high)
+            high = np.where((slope == 0) & (offset < -1e-6), -1.0, high)           # never inside on this row
+    last_column = np.repeat(span[:, 0] - 1, rows)
+    low = np.clip(np.ceil(low) - 1, 0, last_column + 1).astype(np.int32)      # clipped: a crossing may be inf
+    high = np.clip(np.floor(high) + 1, -1, last_column).astype(np.int32)
+    width_on_row = np.maximum(high - low + 1, 0)
+    tri = np.repeat(row_tri, width_on_row)
+    local = (np.arange(len(tri), dtype=np.int32)
+             - np.repeat((np.cumsum(width_on_row) - width_on_row).astype(np.int32), width_on_row))
+    dcol = np.repeat(low, width_on_row) + local
+    drow = np.repeat(drow, width_on_row)
     fcol, frow = dcol.astype(np.float32), drow.astype(np.float32)
-    per_candidate = [np.repeat(coef.astype(np.float32), count) for coef in (*s_coef.T, *t_coef.T)]
+    per_candidate = [np.repeat(np.repeat(coef.astype(np.float32), rows), width_on_row)
+                     for coef in (*s_coef.T, *t_coef.T)]
     s = per_candidate[0] * fcol + per_candidate[1] * frow + per_candidate[2]
     t = per_candidate[3] * fcol + per_candidate[4] * frow + per_candidate[5]
     # A centre exactly on a shared edge is inside both triangles (no cracks); the depth test picks one.

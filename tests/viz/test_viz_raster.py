@@ -49,3 +49,22 @@ def test_shared_edge_leaves_no_crack_and_edge_on_triangles_cover_nothing():
     assert (seen.triangle[1:9, 1:9] != EMPTY).all()                   # the diagonal is covered throughout
     assert (seen.triangle != 2).all()                                 # a triangle seen edge-on has no pixel
     assert (seen.triangle[0] == EMPTY).all() and (seen.triangle[:, 9] == EMPTY).all()
+
+
+def test_long_thin_slivers_at_every_slope_match_brute_force():
+    """The rows' column ranges (only the columns between the edges' crossings are candidates) lose no centre of
+    triangles far longer than wide, at every slope, crossing the image's borders, overlapping."""
+    rng = np.random.default_rng(11)
+    height, width = 21, 27
+    centres = np.column_stack([rng.uniform(0, width, 10), rng.uniform(0, height, 10)])
+    angles = rng.uniform(0, np.pi, 10)
+    along = 25 * np.column_stack([np.cos(angles), np.sin(angles)])
+    across = rng.uniform(0.5, 4.0, 10)[:, None] * np.column_stack([-np.sin(angles), np.cos(angles)])
+    points = np.concatenate([centres - along, centres + along, centres + across])       # (30, 2)
+    screen = np.column_stack([points, rng.normal(size=30)])
+    triangles = np.column_stack([np.arange(10), np.arange(10, 20), np.arange(20, 30)])
+    seen = rasterize(screen, triangles, height, width)
+    reference, reference_depth = brute_force(screen, triangles, height, width)
+    np.testing.assert_array_equal(seen.triangle, reference)
+    np.testing.assert_allclose(seen.depth, reference_depth, atol=1e-4)
+    assert 0.1 < (seen.triangle != EMPTY).mean() < 0.9
