@@ -44,7 +44,7 @@ def set_arithmetic(deterministic: bool, tf32: bool) -> None:
     sort-based accumulation instead of atomic adds. tf32: float32 matrix products on TF32 tensor cores (10-bit
     mantissa inputs, float32 accumulation; ~1e-3 relative per product) instead of full float32.
     """
-    # The flag itself, not torch.use_deterministic_algorithms: since torch 2.10 that also copies it into
+    # The flag itself, not torch.use_deterministic_algorithms: in torch 2.13 that also copies it into
     # Inductor's config (its "skip on-device benchmarking" mode), importing torch._inductor to do so: ~1.1 s of
     # every train and evaluate process on the CPU machine, and no stage compiles with Inductor (the fused network
     # launches its Triton kernels itself; deploy's AOTInductor export does not come here). Where Inductor is
