@@ -52,27 +52,23 @@ def rasterize(screen: np.ndarray, triangles: np.ndarray, height: int, width: int
     # decides. A bounding box is twice a triangle's area or more (a body's long capsule facets: far more).
     rows = np.where(count > 0, span[:, 1], 0)
     row_tri = np.repeat(np.arange(len(corners), dtype=np.int32), rows)
-    drow = (np.arange(len(row_tri), dtype=np.int32)
-            - np.repeat((np.cumsum(rows) - rows).astype(np.int32), rows))
+    drow = _positions_in_groups(rows)
     s_row = np.repeat(s_coef[:, 1], rows) * drow + np.repeat(s_coef[:, 2], rows)       # s at the row's column 0
     t_row = np.repeat(t_coef[:, 1], rows) * drow + np.repeat(t_coef[:, 2], rows)
     s_col, t_col = np.repeat(s_coef[:, 0], rows), np.repeat(t_coef[:, 0], rows)
-    low = np.zeros(len(row_tri))
-    high = np.repeat(span[:, 0] - 1, rows).astype(np.float64)
+    last_column = np.repeat(span[:, 0] - 1, rows)
+    low, high = np.zeros(len(row_tri)), last_column.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         for slope, offset in ((s_col, s_row), (t_col, t_row), (-s_col - t_col, 1 - s_row - t_row)):
             cross = -offset / slope                           # value + slope * column >= 0 beyond this column
             low = np.where(slope > 0, np.maximum(low, cross), low)
             high = np.where(slope < 0, np.minimum(high, cross), high)
             high = np.where((slope == 0) & (offset < -1e-6), -1.0, high)           # never inside on this row
-    last_column = np.repeat(span[:, 0] - 1, rows)
     low = np.clip(np.ceil(low) - 1, 0, last_column + 1).astype(np.int32)      # clipped: a crossing may be inf
     high = np.clip(np.floor(high) + 1, -1, last_column).astype(np.int32)
     width_on_row = np.maximum(high - low + 1, 0)
     tri = np.repeat(row_tri, width_on_row)
-    local = (np.arange(len(tri), dtype=np.int32)
-             - np.repeat((np.cumsum(width_on_row) - width_on_row).astype(np.int32), width_on_row))
-    dcol = np.repeat(low, width_on_row) + local
+    dcol = np.repeat(low, width_on_row) + _positions_in_groups(width_on_row)
     drow = np.repeat(drow, width_on_row)
     fcol, frow = dcol.astype(np.float32), drow.astype(np.float32)
     per_candidate = [np.repeat(np.repeat(coef.astype(np.float32), rows), width_on_row)
@@ -100,3 +96,9 @@ def rasterize(screen: np.ndarray, triangles: np.ndarray, height: int, width: int
     weights[seen] = np.stack([1 - s[won] - t[won], s[won], t[won]], axis=1)
     return Fragments(triangle.reshape(height, width), weights.reshape(height, width, 3),
                      np.where(seen, nearest, -np.inf).reshape(height, width))
+
+
+def _positions_in_groups(counts: np.ndarray) -> np.ndarray:
+    """0, 1, ..., counts[0] - 1, 0, 1, ..., counts[1] - 1, ...: each element's place in its group (int32)."""
+    return (np.arange(int(counts.sum()), dtype=np.int32)
+            - np.repeat((np.cumsum(counts) - counts).astype(np.int32), counts))
