@@ -278,15 +278,20 @@ class InputFeatures(nn.Module):
         return vertex_frames(x, vertex_normals(x, self.faces), self.reference, hint)
 
     def forward(self, inputs: FrameBatch) -> torch.Tensor:
-        frames = self.frames(inputs) if self.local_inputs else None
+        return self.with_frames(inputs, False)[0]
+
+    def with_frames(self, inputs: FrameBatch, want_frames: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The features (B, V, C) and, where `want_frames`, the local frames (B, V, 3, 3), computed once for
+        both (a network predicting in local frames turns its output back with the same frames)."""
+        frames = self.frames(inputs) if self.local_inputs or want_frames else None
         columns = []
         for name in self.names:
             value = self._feature(name, inputs)
-            if frames is not None and name in VECTOR_CHANNELS:
+            if self.local_inputs and name in VECTOR_CHANNELS:
                 value = value.clone()
                 value[..., VECTOR_CHANNELS[name]] = to_local(frames, value[..., VECTOR_CHANNELS[name]])
             columns.append(value)
-        return torch.cat(columns, dim=-1)
+        return torch.cat(columns, dim=-1), frames if want_frames else None
 
     def _feature(self, name: str, inputs: FrameBatch) -> torch.Tensor:
         x = inputs.positions

@@ -34,6 +34,7 @@ from torch import nn
 
 from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch, InputFeatures
+from model.fused_features import FusedFeatures
 from model.fused_network import FusedNetwork
 from model.layers import LEAKY_SLOPE, NORM_EPS
 from model.local_frames import to_global
@@ -175,14 +176,19 @@ class FastRegressor(nn.Module):
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()
         self.features = InputFeatures.of(model.spec, new_of[faces], rest[order])
+        # With the fused network, the features too in one kernel where it computes them all.
+        self.fused_features = (FusedFeatures(model.spec, new_of[faces], rest[order])
+                               if fused and FusedFeatures.covers(model.spec) else None)
         self.local_output = model.spec.output_frame == "local"
         self.register_buffer("order", torch.as_tensor(order))        # new -> old
         self.register_buffer("new_of", torch.as_tensor(new_of))     # old -> new
 
     def displacement_reordered(self, frame: FrameBatch) -> torch.Tensor:
         """The displacement (B, V, 3) of a frame whose per-vertex inputs are already in the locality order."""
-        displacement = self.network(self.features(frame))
-        return to_global(self.features.frames(frame), displacement) if self.local_output else displacement
+        features = self.features if self.fused_features is None else self.fused_features
+        inputs, frames = features.with_frames(frame, self.local_output)
+        displacement = self.network(inputs)
+        return to_global(frames, displacement) if self.local_output else displacement
 
     def forward(self, frame: FrameBatch) -> torch.Tensor:
         reorder = lambda x: None if x is None else x.index_select(1, self.order)  # noqa: E731
