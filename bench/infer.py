@@ -11,15 +11,16 @@ each size (RC13, RC9, RC9 x/2, RC9 x/4 of D62 D124 D248 D D248 D_3 D248, random 
 Modes: eager, graph (eager replayed as one CUDA graph), eager-tf32, graph-tf32, fast, fast-graph, fast-bf16,
 fast-bf16-graph, fast-compiled, fast-bf16-compiled-graph (the fast network through torch.compile: inductor,
 max-autotune on CUDA; minutes of compiling per size), fused, fused-graph, fused-bf16, fused-bf16-graph (CUDA:
-model/fused_network.py, Triton kernels tuned on the first call, each convolution in the form its rule picks),
-fused-gather-bf16-graph (every convolution a gather-GEMM, the form before products-first), fused-fold-bf16-graph
-(norms applied on load by the gathering convolutions that read them: fewer launches for narrow networks),
-fused-pdl-bf16-graph and fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's
-overlap of a launch with the kernel before it), exported (the torch.export
-program of deploy/export.py, loaded back: net is not separate there), exported-graph, exported-fused (CUDA: the
-export's AOTInductor package of the fused bf16 path, loaded back with aoti_load_package, as deploy/runner.py --fused
-runs it). Graph modes copy each
-call's inputs into the graph's static buffers inside the timed call, as a tool would. The error column is the
+model/fused_network.py, Triton kernels tuned on the first call, each convolution in the form its rule picks; the
+input features in one kernel, model/fused_features.py), fused-torch-features-bf16-graph (the same with
+model/features.py's PyTorch features: the baseline of that kernel), fused-gather-bf16-graph (every convolution a
+gather-GEMM, the form before products-first), fused-fold-bf16-graph (norms applied on load by the gathering
+convolutions that read them: fewer launches for narrow networks), fused-pdl-bf16-graph and
+fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's overlap of a launch with
+the kernel before it), exported (the torch.export program of deploy/export.py, loaded back: net is not separate
+there), exported-graph, exported-fused (CUDA: the export's AOTInductor package of the fused bf16 path, loaded back
+with aoti_load_package, as deploy/runner.py --fused runs it). Graph modes copy each call's inputs into the
+graph's static buffers inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
 (positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
 16 random capsules). Median over repeats after warm-up. Usage:
@@ -73,6 +74,7 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-graph": ("fused", torch.float32, True, False, False),
          "fused-bf16": ("fused", torch.bfloat16, False, False, False),
          "fused-bf16-graph": ("fused", torch.bfloat16, True, False, False),
+         "fused-torch-features-bf16-graph": ("fused-torch-features", torch.bfloat16, True, False, False),
          "fused-gather-bf16-graph": ("fused-gather", torch.bfloat16, True, False, False),
          "fused-fold-bf16-graph": ("fused-fold", torch.bfloat16, True, False, False),
          "fused-pdl-bf16-graph": ("fused-pdl", torch.bfloat16, True, False, False),
@@ -165,10 +167,12 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
-    if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl"):
+    if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl",
+                "fused-torch-features"):
         products = False if kind == "fused-gather" else None
         upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind != "fast", products=products,
-                                                fold_norms="fold" in kind, pdl="pdl" in kind),
+                                                fold_norms="fold" in kind, pdl="pdl" in kind,
+                                                fused_features=kind != "fused-torch-features"),
                                   subdivision).to(device)
         if compiled:     # inductor may fuse the elementwise passes (pad, norm, pooling) into fewer kernels
             upsampler.regressor.network = torch.compile(

@@ -159,10 +159,12 @@ class FastRegressor(nn.Module):
     the displacement (B, V, 3) in the dataset's frame and the caller's order."""
 
     def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32,
-                 fused: bool = False, products: bool | None = None, fold_norms: bool = False, pdl: bool = False):
+                 fused: bool = False, products: bool | None = None, fold_norms: bool = False, pdl: bool = False,
+                 fused_features: bool = True):
         """`fused`: the network in model.fused_network's few launches (Triton; CUDA only) instead of
-        FastNetwork's gather + matmul per convolution; `products`, `fold_norms`, `pdl`: FusedNetwork's choice of
-        convolution form, of where norms are applied and of dependent launches."""
+        FastNetwork's gather + matmul per convolution and, with `fused_features`, the input features in one
+        kernel (model.fused_features) where it computes them all; `products`, `fold_norms`, `pdl`:
+        FusedNetwork's choice of convolution form, of where norms are applied and of dependent launches."""
         super().__init__()
         if not isinstance(model, FeatureRegressor):
             raise ValueError(f"fast inference runs the encoder-decoder's FeatureRegressor only, got a "
@@ -176,9 +178,8 @@ class FastRegressor(nn.Module):
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()
         self.features = InputFeatures.of(model.spec, new_of[faces], rest[order])
-        # With the fused network, the features too in one kernel where it computes them all.
         self.fused_features = (FusedFeatures(model.spec, new_of[faces], rest[order])
-                               if fused and FusedFeatures.covers(model.spec) else None)
+                               if fused and fused_features and FusedFeatures.covers(model.spec) else None)
         self.local_output = model.spec.output_frame == "local"
         self.register_buffer("order", torch.as_tensor(order))        # new -> old
         self.register_buffer("new_of", torch.as_tensor(new_of))     # old -> new

@@ -211,10 +211,11 @@ def features(positions: torch.Tensor, previous: torch.Tensor | None, before_prev
     pick = lambda tensor: positions if tensor is None else tensor      # noqa: E731
     grid = (triton.cdiv(n_vertices, BLOCK), batch)
     wrap_triton(_features_kernel)[grid](
-        out, frames if frames_out else out, positions, pick(previous), pick(before_previous), rest, pick(capsule_a), pick(capsule_b),
-        pick(radius_a), pick(radius_b), pick(gravity), pick(frame_time), corners, neighbours, valence, reference,
-        n_vertices, 0 if capsule_a is None else capsule_a.shape[1], F=corners.shape[1], N=neighbours.shape[1],
-        C=layout[-1], POSITION=layout[0], REST=layout[1], NORMAL=layout[2], LAPLACIAN=layout[3],
-        VELOCITY=layout[4], ACCELERATION=layout[5], BODY=layout[6], GRAVITY=layout[7], LOCAL=local_inputs,
-        FRAMES=frames_out, NEED_FRAMES=local_inputs or frames_out, GRAVITY_TANGENT=gravity_tangent, BLOCK_V=BLOCK, num_warps=4)
+        out, frames if frames_out else out, positions, pick(previous), pick(before_previous), rest,
+        pick(capsule_a), pick(capsule_b), pick(radius_a), pick(radius_b), pick(gravity), pick(frame_time), corners,
+        neighbours, valence, reference, n_vertices, 0 if capsule_a is None else capsule_a.shape[1],
+        F=corners.shape[1], N=neighbours.shape[1], C=layout[-1], POSITION=layout[0], REST=layout[1],
+        NORMAL=layout[2], LAPLACIAN=layout[3], VELOCITY=layout[4], ACCELERATION=layout[5], BODY=layout[6],
+        GRAVITY=layout[7], LOCAL=local_inputs, FRAMES=frames_out, NEED_FRAMES=local_inputs or frames_out,
+        GRAVITY_TANGENT=gravity_tangent, BLOCK_V=BLOCK, num_warps=4)
     return out, frames
