@@ -103,9 +103,9 @@ class FeatureRegressor(nn.Module):
     def encode(self, inputs: FrameBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The normalised network input (B, V, C) and, for local outputs, the frames (B, V, 3, 3) to restore them
         with. Neither depends on the weights: a caller may compute them once per frame and reuse them."""
-        x = with_input_noise((self.features(inputs) - self.input_offset) / self.input_scale, self.input_noise,
-                             self.training)
-        return x, self.features.frames(inputs) if self.spec.output_frame == "local" else None
+        features, frames = self.features.with_frames(inputs, self.spec.output_frame == "local")
+        return with_input_noise((features - self.input_offset) / self.input_scale, self.input_noise,
+                                self.training), frames
 
     def decode(self, x: torch.Tensor, frames: torch.Tensor | None, mesh: MeshHierarchy) -> torch.Tensor:
         """The displacement (B, V, 3) in the dataset's frame from `encode`'s outputs."""
