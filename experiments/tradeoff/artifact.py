@@ -19,7 +19,7 @@ STRING_COLUMNS = ("method", "network", "harmonic_every")
 # error against the fp32 network (largest |difference| over the largest fp32 displacement), the row's total and
 # speedup with it.
 FUSED_COLUMNS = ("ms_net_fused", "fused_error", "ms_total_fused", "speedup_fused")
-INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "params")
+INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "trained_iterations", "params")
 FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net",
                  "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup", *FUSED_COLUMNS)
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)

@@ -19,6 +19,9 @@ from pipeline.workflow_paths import settled_runs
 Settings = dict[str, Any]
 # (substeps, iterations, harmonic schedule) of a high-res run; wildcards give the numbers as strings.
 HighResRun = tuple[int | str, int | str, str]
+# (substeps, iterations) of a low-res budget. Its name (folder s<name>/, the wildcard, the stage's arguments) is
+# "<substeps>" at the scene's iterations and "<substeps>x<iterations>" at others.
+Budget = tuple[int, int]
 
 
 def width_folder(width: float | str) -> str:
@@ -26,19 +29,40 @@ def width_folder(width: float | str) -> str:
     return f"w{float(width):g}"
 
 
-def own_substeps(settings: Settings) -> int:
-    return settings["solver"]["substeps"]
+def own_budget(settings: Settings) -> Budget:
+    return settings["solver"]["substeps"], settings["solver"]["iterations"]
 
 
-def budgets(settings: Settings) -> list[int]:
-    """Every low-res budget of the grid, in order: `tradeoff.substeps` and the matched ones."""
+def budget_of(settings: Settings, entry: int | list[int] | tuple[int, int]) -> Budget:
+    """A config entry of `tradeoff.substeps` or `tradeoff.matched`: n substeps at the scene's iterations, or
+    [substeps, iterations]."""
+    return (int(entry), own_budget(settings)[1]) if isinstance(entry, (int, str)) else (int(entry[0]), int(entry[1]))
+
+
+def budget_name(settings: Settings, budget: Budget) -> str:
+    substeps, iterations = budget
+    return str(substeps) if iterations == own_budget(settings)[1] else f"{substeps}x{iterations}"
+
+
+def parse_budget_name(settings: Settings, name: int | str) -> Budget:
+    """The budget of a name (budget_name's, as a wildcard gives it)."""
+    substeps, _, iterations = str(name).partition("x")
+    return int(substeps), int(iterations) if iterations else own_budget(settings)[1]
+
+
+def budgets(settings: Settings) -> list[str]:
+    """Every low-res budget of the grid by name, cheapest first (substeps, then iterations): `tradeoff.substeps`
+    and the matched ones."""
     tradeoff = settings["tradeoff"]
-    return sorted(set(tradeoff["substeps"]) | set(tradeoff["matched"]))
+    every = {budget_of(settings, entry) for entry in [*tradeoff["substeps"], *tradeoff["matched"]]}
+    return [budget_name(settings, budget) for budget in sorted(every)]
 
 
-def matched_budgets(settings: Settings) -> list[int]:
-    """The budgets with a network trained on their own inputs; at the scene's own that is the scene's network."""
-    return [n for n in sorted(set(settings["tradeoff"]["matched"])) if n != own_substeps(settings)]
+def matched_budgets(settings: Settings) -> list[str]:
+    """The budgets (names) with a network trained on their own inputs; at the scene's own that is the scene's
+    network."""
+    matched = {budget_of(settings, entry) for entry in settings["tradeoff"]["matched"]}
+    return [budget_name(settings, budget) for budget in sorted(matched) if budget != own_budget(settings)]
 
 
 def matched_nets(settings: Settings) -> list[str]:
@@ -61,14 +85,14 @@ def high_res_runs(settings: Settings) -> list[HighResRun]:
     return [run for run in dict.fromkeys(runs) if run != own]
 
 
-def point_folder(scene: str, substeps: int | str) -> str:
-    """The folder of low-res budget `substeps`: its settings, runs, dataset and the networks fed it."""
-    return f"results/{scene}/tradeoff/s{substeps}"
+def point_folder(scene: str, name: int | str) -> str:
+    """The folder of low-res budget `name`: its settings, runs, dataset and the networks fed it."""
+    return f"results/{scene}/tradeoff/s{name}"
 
 
-def point_sequence_folders(scene: str, substeps: int | str, sequences: list[str]) -> list[str]:
+def point_sequence_folders(scene: str, name: int | str, sequences: list[str]) -> list[str]:
     """The budget's sequence folders, in the scene's order: its runs beside links to the scene's truth."""
-    return [f"{point_folder(scene, substeps)}/sequences/{seq}" for seq in sequences]
+    return [f"{point_folder(scene, name)}/sequences/{seq}" for seq in sequences]
 
 
 def high_res_folder(scene: str, run: HighResRun) -> str:
@@ -98,30 +122,31 @@ def scene_trained_nets(settings: Settings) -> list[str]:
     return ["scene", *[width_folder(w) for w in settings["tradeoff"]["widths"]]]
 
 
-def evaluation_file(scene: str, substeps: int | str, net: str) -> str:
-    """eval.h5 of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `substeps`."""
-    return f"{point_folder(scene, substeps)}/{net}/eval.h5"
+def evaluation_file(scene: str, name: int | str, net: str) -> str:
+    """eval.h5 of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `name`."""
+    return f"{point_folder(scene, name)}/{net}/eval.h5"
 
 
-def network_model(scene: str, substeps: int | str, net: str) -> str:
-    """model.pt of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `substeps`."""
+def network_model(scene: str, name: int | str, net: str) -> str:
+    """model.pt of network `net` (scene, w<width>, matched or matched_w<width>) fed budget `name`."""
     if net == "scene":
         return f"results/{scene}/model.pt"
     if net.startswith("matched"):
-        return f"{point_folder(scene, substeps)}/{net}/model.pt"
+        return f"{point_folder(scene, name)}/{net}/model.pt"
     return f"results/{scene}/tradeoff/{net}/model.pt"
 
 
-def point_dataset(scene: str, settings: Settings, substeps: int) -> str:
+def point_dataset(scene: str, settings: Settings, name: int | str) -> str:
     """The budget's dataset.h5: the scene's own at the scene's budget."""
-    if substeps == own_substeps(settings):
+    if parse_budget_name(settings, name) == own_budget(settings):
         return f"results/{scene}/dataset.h5"
-    return f"{point_folder(scene, substeps)}/dataset.h5"
+    return f"{point_folder(scene, name)}/dataset.h5"
 
 
-def low_runs(scene: str, settings: Settings, sequences: list[str], substeps: int) -> list[str]:
+def low_runs(scene: str, settings: Settings, sequences: list[str], name: int | str) -> list[str]:
     """The budget's low-res run of each sequence: the scene's own at the scene's budget."""
-    folder = f"results/{scene}" if substeps == own_substeps(settings) else point_folder(scene, substeps)
+    own = parse_budget_name(settings, name) == own_budget(settings)
+    folder = f"results/{scene}" if own else point_folder(scene, name)
     return [f"{folder}/sequences/{seq}/sim_low.h5" for seq in sequences]
 
 
@@ -134,10 +159,11 @@ def solve_timing_files(scene: str, sequences: list[str]) -> list[str]:
 
 
 def stage_arguments(scene: str, settings: Settings, sequences: list[str]) -> list[str]:
-    """`--solve-timing SCENE.h5 SIM_LOW.h5` [`--settled SETTLE_LOW.h5 SETTLE_HIGH.h5`], then `--point N SIM_LOW.h5`
-    (the budget's run of the first sequence), `--eval N EVAL.h5 MODEL.pt` per network and `--matched N EVAL.h5
-    MODEL.pt` per matched network of each budget, `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for
-    each high-res run, and a sharded scene's `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
+    """`--solve-timing SCENE.h5 SIM_LOW.h5` [`--settled SETTLE_LOW.h5 SETTLE_HIGH.h5`], then `--point B SIM_LOW.h5`
+    (B the budget's name: N substeps at the scene's iterations, or NxI; its run of the first sequence), `--eval B
+    EVAL.h5 MODEL.pt` per network and `--matched B EVAL.h5 MODEL.pt` per matched network of each budget,
+    `--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 ...` for each high-res run, and a sharded scene's
+    `--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5`."""
     timing = solve_timing_files(scene, sequences)
     words: list[Any] = ["--solve-timing", *timing[:2], *(["--settled", *timing[2:]] if timing[2:] else [])]
     for n in budgets(settings):
@@ -168,16 +194,19 @@ def stage_inputs(scene: str, settings: Settings, sequences: list[str]) -> list[s
         + list(high_res_timings(scene, settings).values())))
 
 
-def point_settings(settings: Settings, substeps: int | str) -> Settings:
-    """settings.json of budget `substeps`: the scene's, with that many low-res substeps."""
-    shared = shared_settings(settings)
-    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
+def _with_budget(overlay: Settings, settings: Settings, name: int | str) -> Settings:
+    substeps, iterations = parse_budget_name(settings, name)
+    return {**overlay, "solver": {**overlay["solver"], "substeps": substeps, "iterations": iterations}}
 
 
-def point_simulation(settings: Settings, substeps: int | str) -> Settings:
-    """simulation.json of budget `substeps`: the scene's, with that many low-res substeps."""
-    shared = simulation_settings(settings)
-    return {**shared, "solver": {**shared["solver"], "substeps": int(substeps)}}
+def point_settings(settings: Settings, name: int | str) -> Settings:
+    """settings.json of budget `name`: the scene's, with that low-res solver budget."""
+    return _with_budget(shared_settings(settings), settings, name)
+
+
+def point_simulation(settings: Settings, name: int | str) -> Settings:
+    """simulation.json of budget `name`: the scene's, with that low-res solver budget."""
+    return _with_budget(simulation_settings(settings), settings, name)
 
 
 def network_settings(settings: Settings, width: float | str) -> Settings:
@@ -187,10 +216,10 @@ def network_settings(settings: Settings, width: float | str) -> Settings:
             "training": {**shared["training"], "epochs": settings["tradeoff"]["epochs"]}}
 
 
-def matched_settings(settings: Settings, substeps: int | str, width: float | str) -> Settings:
-    """settings.json of the matched network of `width` at budget `substeps`: the budget's, with that width (the
+def matched_settings(settings: Settings, name: int | str, width: float | str) -> Settings:
+    """settings.json of the matched network of `width` at budget `name`: the budget's, with that width (the
     scene's training recipe kept, as the matched network's)."""
-    point = point_settings(settings, substeps)
+    point = point_settings(settings, name)
     return {**point, "network": {**point["network"], "width": float(width)}}
 
 

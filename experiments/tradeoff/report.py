@@ -39,17 +39,33 @@ def _main_error(table: Tradeoff) -> tuple[str, np.ndarray]:
     return split, errors[split]
 
 
+def _budget(table: Tradeoff, i: int) -> tuple[int, int]:
+    return int(table.columns["substeps"][i]), int(table.columns["iterations"][i])
+
+
+def _trained_on_scene(table: Tradeoff) -> np.ndarray:
+    """Which rows' networks were trained on the scene's own budget's inputs."""
+    c, ref = table.columns, table.reference
+    return (c["trained_substeps"] == ref.substeps) & (c["trained_iterations"] == ref.iterations)
+
+
+def budget_label(table: Tradeoff, i: int) -> str:
+    """A low-res budget in words: "n sub" at the scene's iterations, "n x i" at others."""
+    substeps, iterations = _budget(table, i)
+    return f"{substeps} sub" if iterations == table.reference.iterations else f"{substeps} x {iterations}"
+
+
 def labels(table: Tradeoff) -> list[str]:
     c = table.columns
+    on_scene = _trained_on_scene(table)
     out = []
     for i, method in enumerate(c["method"]):
         if method == HIGH_RES:
             out.append(f"high-res {c['substeps'][i]}x{c['iterations'][i]}, every {c['harmonic_every'][i]}")
         elif method == LOOP:
-            out.append(f"{c['substeps'][i]} sub, Loop only")
+            out.append(f"{budget_label(table, i)}, Loop only")
         else:
-            matched = " (matched)" if c["trained_substeps"][i] != table.reference.substeps else ""
-            out.append(f"{c['substeps'][i]} sub, {c['network'][i]}{matched}")
+            out.append(f"{budget_label(table, i)}, {c['network'][i]}{'' if on_scene[i] else ' (matched)'}")
     return out
 
 
@@ -58,9 +74,9 @@ def groups(table: Tradeoff) -> list[str]:
     own = table.reference.substeps
     names = {HIGH_RES: "high-res run, cheaper budget or other harmonic schedule",
              LOOP: "low-res + Loop subdivision alone"}
-    return [names.get(method) or (f"learned, trained on {own}-substep inputs" if trained == own
+    return [names.get(method) or (f"learned, trained on {own}-substep inputs" if on_scene
                                   else "learned, trained on its own budget's inputs (matched)")
-            for method, trained in zip(table.columns["method"], table.columns["trained_substeps"])]
+            for method, on_scene in zip(table.columns["method"], _trained_on_scene(table))]
 
 
 def findings(table: Tradeoff) -> list[str]:
@@ -69,26 +85,34 @@ def findings(table: Tradeoff) -> list[str]:
     split, error = _main_error(table)
     learned = c["method"] == LEARNED
 
-    def at(network: str, substeps: int, trained: int) -> int | None:
-        rows = np.flatnonzero(learned & (c["network"] == network) & (c["substeps"] == substeps)
-                              & (c["trained_substeps"] == trained))
+    own_budget = (ref.substeps, ref.iterations)
+    words = lambda budget: (f"{budget[0]}-substep" if budget[1] == ref.iterations  # noqa: E731
+                            else f"{budget[0]} x {budget[1]}")
+
+    def at(network: str, budget: tuple[int, int], trained: tuple[int, int]) -> int | None:
+        rows = np.flatnonzero(learned & (c["network"] == network) & (c["substeps"] == budget[0])
+                              & (c["iterations"] == budget[1]) & (c["trained_substeps"] == trained[0])
+                              & (c["trained_iterations"] == trained[1]))
         return int(rows[0]) if len(rows) else None
 
     lines = []
-    for network in dict.fromkeys(c["network"][learned & (c["trained_substeps"] == ref.substeps)]):
-        own, cheapest = at(network, ref.substeps, ref.substeps), int(c["substeps"][learned].min())
-        shifted = at(network, cheapest, ref.substeps)
-        if own is not None and shifted is not None and cheapest != ref.substeps:
+    on_scene = _trained_on_scene(table)
+    fed = {_budget(table, i) for i in np.flatnonzero(learned)}
+    cheapest = min(fed, key=lambda budget: (budget[0] * budget[1], budget)) if fed else own_budget
+    for network in dict.fromkeys(c["network"][learned & on_scene]):
+        own, shifted = at(network, own_budget, own_budget), at(network, cheapest, own_budget)
+        if own is not None and shifted is not None and cheapest != own_budget:
             lines.append(f"Input shift: {network} trained on {ref.substeps}-substep inputs has {split} L1 "
-                         f"{error[shifted]:.3f} fed {cheapest}-substep runs against {error[own]:.3f} at its own "
+                         f"{error[shifted]:.3f} fed {words(cheapest)} runs against {error[own]:.3f} at its own "
                          f"budget ({error[shifted] / error[own] - 1:+.0%}).")
-    for i in np.flatnonzero(learned & (c["trained_substeps"] != ref.substeps)):
-        network, n = c["network"][i], int(c["substeps"][i])
-        shifted, own = at(network, n, ref.substeps), at(network, ref.substeps, ref.substeps)
+    for i in np.flatnonzero(learned & ~on_scene):
+        network, budget = c["network"][i], _budget(table, i)
+        shifted, own = at(network, budget, own_budget), at(network, own_budget, own_budget)
         if shifted is None:
             continue
-        text = (f"Matched training at {n} substeps: {network} trained on {n}-substep inputs has {split} L1 "
-                f"{error[i]:.3f} against {error[shifted]:.3f} trained on {ref.substeps}-substep inputs")
+        where = f"{budget[0]} substeps" if budget[1] == ref.iterations else f"{budget[0]} x {budget[1]}"
+        text = (f"Matched training at {where}: {network} trained on {words(budget)} inputs has "
+                f"{split} L1 {error[i]:.3f} against {error[shifted]:.3f} trained on {ref.substeps}-substep inputs")
         if own is not None and error[shifted] > error[own]:
             text += (f" and {error[own]:.3f} at {ref.substeps} substeps: it removes "
                      f"{(error[shifted] - error[i]) / (error[shifted] - error[own]):.0%} of the input shift")
@@ -120,8 +144,8 @@ def _fastest_beating_loop(table: Tradeoff, split: str, error: np.ndarray) -> lis
     """The fastest learned path (fp32 or, where timed, the fused network) whose error is below Loop subdivision
     alone's at its own budget: what the learned path is for (issue 36 asks 10x the reference with it)."""
     c = table.columns
-    loop = {int(n): error[i] for i, n in enumerate(c["substeps"]) if c["method"][i] == LOOP}
-    beating = [i for i in np.flatnonzero(c["method"] == LEARNED) if error[i] < loop.get(int(c["substeps"][i]), -1.0)]
+    loop = {_budget(table, i): error[i] for i in np.flatnonzero(c["method"] == LOOP)}
+    beating = [i for i in np.flatnonzero(c["method"] == LEARNED) if error[i] < loop.get(_budget(table, i), -1.0)]
     if not beating:
         return [f"No learned path has a {split} L1 below Loop subdivision alone's at its budget."]
     speedup = lambda i: np.nanmax([c["speedup"][i], c["speedup_fused"][i]])  # noqa: E731
@@ -129,7 +153,7 @@ def _fastest_beating_loop(table: Tradeoff, split: str, error: np.ndarray) -> lis
     fused = c["speedup_fused"][best] > c["speedup"][best]
     return [f"Fastest learned path below Loop subdivision's {split} L1: {labels(table)[best]}"
             f"{' with the fused bf16 network' if fused else ''}, {split} L1 {error[best]:.3f} against Loop's "
-            f"{loop[int(c['substeps'][best])]:.3f}, "
+            f"{loop[_budget(table, best)]:.3f}, "
             f"{c['ms_total_fused' if fused else 'ms_total'][best]:.3g} ms a frame: **{speedup(best):.1f}x** the "
             f"reference high-res run."]
 
@@ -175,7 +199,8 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
         mark = "**" if front[i] else ""
         budget = f"{c['substeps'][i]} x {c['iterations'][i]}" + (
             f", harmonic every {c['harmonic_every'][i]}" if method == HIGH_RES else "")
-        trained = f"{c['trained_substeps'][i]} substeps" if method == LEARNED else "-"
+        trained = "-" if method != LEARNED else f"{c['trained_substeps'][i]} substeps" + (
+            "" if c["trained_iterations"][i] == ref.iterations else f" x {c['trained_iterations'][i]} iterations")
         cells = [f"{mark}{names[method]}{mark}", budget, "-" if c["network"][i] == NO_NETWORK else c["network"][i],
                  trained, f"{c['params'][i]:,}",
                  *[f"{c[k][i] / PAPER_UNIT:.3f}" if np.isfinite(c[k][i]) else "-"

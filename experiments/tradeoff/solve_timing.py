@@ -57,10 +57,12 @@ def _settled(run: str, scene: str) -> np.ndarray:
     return read_last_frame(run)
 
 
-def low_res_ms(settings: dict, substeps: int, sequence: TimedSequence, device: str) -> float:
-    """Median ms a frame of the sequence's low-res run with `substeps` substeps (the scene's settings else)."""
-    return float(np.median(solve_ms(point_simulation(settings, substeps), "low", (sequence.scene,), device,
-                                    sequence.settled_low)))
+def low_res_ms(settings: dict, budget: tuple[int, int], sequence: TimedSequence, device: str) -> float:
+    """Median ms a frame of the sequence's low-res run at `budget` (substeps, iterations; the scene's settings
+    else)."""
+    substeps, iterations = budget
+    return float(np.median(solve_ms(point_simulation(settings, f"{substeps}x{iterations}"), "low",
+                                    (sequence.scene,), device, sequence.settled_low)))
 
 
 def free_high_res_ms(settings: dict, subdiv: str, sequence: TimedSequence, device: str) -> float:

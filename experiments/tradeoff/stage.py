@@ -3,16 +3,17 @@
     python -m experiments.tradeoff SUBDIV.h5 TRADEOFF.h5 PLOT.png REPORT.md --sim-high SIM_HIGH.h5 [...]
         --dataset DATASET.h5 --operators OPERATORS.h5 --settings SETTINGS.json
         --solve-timing SCENE.h5 SIM_LOW.h5 [--settled SETTLE_LOW.h5 SETTLE_HIGH.h5]
-        --point SUBSTEPS SIM_LOW.h5 [--point ...] --eval SUBSTEPS EVAL.h5 MODEL.pt [--eval ...]
-        [--matched SUBSTEPS EVAL.h5 MODEL.pt ...] [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...]
+        --point BUDGET SIM_LOW.h5 [--point ...] --eval BUDGET EVAL.h5 MODEL.pt [--eval ...]
+        [--matched BUDGET EVAL.h5 MODEL.pt ...] [--high-res SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...]
         [--high-res-timing SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5 [...] ...] [--scene-report REPORT.md]
         [--device cpu] [--threads N] [--timing-frames 30] [--substeps N] [--iterations N] [--harmonic-every substep]
 
 Every row is a way to get the high-res cloth, scored against the scene's high-res runs (--sim-high, one per
 sequence in the dataset's order: the ground truth) and timed against the high-res solver free (below).
 
-* Learned path, per low-res budget (--point): the scene's sequences re-simulated at low resolution with SUBSTEPS
-  substeps (SIM_LOW.h5: a run of that budget, whose frames time Loop subdivision), Loop-subdivided and fed to
+* Learned path, per low-res budget (--point BUDGET: N substeps at the scene's --iterations, or NxI substeps x
+  iterations): the scene's sequences re-simulated at low resolution with that solver budget (SIM_LOW.h5: a run of
+  it, whose frames time Loop subdivision), Loop-subdivided and fed to
   networks; each --eval EVAL.h5 MODEL.pt is the evaluate stage's measure of a network trained on the scene's own
   budget (--substeps) fed that budget's inputs (errors against the high-res runs, its conv and width as recorded)
   and the network itself. The input a cheaper solver makes lies outside that training data (paper Fig. 14): the
@@ -152,9 +153,10 @@ class Network:
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """A low-res budget of the grid: its runs (the first's frames time Loop subdivision) and the networks fed its
-    inputs."""
+    """A low-res budget of the grid: its solver budget, its runs (the first's frames time Loop subdivision) and the
+    networks fed its inputs."""
     substeps: int
+    iterations: int
     low_runs: list[str]
     evals: list[Network]        # networks trained on the scene's budget, in the order given
     matched: list[Network]      # networks trained on this budget's own inputs, in the order given
@@ -177,28 +179,40 @@ def _positive(text: str, flag: str, what: str = "SUBSTEPS") -> int:
     return int(text)
 
 
-def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[list[str]]) -> list[Budget]:
-    """The budgets in budget order, each with its runs, its evaluations and its matched networks' evaluations in
-    the order given."""
-    runs: dict[int, list[str]] = {}
+def _budget(text: str, flag: str, iterations: int) -> tuple[int, int]:
+    """(substeps, iterations) of a budget's name: N (at the scene's `iterations`) or NxI."""
+    if not re.fullmatch(r"[1-9][0-9]*(x[1-9][0-9]*)?", text):
+        raise PipelineError(f"{flag} {text}: BUDGET must be N (substeps at the scene's iterations) or NxI "
+                            f"(substeps x iterations), positive integers")
+    substeps, _, own = text.partition("x")
+    return int(substeps), int(own) if own else iterations
+
+
+def parse_grid(points: list[list[str]], evals: list[list[str]], matched: list[list[str]],
+               iterations: int) -> list[Budget]:
+    """The budgets in budget order (substeps, then iterations; a bare N at the scene's `iterations`), each with
+    its runs, its evaluations and its matched networks' evaluations in the order given."""
+    runs: dict[tuple[int, int], list[str]] = {}
+    names: dict[tuple[int, int], str] = {}
     for point in points:
-        n = _positive(point[0], "--point")
-        if len(point) < 2 or n in runs:
-            raise PipelineError(f"--point {' '.join(point)}: give each SUBSTEPS once, with at least one SIM_LOW.h5")
-        runs[n] = point[1:]
-    networks: dict[str, dict[int, list[Network]]] = {flag: {n: [] for n in runs} for flag in ("--eval", "--matched")}
+        key = _budget(point[0], "--point", iterations)
+        if len(point) < 2 or key in runs:
+            raise PipelineError(f"--point {' '.join(point)}: give each BUDGET once, with at least one SIM_LOW.h5")
+        runs[key], names[key] = point[1:], point[0]
+    networks: dict[str, dict[tuple[int, int], list[Network]]] = {
+        flag: {key: [] for key in runs} for flag in ("--eval", "--matched")}
     for flag, triples in (("--eval", evals), ("--matched", matched)):
-        for n_text, path, model in triples:
-            n = _positive(n_text, flag)
-            if n not in runs:
-                raise PipelineError(f"{flag} {n_text} {path}: no --point {n_text} gives that budget's runs")
-            if any(network.eval == path for network in networks["--eval"][n] + networks["--matched"][n]):
-                raise PipelineError(f"{flag} {n_text} {path}: that evaluation is given twice")
-            networks[flag][n].append(Network(path, model))
-    missing = [n for n, paths in networks["--eval"].items() if not paths]
+        for text, path, model in triples:
+            key = _budget(text, flag, iterations)
+            if key not in runs:
+                raise PipelineError(f"{flag} {text} {path}: no --point of that budget gives its runs")
+            if any(network.eval == path for network in networks["--eval"][key] + networks["--matched"][key]):
+                raise PipelineError(f"{flag} {text} {path}: that evaluation is given twice")
+            networks[flag][key].append(Network(path, model))
+    missing = [key for key, paths in networks["--eval"].items() if not paths]
     if missing:
-        raise PipelineError(f"--point {missing[0]}: no --eval of that budget")
-    return [Budget(n, runs[n], networks["--eval"][n], networks["--matched"][n]) for n in sorted(runs)]
+        raise PipelineError(f"--point {names[missing[0]]}: no --eval of that budget")
+    return [Budget(*key, runs[key], networks["--eval"][key], networks["--matched"][key]) for key in sorted(runs)]
 
 
 def _high_res_key(group: list[str], flag: str) -> tuple[int, int, str]:
@@ -251,18 +265,20 @@ class NetworkMs:
 NOT_TIMED = NetworkMs(0.0)      # a row without a network: nothing to time, no fused network
 
 
-def make_row(method: str, network: str, substeps: int, iterations: int, trained_substeps: int, params: int,
+def make_row(method: str, network: str, substeps: int, iterations: int, trained: tuple[int, int], params: int,
              errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: NetworkMs,
              ms_sim_high: float, harmonic_every: str = "", ms_sim_high_run: float = 0.0) -> dict[str, Any]:
     """One row of tradeoff.h5 (COLUMNS) from a method's errors (split -> l1, l2; no held_out: NaN) and times (a
-    high-res row's own solve in ms_sim_high_run, the reference's in ms_sim_high): ms_total is the sum of the
+    high-res row's own solve in ms_sim_high_run, the reference's in ms_sim_high; `trained`: the (substeps,
+    iterations) of the network's training inputs, (0, 0) without a network): ms_total is the sum of the
     row's parts, speedup the reference high-res ms over it; the same with the fused bf16 network in place of the
     fp32 one (NaN where it was not timed)."""
     total = ms_sim_low + ms_subdiv + ms_net.fp32 + ms_sim_high_run
     total_fused = ms_sim_low + ms_subdiv + ms_net.fused + ms_sim_high_run
     held_out = errors.get("held_out", {})
     return {"method": method, "network": network, "harmonic_every": harmonic_every, "substeps": substeps,
-            "iterations": iterations, "trained_substeps": trained_substeps, "params": params,
+            "iterations": iterations, "trained_substeps": trained[0], "trained_iterations": trained[1],
+            "params": params,
             "l1_test": errors["test"]["l1"], "l2_test": errors["test"]["l2"],
             "l1_heldout": held_out.get("l1", np.nan), "l2_heldout": held_out.get("l2", np.nan),
             "ms_sim_low": ms_sim_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net.fp32, "ms_sim_high_run": ms_sim_high_run,
@@ -271,19 +287,19 @@ def make_row(method: str, network: str, substeps: int, iterations: int, trained_
             "speedup_fused": ms_sim_high / total_fused}
 
 
-def budget_rows(budget: Budget, scene_substeps: int, iterations: int, ms_sim_low: float, ms_subdiv: float,
-                ms_sim_high: float, ms_net: Mapping[str, NetworkMs]) -> list[dict[str, Any]]:
+def budget_rows(budget: Budget, reference: Reference, ms_sim_low: float, ms_subdiv: float, ms_sim_high: float,
+                ms_net: Mapping[str, NetworkMs]) -> list[dict[str, Any]]:
     """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched ones; `ms_net`
     by model path), then Loop subdivision alone (the predictor of the budget's dataset)."""
     rows = []
-    trained = ([(network, scene_substeps) for network in budget.evals]
-               + [(network, budget.substeps) for network in budget.matched])
-    for network, trained_substeps in trained:
+    trained = ([(network, (reference.substeps, reference.iterations)) for network in budget.evals]
+               + [(network, (budget.substeps, budget.iterations)) for network in budget.matched])
+    for network, inputs in trained:
         evaluated = read_network_timing(network.eval)
-        rows.append(make_row(LEARNED, evaluated.name, budget.substeps, iterations, trained_substeps, evaluated.params,
+        rows.append(make_row(LEARNED, evaluated.name, budget.substeps, budget.iterations, inputs, evaluated.params,
                              read_errors(network.eval)["network"], ms_sim_low, ms_subdiv, ms_net[network.model],
                              ms_sim_high))
-    rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, iterations, 0, 0,
+    rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, budget.iterations, (0, 0), 0,
                          read_errors(budget.evals[0].eval)["predictor"], ms_sim_low, ms_subdiv, NOT_TIMED,
                          ms_sim_high))
     return rows
@@ -318,7 +334,7 @@ def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequenc
                  ms_sim_high: float) -> dict[str, Any]:
     """A cheaper high-res run as a row: its errors against the reference runs, its solve as the whole time."""
     ms, _ = per_sequence_ms(run.timed)
-    return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, 0, 0,
+    return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, (0, 0), 0,
                     high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, NOT_TIMED, ms_sim_high,
                     run.harmonic_every,
                     ms_sim_high_run=ms)
@@ -343,13 +359,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--sim-high", nargs="+", required=True, metavar="SIM_HIGH.h5",
                         help="the scene's high-res runs, one per sequence in the dataset's order (the ground "
                              "truth)")
-    parser.add_argument("--point", nargs="+", action="append", required=True, metavar="SUBSTEPS SIM_LOW.h5",
-                        help="a low-res budget and its runs (the first's frames time Loop subdivision)")
+    parser.add_argument("--point", nargs="+", action="append", required=True, metavar="BUDGET SIM_LOW.h5",
+                        help="a low-res budget (N substeps at the scene's iterations, or NxI) and its runs (the "
+                             "first's frames time Loop subdivision)")
     parser.add_argument("--eval", nargs=3, action="append", required=True,
-                        metavar=("SUBSTEPS", "EVAL.h5", "MODEL.pt"),
+                        metavar=("BUDGET", "EVAL.h5", "MODEL.pt"),
                         help="a network trained on the scene's budget, evaluated on that budget's inputs")
     parser.add_argument("--matched", nargs=3, action="append", default=[],
-                        metavar=("SUBSTEPS", "EVAL.h5", "MODEL.pt"),
+                        metavar=("BUDGET", "EVAL.h5", "MODEL.pt"),
                         help="a network trained on that budget's own inputs, evaluated on them")
     parser.add_argument("--high-res", nargs="+", action="append", default=[],
                         metavar="SUBSTEPS ITERATIONS SCHEDULE SIM_HIGH.h5",
@@ -383,7 +400,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if settings_path is None:
         parser.error("--settings is required: the solvers timed here are the scene's")
     reference = Reference(args.substeps, args.iterations, args.harmonic_every)
-    grid = parse_grid(args.point, args.eval, args.matched)
+    grid = parse_grid(args.point, args.eval, args.matched, args.iterations)
     high_res = parse_high_res(args.high_res, reference, args.high_res_timing)
     scene_report = Path(args.scene_report or Path(args.report).parent.parent / "report.md")
     cli.refuse_aliases({"TRADEOFF.h5": args.table, "PLOT.png": args.plot, "REPORT.md": args.report},
@@ -391,7 +408,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         **{f"SIM_HIGH.h5 {i}": p for i, p in enumerate(args.sim_high)},
                         **{f"--solve-timing {i}": p
                            for i, p in enumerate([*args.solve_timing, *(args.settled or [])])},
-                        **{f"budget {b.substeps} file {i}": p for b in grid
+                        **{f"budget {b.substeps}x{b.iterations} file {i}": p for b in grid
                            for i, p in enumerate([*b.low_runs, *(x for n in networks_of(b) for x in (n.eval, n.model))])},
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
                            for h in high_res for i, p in enumerate([*h.runs, *h.timed])}})
@@ -405,13 +422,13 @@ def main(argv: Sequence[str] | None = None) -> None:
                            args.timing_frames)
     rows = []
     for budget in grid:
-        ms_low = low_res_ms(settings, budget.substeps, timed, args.device)
+        ms_low = low_res_ms(settings, (budget.substeps, budget.iterations), timed, args.device)
         low = read_trajectory(budget.low_runs[0]).positions
         if low.shape[1] != S.shape[1]:
             raise PipelineError(f"{budget.low_runs[0]}: {low.shape[1]} vertices, but S of {args.subdiv} takes "
                                 f"{S.shape[1]}")
         ms_subdiv = float(np.median(time_subdivision(S, low[1:], device, args.timing_frames)))
-        rows += budget_rows(budget, args.substeps, args.iterations, ms_low, ms_subdiv, ms_high, ms_net)
+        rows += budget_rows(budget, reference, ms_low, ms_subdiv, ms_high, ms_net)
     if high_res:
         origins = read_frame_origins(args.dataset)
         rows += [high_res_row(run, origins, args.sim_high, ms_high) for run in high_res]

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff,
                                           write_tradeoff)
-from experiments.tradeoff.report import findings, pareto_front
+from experiments.tradeoff.report import findings, labels, pareto_front
 from experiments.tradeoff.stage import (NOT_TIMED, Budget, Network, NetworkMs, budget_rows, high_res_errors, main,
                                         make_row, parse_grid, parse_high_res, per_sequence_ms, table_of,
                                         time_subdivision)
@@ -96,14 +96,15 @@ def test_a_budgets_rows_are_its_networks_then_the_matched_ones_then_loop_alone_w
                          1000)
     matched_small = write_eval(tmp_path / "mw.h5", {"test": (1.1, 1.3), "held_out": (2.0, 2.1)}, predictor, [1.0],
                                250, width=0.125)
-    budget = Budget(1, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")],
+    budget = Budget(1, 30, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")],
                     [Network(matched, "m.pt"), Network(matched_small, "mw.pt")])
-    rows = budget_rows(budget, scene_substeps=4, iterations=30, ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
+    rows = budget_rows(budget, Reference(4, 30, "substep"), ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
                        ms_net={"s.pt": NetworkMs(4.0), "w.pt": NetworkMs(1.0), "m.pt": NetworkMs(4.0),
                                "mw.pt": NetworkMs(0.5)})
-    assert [(r["method"], r["network"], r["trained_substeps"], r["params"]) for r in rows] == [
-        (LEARNED, "RC9 x0.25", 4, 1000), (LEARNED, "RC9 x0.125", 4, 250), (LEARNED, "RC9 x0.25", 1, 1000),
-        (LEARNED, "RC9 x0.125", 1, 250), (LOOP, "none", 0, 0)]
+    assert [(r["method"], r["network"], r["trained_substeps"], r["trained_iterations"], r["params"])
+            for r in rows] == [
+        (LEARNED, "RC9 x0.25", 4, 30, 1000), (LEARNED, "RC9 x0.125", 4, 30, 250), (LEARNED, "RC9 x0.25", 1, 30, 1000),
+        (LEARNED, "RC9 x0.125", 1, 30, 250), (LOOP, "none", 0, 0, 0)]
     assert [r["ms_net"] for r in rows] == [4.0, 1.0, 4.0, 0.5, 0.0]    # each model's own timing, not its evaluation's
     assert [r["ms_total"] for r in rows] == [14.5, 11.5, 14.5, 11.0, 10.5]        # 10 + 0.5 + network
     assert [r["speedup"] for r in rows] == [200 / 14.5, 200 / 11.5, 200 / 14.5, 200 / 11.0, 200 / 10.5]
@@ -125,12 +126,12 @@ def test_an_evaluation_without_its_network_spec_or_timed_frames_is_refused(tmp_p
 
 
 def test_a_row_without_a_held_out_split_has_nan_there_and_its_speedup_is_the_reference_over_its_total():
-    row = make_row(HIGH_RES, "none", 2, 15, 0, 0, {"test": {"l1": 0.1, "l2": 0.2}}, 0.0, 0.0, NOT_TIMED, 20.0,
+    row = make_row(HIGH_RES, "none", 2, 15, (0, 0), 0, {"test": {"l1": 0.1, "l2": 0.2}}, 0.0, 0.0, NOT_TIMED, 20.0,
                    "substep",
                    ms_sim_high_run=5.0)
     assert np.isnan(row["l1_heldout"]) and np.isnan(row["l2_heldout"])
     assert (row["ms_total"], row["speedup"], row["harmonic_every"]) == (5.0, 4.0, "substep")
-    assert make_row(LEARNED, "n", 1, 10, 4, 9, {"test": {"l1": 1, "l2": 1}}, 1.0, 2.0, NetworkMs(4.0),
+    assert make_row(LEARNED, "n", 1, 10, (4, 10), 9, {"test": {"l1": 1, "l2": 1}}, 1.0, 2.0, NetworkMs(4.0),
                     70.0)["speedup"] == 10.0
     assert list(row) == list(COLUMNS)
 
@@ -227,14 +228,17 @@ def table(rows, reference=REFERENCE):
     return table_of(rows, "cpu, 2 threads", 2, reference)
 
 
-def learned(n, trained, l1, total, network="RC9 x0.25"):
-    return make_row(LEARNED, network, n, 30, trained, 100, {"test": {"l1": l1, "l2": l1}}, total, 0.0, NOT_TIMED,
-                    100.0)
+def learned(n, trained, l1, total, network="RC9 x0.25", iterations=30):
+    """A learned row at n substeps x `iterations`, its network trained on `trained` substeps (at the scene's 30
+    iterations if that is the scene's 4 substeps, else at the row's own iterations: a matched network)."""
+    inputs = (trained, 30 if trained == REFERENCE.substeps else iterations)
+    return make_row(LEARNED, network, n, iterations, inputs, 100, {"test": {"l1": l1, "l2": l1}}, total, 0.0,
+                    NOT_TIMED, 100.0)
 
 
 def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_removes():
     rows = [learned(1, 4, 3e-3, 10.0), learned(1, 1, 2e-3, 10.0), learned(4, 4, 1e-3, 40.0),
-            make_row(HIGH_RES, "none", 1, 10, 0, 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, 0.0, 0.0, NOT_TIMED, 100.0,
+            make_row(HIGH_RES, "none", 1, 10, (0, 0), 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, 0.0, 0.0, NOT_TIMED, 100.0,
                      "substep", ms_sim_high_run=25.0)]
     lines = findings(table(rows))
     assert ("Input shift: RC9 x0.25 trained on 4-substep inputs has test L1 3.000 fed 1-substep runs against 1.000 "
@@ -248,12 +252,34 @@ def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_r
     assert "No learned path has a test L1 below Loop subdivision alone's at its budget." in lines   # no Loop rows
 
 
+def test_a_budget_of_fewer_iterations_is_its_own_budget_in_the_findings_and_labels():
+    """1 x 10 (the scene: 4 x 30): the scene-trained network fed it, the matched one trained on it, its Loop row;
+    the 1 x 30 budget beside it is another budget (its Loop row is not 1 x 10's)."""
+    def loop(n, iterations, l1, ms):
+        return make_row(LOOP, "none", n, iterations, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED,
+                        100.0)
+    rows = [learned(1, 4, 3e-3, 6.0, iterations=10), learned(1, 1, 2e-3, 5.0, iterations=10),
+            loop(1, 10, 3.1e-3, 2.0), learned(1, 4, 2.5e-3, 12.0), loop(1, 30, 1.9e-3, 8.0),
+            learned(4, 4, 1e-3, 40.0)]
+    written = table(rows)
+    assert labels(written)[:3] == ["1 x 10, RC9 x0.25", "1 x 10, RC9 x0.25 (matched)", "1 x 10, Loop only"]
+    assert labels(written)[3:5] == ["1 sub, RC9 x0.25", "1 sub, Loop only"]
+    lines = findings(written)
+    assert ("Input shift: RC9 x0.25 trained on 4-substep inputs has test L1 3.000 fed 1 x 10 runs against 1.000 "
+            "at its own budget (+200%).") in lines
+    assert ("Matched training at 1 x 10: RC9 x0.25 trained on 1 x 10 inputs has test L1 2.000 against 3.000 "
+            "trained on 4-substep inputs and 1.000 at 4 substeps: it removes 50% of the input shift.") in lines
+    assert ("Fastest learned path below Loop subdivision's test L1: 1 x 10, RC9 x0.25 (matched), test L1 2.000 "
+            "against Loop's 3.100, 5 ms a frame: **20.0x** the reference high-res run.") in lines
+
+
 def test_findings_name_the_fastest_learned_path_below_loop_subdivision_with_the_fused_network_where_faster():
     """Budget 1: Loop alone 3.0; the scene-trained network (2.9, 10 ms) and the matched one (2.0, 12 ms, fused
     6 ms) beat it; budget 4's network (1.0) is slower (40 ms). The matched one with its fused network is fastest."""
     def loop(n, l1, ms):
-        return make_row(LOOP, "none", n, 30, 0, 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED, 100.0)
-    rows = [learned(1, 4, 2.9e-3, 10.0), make_row(LEARNED, "RC9 x0.125", 1, 30, 1, 50, {"test": {"l1": 2e-3, "l2": 2e-3}},
+        return make_row(LOOP, "none", n, 30, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED, 100.0)
+    rows = [learned(1, 4, 2.9e-3, 10.0), make_row(LEARNED, "RC9 x0.125", 1, 30, (1, 30), 50,
+                                                  {"test": {"l1": 2e-3, "l2": 2e-3}},
                                                   4.0, 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
             loop(1, 3e-3, 4.0), learned(4, 4, 1e-3, 40.0), loop(4, 1.5e-3, 39.0)]
     lines = findings(table(rows))
@@ -263,7 +289,7 @@ def test_findings_name_the_fastest_learned_path_below_loop_subdivision_with_the_
 
 def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_methods(tmp_path):
     rows = [learned(1, 4, 1e-3, 10.0),
-            make_row(LOOP, "none", 1, 30, 0, 0,
+            make_row(LOOP, "none", 1, 30, (0, 0), 0,
                      {"test": {"l1": 2e-3, "l2": 3e-3}, "held_out": {"l1": 4e-3, "l2": 5e-3}}, 10.0, 0.5, NOT_TIMED,
                      100.0)]
     written = table(rows)
@@ -287,24 +313,32 @@ def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_meth
 
 
 @pytest.mark.parametrize("points, evals, matched, message", [
-    ([["0", "l.h5"]], [["0", "e.h5", "e.pt"]], [], "positive integer"),
+    ([["0", "l.h5"]], [["0", "e.h5", "e.pt"]], [], "positive integers"),
+    ([["2x"]], [["2", "e.h5", "e.pt"]], [], "BUDGET must be N"),
+    ([["2x0", "l.h5"]], [["2", "e.h5", "e.pt"]], [], "BUDGET must be N"),
     ([["2"]], [["2", "e.h5", "e.pt"]], [], "at least one SIM_LOW"),
     ([["2", "l.h5"], ["2", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "once"),
-    ([["2", "l.h5"]], [["3", "e.h5", "e.pt"]], [], "no --point 3"),
-    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["3", "m.h5", "m.pt"]], "--matched 3 m.h5: no --point 3"),
+    ([["2", "l.h5"], ["2x30", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "once"),    # 2 is 2 x the scene's 30
+    ([["2", "l.h5"]], [["3", "e.h5", "e.pt"]], [], "--eval 3 e.h5: no --point of that budget"),
+    ([["2", "l.h5"]], [["2x10", "e.h5", "e.pt"]], [], "--eval 2x10 e.h5: no --point of that budget"),
+    ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["3", "m.h5", "m.pt"]], "--matched 3 m.h5: no --point"),
     ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "m.h5", "m.pt"], ["2", "m.h5", "n.pt"]], "given twice"),
     ([["2", "l.h5"]], [["2", "e.h5", "e.pt"]], [["2", "e.h5", "e.pt"]], "given twice"),
     ([["2", "l.h5"], ["1", "m.h5"]], [["2", "e.h5", "e.pt"]], [], "--point 1: no --eval")])
 def test_bad_grids_are_refused(points, evals, matched, message):
     with pytest.raises(PipelineError, match=message):
-        parse_grid(points, evals, matched)
+        parse_grid(points, evals, matched, 30)
 
 
 def test_the_grid_is_in_budget_order_with_each_budgets_evaluations_in_the_order_given():
-    grid = parse_grid([["4", "a", "b"], ["1", "c"]], [["4", "e4", "p"], ["1", "e1", "p"], ["4", "f4", "q"]],
-                      [["1", "m1", "r"]])
-    assert grid == [Budget(1, ["c"], [Network("e1", "p")], [Network("m1", "r")]),
-                    Budget(4, ["a", "b"], [Network("e4", "p"), Network("f4", "q")], [])]
+    """A bare N is N substeps at the scene's iterations (30 here); NxI another budget, ordered by substeps then
+    iterations."""
+    grid = parse_grid([["4", "a", "b"], ["1", "c"], ["1x10", "d"]],
+                      [["4", "e4", "p"], ["1", "e1", "p"], ["4", "f4", "q"], ["1x10", "g1", "p"]],
+                      [["1", "m1", "r"], ["1x10", "n1", "s"]], 30)
+    assert grid == [Budget(1, 10, ["d"], [Network("g1", "p")], [Network("n1", "s")]),
+                    Budget(1, 30, ["c"], [Network("e1", "p")], [Network("m1", "r")]),
+                    Budget(4, 30, ["a", "b"], [Network("e4", "p"), Network("f4", "q")], [])]
 
 
 @pytest.mark.parametrize("group, message", [

@@ -22,8 +22,29 @@ def scene_settings(shard=1, **tradeoff):
 
 def test_the_budgets_are_the_grids_and_the_matched_ones_once_in_order_and_the_scenes_own_has_no_matched_network():
     settings = scene_settings(substeps=[8, 2, 1], matched=[4, 2, 4])
-    assert grid.budgets(settings) == [1, 2, 4, 8]
-    assert grid.matched_budgets(settings) == [4]          # 2 is the scene's own: its network is the scene's
+    assert grid.budgets(settings) == ["1", "2", "4", "8"]
+    assert grid.matched_budgets(settings) == ["4"]        # 2 is the scene's own: its network is the scene's
+
+
+def test_a_budget_of_other_iterations_is_named_nxi_and_at_the_scenes_iterations_n():
+    """The scene: 2 substeps x 10 iterations. [1, 4] is its own budget "1x4"; [1, 10] and [2, 10] are 1 and the
+    scene's own 2, whatever way they are written."""
+    settings = scene_settings(substeps=[[1, 4], 1, [2, 10]], matched=[[1, 4], [2, 10], [1, 10]])
+    assert grid.budgets(settings) == ["1x4", "1", "2"]
+    assert grid.matched_budgets(settings) == ["1x4", "1"]
+    assert [grid.parse_budget_name(settings, name) for name in ("1x4", "1", 2)] == [(1, 4), (1, 10), (2, 10)]
+    for name, solver in (("1x4", (1, 4)), ("1", (1, 10))):
+        for overlay in (grid.point_settings(settings, name), grid.point_simulation(settings, name)):
+            assert (overlay["solver"]["substeps"], overlay["solver"]["iterations"]) == solver
+            assert overlay["solver"]["relaxation"] == 1.0          # the rest of the scene's solver kept
+    assert grid.matched_settings(settings, "1x4", 0.5)["solver"]["iterations"] == 4
+    assert grid.point_dataset(SCENE, settings, "1x4") == "results/cloth/tradeoff/s1x4/dataset.h5"
+    assert grid.point_dataset(SCENE, settings, "2x10") == "results/cloth/dataset.h5"       # the scene's own
+    words = grid.stage_arguments(SCENE, settings, SEQUENCES)
+    assert words[words.index("--point"):words.index("--point") + 3] == [
+        "--point", "1x4", "results/cloth/tradeoff/s1x4/sequences/train_000/sim_low.h5"]
+    assert ["--matched", "1x4", "results/cloth/tradeoff/s1x4/matched/eval.h5",
+            "results/cloth/tradeoff/s1x4/matched/model.pt"] == words[words.index("--matched"):][:4]
 
 
 def test_the_high_res_runs_keep_config_order_once_each_and_leave_the_reference_out():

@@ -177,6 +177,32 @@ def test_matched_widths_train_the_scenes_recipe_at_each_width_on_the_matched_bud
     assert "s4/matched" not in run.stdout
 
 
+def test_a_budget_of_fewer_iterations_has_its_own_folder_runs_and_networks(tmp_path):
+    """A low-res budget [1, 10] on the CI patch (its own 4 x 30): folder s1x10/ with its settings, runs, dataset,
+    the scene-trained networks fed it and, matched there, the scene's recipe and a narrower one trained on its
+    inputs; the stage is given it as budget 1x10 beside the 1-substep budget at the scene's 30 iterations."""
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("profiles: {cpu: {scenes: {patch: {tradeoff: {substeps: [1, [1, 10]], matched: [[1, 10]], "
+                       "matched_widths: [0.125]}}}}}\n")
+    run = run_plan(tmp_path, "--configfile", str(REPO / "workflow_config.yaml"), str(overlay), "--",
+                   "results/patch/tradeoff/")
+    counts = planned_counts(run)
+    assert (counts["tradeoff_settings"], counts["tradeoff_simulate_low"], counts["tradeoff_dataset"]) == (2, 2, 2)
+    assert (counts["tradeoff_train_matched"], counts["tradeoff_train_matched_width"]) == (1, 1)
+    folder = "results/patch/tradeoff/s1x10"
+    stage = next(line for line in run.stdout.splitlines() if "-m experiments.tradeoff " in line)
+    assert (f" --point 1x10 {folder}/sequences/train_000/sim_low.h5 --eval 1x10 {folder}/scene/eval.h5 "
+            "results/patch/model.pt" in stage)
+    assert f" --matched 1x10 {folder}/matched/eval.h5 {folder}/matched/model.pt" in stage
+    assert f" --matched 1x10 {folder}/matched_w0.125/eval.h5 {folder}/matched_w0.125/model.pt" in stage
+    assert " --point 1 results/patch/tradeoff/s1/sequences/train_000/sim_low.h5 " in stage
+    assert "--matched 1 " not in stage and "s1/matched" not in run.stdout
+    assert any("-m pipeline.simulate low " in line and f"{folder}/simulation.json" in line
+               and f"{folder}/sequences/train_000/sim_low.h5" in line for line in run.stdout.splitlines())
+    assert any("-m pipeline.train " in line and f"{folder}/dataset.h5" in line and f"{folder}/matched/model.pt" in line
+               for line in run.stdout.splitlines())
+
+
 def test_the_patch_plan_has_a_job_per_budget_sequence_and_network_with_logs_and_only_paths_in_shells(tmp_path):
     """The cpu profile's grid on the CI patch (budgets 1, 2 and its own 4 x its one sequence; the scene's network,
     one of width 0.125 and one trained on 1-substep inputs; high-res 1 x 10, 2 x 15 and its own 4 x 30 with the

@@ -1,17 +1,19 @@
 # The speed-accuracy trade (issue 14, docs/performance.md): `results/<scene>/tradeoff/`. Every row of the table is
 # a way to get the high-res cloth, scored against the scene's high-res runs and timed beside them.
-# * Low-res budgets (`tradeoff.substeps`, plus those of `tradeoff.matched`): for each n other than the scene's own
-#   the scene's sequences are re-simulated at low resolution with n substeps (the scene's iterations), as the
-#   scene's runs were: one job per sequence (`shard: 1`) or a batch job per shard; a folder per sequence beside
-#   that run links the sequence's scene.h5 and high-res run (the ground truth stays the scene's), so the dataset
-#   stage gathers them unchanged (same sequences, same seeded split). The scene's own budget reuses the scene's runs
-#   and dataset.h5. The budgets' low-res ms are not these runs': the stage times each budget's solver itself (below).
-# * Networks fed each budget's inputs (errors only; eval.h5 keeps its own timing for its report): the scene's trained network; the
-#   scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings with that width and
-#   `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of `tradeoff.matched` other than
-#   the scene's own, the scene's network recipe trained on that budget's own dataset (s<n>/matched/): does
-#   matching the training input to the deployed solver budget remove the input shift? - and the same recipe at
-#   each width of `tradeoff.matched_widths` (s<n>/matched_w<width>/): the cheapest accurate learned path.
+# * Low-res budgets (`tradeoff.substeps`, plus those of `tradeoff.matched`; each n substeps at the scene's iterations,
+#   folder s<n>/, or [n, i], folder s<n>x<i>/): for each but the scene's own the scene's sequences are re-simulated
+#   at low resolution with that solver budget, as the scene's runs were: one job per sequence (`shard: 1`) or a
+#   batch job per shard; a folder per sequence beside that run links the sequence's scene.h5 and high-res run
+#   (the ground truth stays the scene's), so the dataset stage gathers them unchanged (same sequences, same seeded
+#   split). The scene's own budget reuses the scene's runs and dataset.h5. The budgets' low-res ms are not these
+#   runs': the stage times each budget's solver itself (below).
+# * Networks fed each budget's inputs (errors only; eval.h5 keeps its own timing for its report): the scene's
+#   trained network; the scene's conv at each width of `tradeoff.widths` (folder w<width>/, the scene's settings
+#   with that width and `tradeoff.epochs`), trained on the scene's dataset.h5; and for each budget of
+#   `tradeoff.matched` other than the scene's own, the scene's network recipe trained on that budget's own dataset
+#   (s<budget>/matched/): does matching the training input to the deployed solver budget remove the input shift? -
+#   and the same recipe at each width of `tradeoff.matched_widths` (s<budget>/matched_w<width>/): the cheapest
+#   accurate learned path.
 # * High-res runs beside the scene's (folder h<substeps>x<iterations>_<schedule>/): each [substeps, iterations] of
 #   `tradeoff.high_res_budgets` with the scene's harmonic schedule, and the scene's budget with each schedule of
 #   `tradeoff.harmonic_every`, the scene's own run (the reference) left out; each held to the scene's low-res run,
@@ -30,12 +32,12 @@ import os
 import experiments.tradeoff.grid as tradeoff_grid
 
 TRADEOFF = "results/{scene}/tradeoff"
-TRADEOFF_POINT = "results/{scene}/tradeoff/s{substeps}"
-TRADEOFF_SEQ = "results/{scene}/tradeoff/s{substeps}/sequences/{seq}"
+TRADEOFF_POINT = "results/{scene}/tradeoff/s{budget}"
+TRADEOFF_SEQ = "results/{scene}/tradeoff/s{budget}/sequences/{seq}"
 TRADEOFF_NET = "results/{scene}/tradeoff/w{width}"       # a smaller network: settings.json, model.pt, train.h5
-TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{substeps}/matched"    # trained on the budget's inputs: model.pt
-TRADEOFF_MATCHED_NET = "results/{scene}/tradeoff/s{substeps}/matched_w{width}"    # the same at another width
-TRADEOFF_EVAL = "results/{scene}/tradeoff/s{substeps}/{net}"     # a network on a budget's inputs: eval.h5, ...
+TRADEOFF_MATCHED = "results/{scene}/tradeoff/s{budget}/matched"    # trained on the budget's inputs: model.pt
+TRADEOFF_MATCHED_NET = "results/{scene}/tradeoff/s{budget}/matched_w{width}"    # the same at another width
+TRADEOFF_EVAL = "results/{scene}/tradeoff/s{budget}/{net}"     # a network on a budget's inputs: eval.h5, ...
 TRADEOFF_HIGH = "results/{scene}/tradeoff/h{hsubsteps}x{hiterations}_{schedule}"   # simulation.json, sequences/
 # A matched network's training: the scene's recipe, on its ranks (common.smk's recipe_train_*).
 MATCHED_TRAIN = ("{PY:q} {params.launcher:q} -m pipeline.train {input.dataset:q} {input.operators:q} {output.model:q} "
@@ -49,7 +51,7 @@ HIGH_RES_ALONE = ("{PY:q} -m pipeline.simulate high {input.settings:q} {input.sc
                   "{input.sim_low:q} {output:q} {params.settled:q} --quiet 2>&1 | tee {log:q}")
 
 wildcard_constraints:
-    substeps="[1-9][0-9]*",
+    budget="[1-9][0-9]*(x[1-9][0-9]*)?",
     width="[0-9]+(\\.[0-9]+)?(e-[0-9]+)?",
     net="scene|(matched_)?w[0-9]+(\\.[0-9]+)?(e-[0-9]+)?|matched",
     hsubsteps="[1-9][0-9]*",
@@ -73,12 +75,12 @@ def tradeoff_sequence_files(name):
 
 
 def tradeoff_sequence_folders(wildcards):
-    return tradeoff_grid.point_sequence_folders(wildcards.scene, wildcards.substeps, SEQUENCES[wildcards.scene])
+    return tradeoff_grid.point_sequence_folders(wildcards.scene, wildcards.budget, SEQUENCES[wildcards.scene])
 
 
 rule tradeoff_settings:
     output: f"{TRADEOFF_POINT}/settings.json"
-    params: settings=lambda w: tradeoff_grid.point_settings(SETTINGS[w.scene], w.substeps)
+    params: settings=lambda w: tradeoff_grid.point_settings(SETTINGS[w.scene], w.budget)
     log: f"{TRADEOFF_POINT}/logs/settings.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/settings.tsv"
     localrule: True
@@ -87,12 +89,12 @@ rule tradeoff_settings:
     run:
         write_settings(params.settings, output[0])
         with open(log[0], "w") as f:
-            print(f"{output[0]}: the scene's settings with solver.substeps {wildcards.substeps}", file=f)
+            print(f"{output[0]}: the scene's settings with the low-res budget {wildcards.budget}", file=f)
 
 
 rule tradeoff_simulation_settings:
     output: f"{TRADEOFF_POINT}/simulation.json"
-    params: settings=lambda w: tradeoff_grid.point_simulation(SETTINGS[w.scene], w.substeps)
+    params: settings=lambda w: tradeoff_grid.point_simulation(SETTINGS[w.scene], w.budget)
     log: f"{TRADEOFF_POINT}/logs/simulation_settings.log"
     benchmark: f"{TRADEOFF_POINT}/benchmarks/simulation_settings.tsv"
     localrule: True
@@ -101,7 +103,7 @@ rule tradeoff_simulation_settings:
     run:
         write_settings(params.settings, output[0])
         with open(log[0], "w") as f:
-            print(f"{output[0]}: the scene's simulation.json with solver.substeps {wildcards.substeps}", file=f)
+            print(f"{output[0]}: the scene's simulation.json with the low-res budget {wildcards.budget}", file=f)
 
 
 rule tradeoff_simulate_low:
@@ -168,12 +170,12 @@ rule tradeoff_timing_high:
     shell: HIGH_RES_ALONE
 
 
-# Sharded scenes: a rule per shard steps its sequences together at every low-res budget (the `substeps` wildcard)
+# Sharded scenes: a rule per shard steps its sequences together at every low-res budget (the `budget` wildcard)
 # and every high-res run (its folder's wildcards), named tradeoff_simulate_low_batch_<scene>_<k> and
 # tradeoff_simulate_high_batch_<scene>_<k>, as simulate.smk's; every path but the budget's folder is a literal.
 for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if SETTINGS[s]["shard"] > 1):
     for _k, _names in enumerate(_shards):
-        _point, _out = f"results/{_scene}/tradeoff/s{{substeps}}", f"results/{_scene}"
+        _point, _out = f"results/{_scene}/tradeoff/s{{budget}}", f"results/{_scene}"
         _high = f"results/{_scene}/tradeoff/h{{hsubsteps}}x{{hiterations}}_{{schedule}}"
         _gpu = device_gpus(_scene)
 
@@ -187,7 +189,7 @@ for _scene, _shards in ((s, sequence_shards(SETTINGS[s])) for s in SETTINGS if S
             params:
                 files=lambda w, names=_names, scene=_scene: [
                     p for n in names for p in (f"results/{scene}/sequences/{n}/scene.h5",
-                                               f"results/{scene}/tradeoff/s{w.substeps}/sequences/{n}/sim_low.h5")],
+                                               f"results/{scene}/tradeoff/s{w.budget}/sequences/{n}/sim_low.h5")],
                 settled=workflow_paths.settled_flag(_scene, _names, "low"),
             log: f"{_point}/logs/shard_{_k:03d}/simulate_low.log"
             benchmark: f"{_point}/benchmarks/shard_{_k:03d}/simulate_low.tsv"
@@ -281,7 +283,7 @@ rule tradeoff_train:
         "--settings {input.settings:q} --threads {threads} --quiet 2>&1 | tee {log:q}"
 
 
-# The scene's network recipe (its settings, which the budget's settings.json keeps but for the low-res substeps the
+# The scene's network recipe (its settings, which the budget's settings.json keeps but for the low-res solver budget the
 # training never reads) trained on the budget's own dataset.
 rule tradeoff_train_matched:
     input:
@@ -298,7 +300,7 @@ rule tradeoff_train_matched:
 
 rule tradeoff_matched_settings:
     output: f"{TRADEOFF_MATCHED_NET}/settings.json"
-    params: settings=lambda w: tradeoff_grid.matched_settings(SETTINGS[w.scene], w.substeps, w.width)
+    params: settings=lambda w: tradeoff_grid.matched_settings(SETTINGS[w.scene], w.budget, w.width)
     log: f"{TRADEOFF_MATCHED_NET}/logs/settings.log"
     benchmark: f"{TRADEOFF_MATCHED_NET}/benchmarks/settings.tsv"
     localrule: True
@@ -329,8 +331,8 @@ rule tradeoff_train_matched_width:
 rule tradeoff_evaluate:
     input:
         settings=f"{TRADEOFF_POINT}/settings.json",
-        dataset=lambda w: tradeoff_grid.point_dataset(w.scene, SETTINGS[w.scene], int(w.substeps)),
-        operators=f"{OUT}/operators.h5", model=lambda w: tradeoff_grid.network_model(w.scene, w.substeps, w.net),
+        dataset=lambda w: tradeoff_grid.point_dataset(w.scene, SETTINGS[w.scene], w.budget),
+        operators=f"{OUT}/operators.h5", model=lambda w: tradeoff_grid.network_model(w.scene, w.budget, w.net),
     output:
         eval=f"{TRADEOFF_EVAL}/eval.h5", report=f"{TRADEOFF_EVAL}/report.md",
         export=directory(f"{TRADEOFF_EVAL}/export"),
