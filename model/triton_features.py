@@ -90,12 +90,12 @@ def _features_kernel(out_ptr, frames_ptr, x_ptr, prev_ptr, before_ptr, rest_ptr,
             first = tl.load(corners_ptr + (rows * F + k) * 2, mask=ok, other=-1)
             second = tl.load(corners_ptr + (rows * F + k) * 2 + 1, mask=ok, other=-1)
             real = first >= 0
-            ax, ay, az = _load3(x_frame, tl.maximum(first, 0).to(tl.int64), real)
-            bx, by, bz = _load3(x_frame, tl.maximum(second, 0).to(tl.int64), real)
-            ax, ay, az, bx, by, bz = ax - px, ay - py, az - pz, bx - px, by - py, bz - pz
-            nx += tl.where(real, ay * bz - az * by, 0.0)
-            ny += tl.where(real, az * bx - ax * bz, 0.0)
-            nz += tl.where(real, ax * by - ay * bx, 0.0)
+            fx, fy, fz = _load3(x_frame, tl.maximum(first, 0).to(tl.int64), real)
+            gx, gy, gz = _load3(x_frame, tl.maximum(second, 0).to(tl.int64), real)
+            fx, fy, fz, gx, gy, gz = fx - px, fy - py, fz - pz, gx - px, gy - py, gz - pz
+            nx += tl.where(real, fy * gz - fz * gy, 0.0)
+            ny += tl.where(real, fz * gx - fx * gz, 0.0)
+            nz += tl.where(real, fx * gy - fy * gx, 0.0)
         nx, ny, nz = _unit(nx, ny, nz)
 
     tx, ty, tz = nx, ny, nz           # (placeholders where no frame is asked for: never stored)
@@ -158,35 +158,37 @@ def _features_kernel(out_ptr, frames_ptr, x_ptr, prev_ptr, before_ptr, rest_ptr,
         dx = tl.zeros([BLOCK_V], tl.float32)
         dy = tl.zeros([BLOCK_V], tl.float32)
         dz = tl.zeros([BLOCK_V], tl.float32)
-        for capsule in range(n_capsules):
+        for capsule in range(n_capsules):     # (names of its own: a loop's variables keep one type)
             end = (frame * n_capsules + capsule) * 3
-            ax, ay, az = tl.load(a_ptr + end), tl.load(a_ptr + end + 1), tl.load(a_ptr + end + 2)
-            ex, ey, ez = tl.load(b_ptr + end) - ax, tl.load(b_ptr + end + 1) - ay, tl.load(b_ptr + end + 2) - az
+            ca_x, ca_y, ca_z = tl.load(a_ptr + end), tl.load(a_ptr + end + 1), tl.load(a_ptr + end + 2)
+            axis_x = tl.load(b_ptr + end) - ca_x
+            axis_y = tl.load(b_ptr + end + 1) - ca_y
+            axis_z = tl.load(b_ptr + end + 2) - ca_z
             radius_a, radius_b = tl.load(ra_ptr + capsule), tl.load(rb_ptr + capsule)
-            length = tl.sqrt(ex * ex + ey * ey + ez * ez)
-            ux, uy, uz = ex / length, ey / length, ez / length
+            length = tl.sqrt(axis_x * axis_x + axis_y * axis_y + axis_z * axis_z)
+            unit_x, unit_y, unit_z = axis_x / length, axis_y / length, axis_z / length
             sin_phi = (radius_a - radius_b) / length
             cos_phi = tl.sqrt(1.0 - sin_phi * sin_phi)
-            relx, rely, relz = px - ax, py - ay, pz - az
-            s = relx * ux + rely * uy + relz * uz
-            radx, rady, radz = relx - s * ux, rely - s * uy, relz - s * uz
-            q = tl.sqrt(radx * radx + rady * rady + radz * radz)
+            rel_x, rel_y, rel_z = px - ca_x, py - ca_y, pz - ca_z
+            s = rel_x * unit_x + rel_y * unit_y + rel_z * unit_z
+            rad_x, rad_y, rad_z = rel_x - s * unit_x, rel_y - s * unit_y, rel_z - s * unit_z
+            q = tl.sqrt(rad_x * rad_x + rad_y * rad_y + rad_z * rad_z)
             inverse_q = 1.0 / tl.maximum(q, EPS)
             along = s * cos_phi - q * sin_phi
-            rbx, rby, rbz = relx - ex, rely - ey, relz - ez
-            to_a = tl.sqrt(relx * relx + rely * rely + relz * relz)
-            to_b = tl.sqrt(rbx * rbx + rby * rby + rbz * rbz)
+            relb_x, relb_y, relb_z = rel_x - axis_x, rel_y - axis_y, rel_z - axis_z
+            to_a = tl.sqrt(rel_x * rel_x + rel_y * rel_y + rel_z * rel_z)
+            to_b = tl.sqrt(relb_x * relb_x + relb_y * relb_y + relb_z * relb_z)
             near_a = along <= 0.0
             near_b = along >= length * cos_phi
             distance = tl.where(near_a, to_a - radius_a,
                                 tl.where(near_b, to_b - radius_b, s * sin_phi + q * cos_phi - radius_a))
             inverse_a, inverse_b = 1.0 / tl.maximum(to_a, EPS), 1.0 / tl.maximum(to_b, EPS)
-            cx = tl.where(near_a, relx * inverse_a, tl.where(near_b, rbx * inverse_b,
-                                                              sin_phi * ux + cos_phi * radx * inverse_q))
-            cy = tl.where(near_a, rely * inverse_a, tl.where(near_b, rby * inverse_b,
-                                                              sin_phi * uy + cos_phi * rady * inverse_q))
-            cz = tl.where(near_a, relz * inverse_a, tl.where(near_b, rbz * inverse_b,
-                                                              sin_phi * uz + cos_phi * radz * inverse_q))
+            cx = tl.where(near_a, rel_x * inverse_a, tl.where(near_b, relb_x * inverse_b,
+                                                               sin_phi * unit_x + cos_phi * rad_x * inverse_q))
+            cy = tl.where(near_a, rel_y * inverse_a, tl.where(near_b, relb_y * inverse_b,
+                                                               sin_phi * unit_y + cos_phi * rad_y * inverse_q))
+            cz = tl.where(near_a, rel_z * inverse_a, tl.where(near_b, relb_z * inverse_b,
+                                                               sin_phi * unit_z + cos_phi * rad_z * inverse_q))
             closer = distance < best          # the first of equal distances, as torch.min
             best = tl.where(closer, distance, best)
             dx, dy, dz = tl.where(closer, cx, dx), tl.where(closer, cy, dy), tl.where(closer, cz, dz)

@@ -170,6 +170,34 @@ def test_kernel_interpreted_on_the_cpu_matches_the_pytorch_features():
     _check(json.loads(done.stdout.splitlines()[-1]))
 
 
+@pytest.mark.skipif(importlib.util.find_spec("triton") is None, reason="needs Triton")
+@pytest.mark.parametrize("spec", SPECS.values(), ids=SPECS.keys())
+def test_kernel_compiles_for_a_hopper_gpu_without_one(spec):
+    """Triton's compiler for sm_90 on any machine: what the interpreter lets through (a loop variable that
+    changes type, a constexpr used as a value) fails here, before a GPU lease is spent on it."""
+    from triton import compile as compile_kernel
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    from model.triton_features import BLOCK, _features_kernel
+
+    vertices, faces = _mesh()
+    fused = FusedFeatures(spec, faces, vertices)
+    layout = dict(zip(("POSITION", "REST", "NORMAL", "LAPLACIAN", "VELOCITY", "ACCELERATION", "BODY", "GRAVITY",
+                       "C"), fused.layout))
+    want = spec.output_frame == "local"
+    constants = {**layout, "F": fused.corners.shape[1], "N": fused.neighbours.shape[1], "LOCAL": fused.local_inputs,
+                 "FRAMES": want, "NEED_FRAMES": fused.local_inputs or want, "GRAVITY_TANGENT": fused.gravity_tangent,
+                 "BLOCK_V": BLOCK}
+    integers = {"corners_ptr": "*i32", "neighbours_ptr": "*i32", "reference_ptr": "*i32", "n_vertices": "i32",
+                "n_capsules": "i32"}
+    signature = {name: "constexpr" if name in constants else integers.get(name, "*fp32")
+                 for name in _features_kernel.arg_names}
+    kernel = compile_kernel(ASTSource(_features_kernel, signature, constexprs=constants),
+                            target=GPUTarget("cuda", 90, 32), options={"num_warps": 4})
+    assert ".entry _features_kernel" in kernel.asm["ptx"]
+
+
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
                     reason="needs CUDA and Triton")
 def test_kernel_on_cuda_matches_the_pytorch_features():
