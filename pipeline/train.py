@@ -138,12 +138,13 @@ def trained_sequences(dataset: str, data: LearningData, ids: np.ndarray) -> dict
 
 def rank_device(ranks: Ranks, device: str) -> str:
     """The device of this process: `device` itself for one process or the CPU; of several ranks on CUDA, a GPU
-    each: a free one of the workflow's shared pool (pipeline.core.gpu_slots; the job asked for one a rank),
-    which the rank sees as cuda:0, or else the launcher's GPUs (torchrun's, a Slurm job's), one a local rank,
-    whatever index `device` names."""
+    each: a free one of the workflow's shared pool taken whole (pipeline.core.gpu_slots; the job asked for a
+    GPU's slots a rank), which the rank sees as cuda:0, or else the launcher's GPUs (torchrun's, a Slurm job's),
+    one a local rank, whatever index `device` names."""
     if not (ranks.parallel and device.startswith("cuda")):
         return device
-    return "cuda:0" if gpu_slots.claim_gpu() is not None else f"cuda:{ranks.local}"
+    # The GPU whole: every step waits at the all-reduce for the slowest rank, which a neighbouring job would make.
+    return "cuda:0" if gpu_slots.claim_gpu(whole=True) is not None else f"cuda:{ranks.local}"
 
 
 def main(argv: Sequence[str] | None = None) -> None:

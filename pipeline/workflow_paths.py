@@ -42,9 +42,13 @@ def train_launcher(settings: Settings) -> list[str]:
     return [] if ranks == 1 else ["-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={ranks}"]
 
 
-def train_gpus(settings: Settings) -> int:
-    """GPUs the train job asks for: one a rank on a CUDA device, none on the CPU."""
-    return settings["training"]["ranks"] if settings["device"].startswith("cuda") else 0
+def train_gpus(settings: Settings, jobs_per_gpu: int = 1) -> int:
+    """GPU slots the train job asks for (`--resources gpu`): none on the CPU; on a CUDA device one for a single
+    process, and for several ranks every slot of a GPU a rank (each takes its GPU whole: pipeline.train)."""
+    if not settings["device"].startswith("cuda"):
+        return 0
+    ranks = settings["training"]["ranks"]
+    return ranks * jobs_per_gpu if ranks > 1 else 1
 
 
 def rank_threads(settings: Settings, threads: int) -> int:

@@ -412,7 +412,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                            for i, p in enumerate([*b.low_runs, *(x for n in networks_of(b) for x in (n.eval, n.model))])},
                         **{f"--high-res {h.substeps} {h.iterations} {h.harmonic_every} file {i}": p
                            for h in high_res for i, p in enumerate([*h.runs, *h.timed])}})
-    device = configure_torch(args.device, 0, args.threads)
+    device = configure_torch(args.device, 0, args.threads, whole_gpu=True)  # both sides of a speedup, alone
     where = timing_device(device)
     S = read_subdivision(args.subdiv).S
     settings = read_settings(settings_path)

@@ -86,16 +86,16 @@ def settings_of(argv: Sequence[str] | None) -> str | None:
     return given.parse_known_args(argv)[0].settings
 
 
-def check_device(device: str, library: str, cuda_count: Callable[[], int]) -> None:
+def check_device(device: str, library: str, cuda_count: Callable[[], int], whole_gpu: bool = False) -> None:
     """Refuse a device that is not `cpu`, `cuda` or `cuda:N`, or a CUDA device beyond the `cuda_count()` that
     `library` (torch, Warp) sees, before the library itself fails on it with a traceback. A CUDA device of a job
-    that shares several GPUs with others is the free one it takes first (pipeline.core.gpu_slots), before the
-    library reads which GPUs it may see."""
+    that shares several GPUs with others is the free one it takes first (pipeline.core.gpu_slots; `whole_gpu`:
+    with none of its slots held by another job), before the library reads which GPUs it may see."""
     match = re.fullmatch(r"cpu|cuda(?::([0-9]+))?", device)
     if match is None:
         raise PipelineError(f"device '{device}' is not cpu, cuda or cuda:N (--device)")
     if device != "cpu":
-        claim_gpu()
+        claim_gpu(whole=whole_gpu)
         count = cuda_count()
         if int(match[1] or 0) >= count:
             raise PipelineError(f"device '{device}' requested but {library} finds {count} CUDA device(s) "

@@ -12,6 +12,11 @@ share it: a job of small batches leaves a GPU mostly idle (launches, its Python 
 them overlap there. Jobs take every GPU's first slot before any GPU's second, so they spread before they stack.
 The ranks of one job (torchrun's, `training.ranks`) never share a GPU, which NCCL refuses: each rank notes its GPU
 in a small file of the job's run (TORCHELASTIC_RUN_ID) in the locks' folder, and its siblings pass that GPU by.
+
+A job may take a GPU whole (`claim_gpu(whole=True)`: every slot of one GPU, none of them held): the ranks of a
+data-parallel training, whose every step waits at the all-reduce for its slowest rank, and a stage that times
+things against each other (the trade-off's table), whose times would include a neighbour's kernels. Its rule asks
+Snakemake for jobs_per_gpu slots a GPU so that the counts agree.
 """
 from __future__ import annotations
 
@@ -31,13 +36,14 @@ JOBS_PER_GPU_VARIABLE = "LEARNED_CLOTH_JOBS_PER_GPU"
 LOCKS_VARIABLE = "LEARNED_CLOTH_GPU_LOCKS"    # the lock files' folder (default: one per user under the temp dir)
 RUN_VARIABLE = "TORCHELASTIC_RUN_ID"         # torchrun's id of one launch: the ranks of one job share it
 
-_held: tuple[str, int] | None = None         # (the GPU's id, the locked file's descriptor) for the process's life
+_held: tuple[str, tuple[int, ...]] | None = None    # (the GPU's id, its locked slots' descriptors): the process's life
 _sharing = 1                                 # the jobs the held GPU takes at once (jobs_per_gpu), 1 without a slot
 
 
-def claim_gpu(poll_seconds: float = 0.5) -> str | None:
+def claim_gpu(poll_seconds: float = 0.5, whole: bool = False) -> str | None:
     """Take a free GPU of LEARNED_CLOTH_GPUS and make it the only one CUDA shows this process; its id, or None
-    where the variable is absent or 1. Waits while every slot is held (more CUDA jobs than `--resources gpu`)."""
+    where the variable is absent or 1. Waits while every slot is held (more CUDA jobs than `--resources gpu`).
+    `whole`: every slot of one GPU (waits until some GPU has all of them free)."""
     global _held, _sharing
     if _held is not None:
         return _held[0]
@@ -52,38 +58,67 @@ def claim_gpu(poll_seconds: float = 0.5) -> str | None:
     announced = False
     while True:
         with _siblings_lock(folder, run) as siblings:
-            claimed = _claim_free_slot(folder, slots, siblings.read())
+            claimed = (_claim_whole_gpu(folder, ids, per_gpu, siblings.read()) if whole
+                       else _claim_free_slot(folder, slots, siblings.read()))
             if claimed is not None:
                 siblings.add(claimed[0])
         if claimed is not None:
-            gpu, k, fd = claimed
-            _held, _sharing = (gpu, fd), per_gpu
+            gpu, k, fds = claimed
+            _held, _sharing = (gpu, fds), 1 if whole else per_gpu
             os.environ["CUDA_VISIBLE_DEVICES"] = gpu
             os.environ[GPUS_VARIABLE] = "1"     # what this process starts shares its GPU, as torch's own workers do
-            shared = f", slot {k + 1} of its {per_gpu}" if per_gpu > 1 else ""
+            shared = (f", all {per_gpu} of its slots" if whole else f", slot {k + 1} of its {per_gpu}") \
+                if per_gpu > 1 else ""
             print(f"GPU {gpu} (a free one of {len(ids)}: {GPUS_VARIABLE}{shared}) is this job's cuda:0",
                   file=sys.stderr)
             return gpu
         if not announced:
+            wanted = "a GPU with all its slots free" if whole else "one"
             print(f"all {len(slots)} GPU slots held by other jobs (or on this job's other ranks' GPUs): waiting "
-                  f"for one", file=sys.stderr)
+                  f"for {wanted}", file=sys.stderr)
             announced = True
         time.sleep(poll_seconds)
 
 
-def _claim_free_slot(folder: Path, slots: list[tuple[str, int]], passed_by: set[str]) -> tuple[str, int, int] | None:
-    """The first free slot (gpu, k) on a GPU not in `passed_by`, locked: (gpu, k, the lock's descriptor)."""
+def _lock_slot(folder: Path, gpu: str, k: int) -> int | None:
+    """Slot k of `gpu` locked (the lock's descriptor), or None if another process holds it."""
+    fd = os.open(folder / (f"gpu-{gpu}.lock" if k == 0 else f"gpu-{gpu}-slot{k}.lock"), os.O_RDWR | os.O_CREAT,
+                 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _claim_free_slot(folder: Path, slots: list[tuple[str, int]],
+                     passed_by: set[str]) -> tuple[str, int, tuple[int, ...]] | None:
+    """The first free slot (gpu, k) on a GPU not in `passed_by`, locked: (gpu, k, (the lock's descriptor,))."""
     for gpu, k in slots:
+        fd = None if gpu in passed_by else _lock_slot(folder, gpu, k)
+        if fd is not None:
+            return gpu, k, (fd,)
+    return None
+
+
+def _claim_whole_gpu(folder: Path, ids: list[str], per_gpu: int,
+                     passed_by: set[str]) -> tuple[str, int, tuple[int, ...]] | None:
+    """The first GPU not in `passed_by` whose every slot is free, all of them locked: (gpu, 0, descriptors). A
+    GPU with a slot held gives back the ones just taken (a half-claimed GPU would block its other jobs)."""
+    for gpu in ids:
         if gpu in passed_by:
             continue
-        fd = os.open(folder / (f"gpu-{gpu}.lock" if k == 0 else f"gpu-{gpu}-slot{k}.lock"), os.O_RDWR | os.O_CREAT,
-                     0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        fds = []
+        for k in range(per_gpu):
+            fd = _lock_slot(folder, gpu, k)
+            if fd is None:
+                break
+            fds.append(fd)
+        if len(fds) == per_gpu:
+            return gpu, 0, tuple(fds)
+        for fd in fds:
             os.close(fd)
-            continue
-        return gpu, k, fd
     return None
 
 
@@ -126,8 +161,8 @@ def _siblings_lock(folder: Path, run: str | None):
 
 
 def jobs_sharing_the_gpu() -> int:
-    """How many jobs the GPU this process claimed takes at once (`jobs_per_gpu`; 1 without a claimed slot): a
-    time measured here with more than 1 may include the other jobs' kernels."""
+    """How many jobs the GPU this process claimed takes at once (`jobs_per_gpu`; 1 without a claimed slot or with
+    the whole GPU): a time measured here with more than 1 may include the other jobs' kernels."""
     return _sharing
 
 

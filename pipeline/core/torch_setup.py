@@ -13,15 +13,17 @@ from pipeline.core.errors import PipelineError
 
 
 def configure_torch(device: str, seed: int, threads: int | None = None, *, deterministic: bool = True,
-                    tf32: bool = False, cuda_graph: bool = False) -> torch.device:
+                    tf32: bool = False, cuda_graph: bool = False, whole_gpu: bool = False) -> torch.device:
     """Seeded torch on `device` using `threads` CPU threads (default: torch's choice), its arithmetic as
     `set_arithmetic` describes; fails clearly for a device that is no device (`gpu7`), a CUDA device torch does
-    not see, or a device that is not CUDA for a training replayed as CUDA graphs (`cuda_graph`)."""
+    not see, or a device that is not CUDA for a training replayed as CUDA graphs (`cuda_graph`). `whole_gpu`: a
+    GPU of the workflow's shared pool taken whole (pipeline.core.gpu_slots), for times that no other job's
+    kernels share."""
     if threads is not None:
         if threads < 1:
             raise PipelineError(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
-    check_device(device, "torch", torch.cuda.device_count)
+    check_device(device, "torch", torch.cuda.device_count, whole_gpu)
     if cuda_graph and not device.startswith("cuda"):
         raise PipelineError(f"--cuda-graph (training.cuda_graph) needs a CUDA device, not '{device}'")
     if device.startswith("cuda"):

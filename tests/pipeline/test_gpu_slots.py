@@ -18,8 +18,12 @@ JOB = ("import os, sys; from pipeline.core.gpu_slots import claim_gpu, jobs_shar
        "sys.stdin.read()")
 
 
-def start_job(tmp_path, count, visible=None, per_gpu=None, rank_of=None):
-    """A job process; `rank_of`: a torchrun run id, making it one of that job's two ranks."""
+WHOLE_JOB = JOB.replace("claim_gpu(poll_seconds=0.05)", "claim_gpu(poll_seconds=0.05, whole=True)")
+
+
+def start_job(tmp_path, count, visible=None, per_gpu=None, rank_of=None, whole=False):
+    """A job process; `rank_of`: a torchrun run id, making it one of that job's two ranks; `whole`: it takes its
+    GPU whole."""
     env = {**os.environ, GPUS_VARIABLE: str(count), LOCKS_VARIABLE: str(tmp_path / "locks")}
     env.pop(RUN_VARIABLE, None)
     env.pop("WORLD_SIZE", None)
@@ -31,7 +35,7 @@ def start_job(tmp_path, count, visible=None, per_gpu=None, rank_of=None):
     env.pop("CUDA_VISIBLE_DEVICES", None)
     if visible is not None:
         env["CUDA_VISIBLE_DEVICES"] = visible
-    return subprocess.Popen([sys.executable, "-c", JOB], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-c", WHOLE_JOB if whole else JOB], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
@@ -106,6 +110,38 @@ def test_the_ranks_of_one_job_never_share_a_gpu(tmp_path):
     jobs[1].wait()
     assert second.stdout.readline().split()[0] == "1"
     for job in (jobs[3], first, second, other):
+        job.communicate("")
+
+
+def test_a_whole_gpu_is_one_with_every_slot_free_and_its_job_shares_it_with_none(tmp_path):
+    # Two GPUs of two slots. A job takes GPU 0's first slot; a whole claim passes GPU 0 by and takes both of GPU
+    # 1's (sharing it with none); the next job gets GPU 0's second slot. A second whole claim then waits, and
+    # holds no slot meanwhile: with GPU 0's first slot freed, a plain job still gets it.
+    single = start_job(tmp_path, 2, per_gpu=2)
+    assert single.stdout.readline().split()[0] == "0"
+    whole = start_job(tmp_path, 2, per_gpu=2, whole=True)
+    assert whole.stdout.readline().split() == ["1", "1", "1", "1"]
+    second = start_job(tmp_path, 2, per_gpu=2)
+    assert second.stdout.readline().split()[0] == "0"
+    waiting = start_job(tmp_path, 2, per_gpu=2, whole=True)
+    assert "all its slots free" in waiting.stderr.readline() and waiting.poll() is None
+    single.kill()
+    single.wait()
+    third = start_job(tmp_path, 2, per_gpu=2)
+    assert third.stdout.readline().split()[0] == "0" and waiting.poll() is None
+    for job in (second, third):
+        job.kill()
+        job.wait()
+    assert waiting.stdout.readline().split()[:2] == ["0", "0"]
+    for job in (whole, waiting):
+        job.communicate("")
+
+
+def test_the_ranks_of_one_job_take_distinct_gpus_whole(tmp_path):
+    first = start_job(tmp_path, 2, per_gpu=2, rank_of="run-a", whole=True)
+    second = start_job(tmp_path, 2, per_gpu=2, rank_of="run-a", whole=True)
+    assert {first.stdout.readline().split()[0], second.stdout.readline().split()[0]} == {"0", "1"}
+    for job in (first, second):
         job.communicate("")
 
 

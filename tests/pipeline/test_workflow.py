@@ -196,6 +196,13 @@ def test_a_train_job_of_several_ranks_runs_them_under_torchrun_with_a_gpu_each(t
     matched, width = jobs["tradeoff_train_matched"], jobs["tradeoff_train"]
     assert "gpu=2" in matched["resources"] and " --nproc_per_node=2 -m pipeline.train " in matched["shell"]
     assert "gpu=1" in width["resources"] and "torch.distributed.run" not in width["shell"]
+    # With two jobs a GPU, the ranks and the trade-off's timing job take their GPUs whole: every slot of each.
+    run = snakemake(tmp_path, "-n", "-p", "--configfile", str(REPO / "workflow_config.yaml"), str(overlay),
+                    "--config", "device=cuda:0", "gpus=2", "jobs_per_gpu=2", "--", "results/patch/tradeoff/")
+    assert run.returncode == 0, tail(run)
+    jobs = planned_jobs(run)
+    assert ["gpu=4" in jobs[name]["resources"] for name in ("train", "tradeoff_train_matched")] == [True, True]
+    assert "gpu=2" in jobs["tradeoff"]["resources"] and "gpu=1" in jobs["tradeoff_evaluate"]["resources"]
 
 
 @pytest.mark.tiny_pants_target("results/pants/study/", study={"sequence_counts": [1, 2], "train_frames": [10],

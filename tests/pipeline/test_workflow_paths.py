@@ -151,6 +151,8 @@ def test_the_train_job_runs_its_ranks_under_torchrun_with_a_gpu_and_a_share_of_t
     assert workflow_paths.train_launcher(four) == ["-m", "torch.distributed.run", "--standalone",
                                                    "--nproc_per_node=4"]
     assert workflow_paths.train_gpus(four) == 4 and workflow_paths.train_gpus({**four, "device": "cpu"}) == 0
+    # With two jobs a GPU, ranks take their GPUs whole (both slots each); one process takes one slot.
+    assert workflow_paths.train_gpus(four, 2) == 8 and workflow_paths.train_gpus(one, 2) == 1
     assert [workflow_paths.rank_threads(four, t) for t in (1, 4, 16, 17)] == [1, 1, 4, 4]
     assert workflow_paths.rank_threads(one, 16) == 16
 

@@ -36,7 +36,8 @@ FILE_SCENES = workflow_paths.one_of(s for s, settings in SETTINGS.items() if wor
 
 # Several GPUs: each CUDA job takes a free one (pipeline.core.gpu_slots), told how many through its environment.
 os.environ[gpu_slots.GPUS_VARIABLE] = str(config.get("gpus", 1))
-os.environ[gpu_slots.JOBS_PER_GPU_VARIABLE] = str(config.get("jobs_per_gpu", 1))
+JOBS_PER_GPU = config.get("jobs_per_gpu", 1)
+os.environ[gpu_slots.JOBS_PER_GPU_VARIABLE] = str(JOBS_PER_GPU)
 
 wildcard_constraints:
     scene=workflow_paths.one_of(SETTINGS),
@@ -61,6 +62,11 @@ def gpus_on_device(wildcards):
     return device_gpus(wildcards.scene)
 
 
+def whole_gpus_on_device(wildcards):
+    """A job that takes its GPU whole (pipeline.core.gpu_slots, `whole`) asks for all of its slots."""
+    return device_gpus(wildcards.scene) * JOBS_PER_GPU
+
+
 # The trainings of the scene's own recipe (its network, and the trade-off's matched networks: that recipe on the
 # inputs a cheaper low-res run gives) run its `training.ranks` processes under torchrun, a GPU each, so that a
 # matched network is trained as the network it is compared with. The grids' trainings of their own step budgets
@@ -70,7 +76,7 @@ def recipe_train_launcher(wildcards):
 
 
 def recipe_train_gpus(wildcards):
-    return workflow_paths.train_gpus(SETTINGS[wildcards.scene])
+    return workflow_paths.train_gpus(SETTINGS[wildcards.scene], JOBS_PER_GPU)
 
 
 def recipe_train_threads(wildcards, threads):

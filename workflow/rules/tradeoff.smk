@@ -353,7 +353,9 @@ rule tradeoff:
     log: f"{TRADEOFF}/logs/tradeoff.log"
     benchmark: f"{TRADEOFF}/benchmarks/tradeoff.tsv"
     threads: workflow.cores
-    resources: mem_mb=16000, gpu=gpus_on_device     # the dataset's frames on the device, to time the networks
+    # The dataset's frames on the device, to time the networks; its GPU whole: both sides of every speedup are
+    # timed here, with no other job's kernels beside them.
+    resources: mem_mb=16000, gpu=whole_gpus_on_device
     shell:
         "{PY:q} -m experiments.tradeoff {input.subdiv:q} {output.table:q} {output.plot:q} {output.report:q} "
         "--sim-high {input.sim_high:q} --dataset {input.dataset:q} --operators {input.operators:q} {params.grid:q} "
