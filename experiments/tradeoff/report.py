@@ -185,8 +185,9 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
              "the paper's reference, what the learned path replaces). The low-res solves, Loop subdivision, the "
              "networks and the reference are timed in this one job, one after another on the device, the solvers "
              "over one sequence stepped alone. speedup = reference high-res sim / total."
-             + (" Fused: the same learned path with the fused bf16 network (model.fused_network, what a user "
-                "deploys on CUDA) in place of the fp32 one, timed beside it on the same frames; vs fp32: its "
+             + (" Fused: the same learned path with the fused bf16 network (model.fused_network, and its input "
+                "features in one kernel where model.fused_features computes them: what a user deploys on CUDA) in "
+                "place of the fp32 one, timed beside it on the same frames; vs fp32: its "
                 "largest output difference over the fp32 network's largest displacement; the Pareto front and the "
                 "plot are the fp32 path's." if fused else "")
              + " **Bold**: on the Pareto front of the "

@@ -73,9 +73,9 @@ def claim_gpu(poll_seconds: float = 0.5, whole: bool = False) -> str | None:
                   file=sys.stderr)
             return gpu
         if not announced:
-            wanted = "a GPU with all its slots free" if whole else "one"
-            print(f"all {len(slots)} GPU slots held by other jobs (or on this job's other ranks' GPUs): waiting "
-                  f"for {wanted}", file=sys.stderr)
+            print("waiting for a GPU with all its slots free: other jobs hold a slot of each (or this job's other "
+                  "ranks hold it)" if whole else f"all {len(slots)} GPU slots held by other jobs (or on this job's "
+                  f"other ranks' GPUs): waiting for one", file=sys.stderr)
             announced = True
         time.sleep(poll_seconds)
 

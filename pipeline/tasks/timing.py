@@ -105,8 +105,10 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor, fused: boo
         # compile them) leaves it out with its reason rather than failing the stage that asked for the times.
         try:
             with _bf16_sums_in_fp32():
-                fused, fused_path = _deployed(FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device),
-                                              store, ids, FUSED_PATH)
+                regressor = FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device)
+                features = ("input features in PyTorch (model.features)" if regressor.fused_features is None
+                            else "input features in one kernel (model.fused_features)")
+                fused, fused_path = _deployed(regressor, store, ids, f"{FUSED_PATH}, {features}")
                 fused_ms, fused_out = _per_frame(fused, store, ids, torch.inference_mode)
             times.fused = FusedTiming(fused_ms, _relative(fused_out, got), fused_path)
         except Exception as err:     # noqa: BLE001 -- Triton's compile errors derive from no common base
