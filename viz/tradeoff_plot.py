@@ -14,6 +14,7 @@ MARKERS = ("o", "^", "s", "D", "v", "P", "X")
 LABEL_SIZE = 7                      # points
 # Where a label may go, in points from its point, tried in order: up and right of it, then further below and above.
 LABEL_OFFSETS = ((4, 4), (4, -11), (4, 15), (4, -22), (4, 26), (4, -33), (4, 37))
+MARKER_HALF = 3.0                   # half a scatter marker's width (its default size, 36 points^2), in points
 COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 
 
@@ -47,30 +48,47 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
         ax.set_title(f"{split} frames")
         ax.grid(True, which="both", alpha=0.3)
         ax.autoscale_view()
-        anchors = ax.transData.transform(np.column_stack([ms, error])) * 72.0 / fig.dpi     # in points
-        for label, (x, y), offset in zip(labels, zip(ms, error), place_labels(anchors, labels)):
-            ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE)
     # One legend under the panels, clear of the points.
     handles, names = fig.axes[0].get_legend_handles_labels()
     fig.legend(handles, names, loc="lower center", ncol=3, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
+    # The labels once the panels have their final size, kept inside them (placed before the layout, boxes apart
+    # in a larger panel overlapped in the final one, and the layout made room for labels past a panel's edge).
+    to_points = 72.0 / fig.dpi
+    for ax, error in zip(fig.axes, errors.values()):
+        error = np.asarray(error, dtype=np.float64)
+        anchors = ax.transData.transform(np.column_stack([ms, error])) * to_points
+        bounds = tuple(np.asarray(ax.bbox.extents) * to_points)
+        for label, (x, y), offset in zip(labels, zip(ms, error), place_labels(anchors, labels, bounds=bounds)):
+            ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE)
     png = io.BytesIO()
     fig.savefig(png, format="png")
     return png.getvalue()
 
 
-def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZE) -> list[tuple[float, float]]:
-    """An offset (points) per label from its anchor (N, 2), in points: the first of LABEL_OFFSETS whose box (text
-    width estimated from its length) meets no box placed before it, so that points at nearly the same place
-    (networks of two widths at one budget) keep readable labels; the last offset if every one is taken."""
+def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZE,
+                 bounds: tuple[float, float, float, float] | None = None) -> list[tuple[float, float]]:
+    """An offset (points) per label from its anchor (N, 2), in points: the first of LABEL_OFFSETS, then the same
+    heights left of the point, whose box (text width estimated from its length) meets no box placed before it and
+    no other point's marker, and lies within `bounds` (x0, y0, x1, y1: the panel, in points) if given; so that
+    points at nearly the same place (networks of two widths at one budget) keep readable labels and a point at a
+    panel's edge keeps its label inside. If none is free, the first within bounds (else the first)."""
+    markers = [(x - MARKER_HALF, y - MARKER_HALF, x + MARKER_HALF, y + MARKER_HALF) for x, y in anchors]
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
-    for (x, y), label in zip(anchors, labels):
+    for i, ((x, y), label) in enumerate(zip(anchors, labels)):
         width, height = 0.6 * size * len(label), size + 1.0
-        for dx, dy in LABEL_OFFSETS:
-            box = (x + dx, y + dy, x + dx + width, y + dy + height)
-            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
-                break
-        placed.append(box)
-        offsets.append((dx, dy))
+        candidates = [*LABEL_OFFSETS, *((-dx - width, dy) for dx, dy in LABEL_OFFSETS)]
+        boxes = [(x + dx, y + dy, x + dx + width, y + dy + height) for dx, dy in candidates]
+        inside = [bounds is None or (b[0] >= bounds[0] and b[1] >= bounds[1] and b[2] <= bounds[2]
+                                     and b[3] <= bounds[3]) for b in boxes]
+        obstacles = placed + markers[:i] + markers[i + 1:]
+        free = [k for k, box in enumerate(boxes) if inside[k] and not any(_overlap(box, b) for b in obstacles)]
+        k = free[0] if free else next((k for k, ok in enumerate(inside) if ok), 0)
+        placed.append(boxes[k])
+        offsets.append(candidates[k])
     return offsets
+
+
+def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, place_labels, tradeoff_plot
+from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, MARKER_HALF, place_labels, tradeoff_plot
 
 
 def _box(anchor, offset, label):
@@ -24,6 +24,23 @@ def test_labels_of_coincident_points_do_not_overlap_and_lone_points_keep_the_fir
     assert not any(_overlap(boxes[i], boxes[j]) for i in range(3) for j in range(i + 1, 3))
     assert offsets[0] == LABEL_OFFSETS[0] and offsets[3] == LABEL_OFFSETS[0]
     assert len(set(offsets[:3])) == 3
+
+
+def test_a_label_stays_inside_its_panel_and_off_the_other_points():
+    """A point at the panel's right edge gets its label on its left; a label whose first place would cover
+    another point's marker goes elsewhere."""
+    bounds = (0.0, 0.0, 300.0, 300.0)
+    labels = ["high-res 8x75, every iteration", "1 sub, Loop only", "a neighbour"]
+    anchors = np.array([[290.0, 100.0], [50.0, 50.0], [60.0, 58.0]])     # the third's marker where the second's
+    offsets = place_labels(anchors, labels, bounds=bounds)                 # first label box would be
+    boxes = [_box(a, o, lab) for a, o, lab in zip(anchors, offsets, labels)]
+    assert offsets[0][0] < 0 and boxes[0][0] >= 0 and boxes[0][2] <= 290.0
+    for i, box in enumerate(boxes):
+        assert bounds[0] <= box[0] and box[2] <= bounds[2] and bounds[1] <= box[1] and box[3] <= bounds[3]
+        markers = [(x - MARKER_HALF, y - MARKER_HALF, x + MARKER_HALF, y + MARKER_HALF)
+                   for j, (x, y) in enumerate(anchors) if j != i]
+        assert not any(_overlap(box, marker) for marker in markers)
+    assert offsets[1] != LABEL_OFFSETS[0]
 
 
 def test_the_figure_is_a_png_with_coincident_points():
