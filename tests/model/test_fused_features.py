@@ -13,9 +13,6 @@ import dataclasses
 import importlib.util
 import json
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +25,7 @@ from model.fused_features import COVERED, FusedFeatures, corner_table, neighbour
 from model.inference import FastRegressor
 from model.networks import NetworkSpec, build_network
 from model_meshes import build_hierarchy, grid_mesh
+from triton_interpreted import interpreted_errors
 
 TOLERANCE = 1e-5       # of each feature's largest |value|: summation order and division forms, nothing else
 SPECS = {
@@ -162,12 +160,7 @@ def _check(errors: dict[str, float]) -> None:
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None or torch.cuda.is_available(),
                     reason="needs Triton; where CUDA is, the test below runs the compiled kernel instead")
 def test_kernel_interpreted_on_the_cpu_matches_the_pytorch_features():
-    here = Path(__file__).parent
-    env = dict(os.environ, TRITON_INTERPRET="1",
-               PYTHONPATH=os.pathsep.join([str(here), str(here.parents[1]), os.environ.get("PYTHONPATH", "")]))
-    done = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    _check(json.loads(done.stdout.splitlines()[-1]))
+    _check(interpreted_errors(__file__))
 
 
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None, reason="needs Triton")

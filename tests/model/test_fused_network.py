@@ -10,9 +10,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +21,7 @@ from model.layers import mesh_conv
 from model.inference import FastNetwork
 from model.networks import NetworkSpec, build_network
 from model_meshes import build_hierarchy, grid_mesh
+from triton_interpreted import interpreted_errors
 
 FP32_TOLERANCE = 1e-5      # of the largest |output|: sums-based variance and summation order, nothing else
 # Two pooling chains and three unpoolings in a row in the second: the maps the Table 3 networks need (D_3);
@@ -208,12 +206,7 @@ def test_dependent_launches_are_refused_where_they_cannot_run():
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None or torch.cuda.is_available(),
                     reason="needs Triton; where CUDA is, the test below runs the compiled kernels instead")
 def test_triton_kernels_interpreted_on_the_cpu_match_the_plan():
-    here = Path(__file__).parent
-    env = dict(os.environ, TRITON_INTERPRET="1",
-               PYTHONPATH=os.pathsep.join([str(here), str(here.parents[1]), os.environ.get("PYTHONPATH", "")]))
-    done = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    errors = json.loads(done.stdout.splitlines()[-1])
+    errors = interpreted_errors(__file__)
     print(errors)
     assert len(errors) == 2 * len(VARIANTS) * len(CASES) and max(errors.values()) < FP32_TOLERANCE
 
