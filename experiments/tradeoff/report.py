@@ -49,10 +49,15 @@ def _trained_on_scene(table: Tradeoff) -> np.ndarray:
     return (c["trained_substeps"] == ref.substeps) & (c["trained_iterations"] == ref.iterations)
 
 
+def _in_words(budget: tuple[int, int], table: Tradeoff, unit: str) -> str:
+    """A low-res budget in words: n and `unit` ("n sub", "n-substep") at the scene's iterations, "n x i" at
+    others."""
+    substeps, iterations = budget
+    return f"{substeps}{unit}" if iterations == table.reference.iterations else f"{substeps} x {iterations}"
+
+
 def budget_label(table: Tradeoff, i: int) -> str:
-    """A low-res budget in words: "n sub" at the scene's iterations, "n x i" at others."""
-    substeps, iterations = _budget(table, i)
-    return f"{substeps} sub" if iterations == table.reference.iterations else f"{substeps} x {iterations}"
+    return _in_words(_budget(table, i), table, " sub")
 
 
 def labels(table: Tradeoff) -> list[str]:
@@ -86,8 +91,7 @@ def findings(table: Tradeoff) -> list[str]:
     learned = c["method"] == LEARNED
 
     own_budget = (ref.substeps, ref.iterations)
-    words = lambda budget: (f"{budget[0]}-substep" if budget[1] == ref.iterations  # noqa: E731
-                            else f"{budget[0]} x {budget[1]}")
+    words = lambda budget: _in_words(budget, table, "-substep")  # noqa: E731
 
     def at(network: str, budget: tuple[int, int], trained: tuple[int, int]) -> int | None:
         rows = np.flatnonzero(learned & (c["network"] == network) & (c["substeps"] == budget[0])
@@ -110,9 +114,9 @@ def findings(table: Tradeoff) -> list[str]:
         shifted, own = at(network, budget, own_budget), at(network, own_budget, own_budget)
         if shifted is None:
             continue
-        where = f"{budget[0]} substeps" if budget[1] == ref.iterations else f"{budget[0]} x {budget[1]}"
-        text = (f"Matched training at {where}: {network} trained on {words(budget)} inputs has "
-                f"{split} L1 {error[i]:.3f} against {error[shifted]:.3f} trained on {ref.substeps}-substep inputs")
+        text = (f"Matched training at {_in_words(budget, table, ' substeps')}: {network} trained on "
+                f"{words(budget)} inputs has {split} L1 {error[i]:.3f} against {error[shifted]:.3f} trained on "
+                f"{ref.substeps}-substep inputs")
         if own is not None and error[shifted] > error[own]:
             text += (f" and {error[own]:.3f} at {ref.substeps} substeps: it removes "
                      f"{(error[shifted] - error[i]) / (error[shifted] - error[own]):.0%} of the input shift")
