@@ -1,6 +1,6 @@
 # `make run`: set up the virtualenv and build the default scene (workflow_config.yaml's default_scene) on the
 # CPU profile; `make run SCENE=flag` builds another scene.
-# `make test`: set up the virtualenv and run the test suite (what CI runs).
+# `make test`: set up the virtualenv and run the test suite (what CI runs), a worker a core.
 # `make test-cluster`: the Slurm executor plugin (requirements-cluster.txt) into the virtualenv, a single-node Slurm
 # on this machine (tools/local_slurm.sh: root, Debian's slurm-wlm, slurmdbd, munge, mariadb-server), the workflow
 # through profiles/slurm against a local run (tests/cluster), then Slurm torn down.
@@ -33,8 +33,10 @@ $(STAMP): requirements.txt pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/snakemake --cores 2 $(if $(SCENE),results/$(SCENE)/)
 
+# One worker a core (pytest-xdist), a test file's tests in one worker: its module fixtures, such as a workflow
+# build of a minute, are made once. (The session's tiny pants build is made by each worker that has a test of it.)
 test: $(STAMP)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n auto --dist loadfile tests
 
 $(CLUSTER_STAMP): $(STAMP) requirements-cluster.txt
 	$(PY) -m pip install -q -r requirements-cluster.txt
