@@ -33,10 +33,11 @@ $(STAMP): requirements.txt pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/snakemake --cores 2 $(if $(SCENE),results/$(SCENE)/)
 
-# One worker a core (pytest-xdist), a test file's tests in one worker: its module fixtures, such as a workflow
-# build of a minute, are made once. (The session's tiny pants build is made by each worker that has a test of it.)
+# One worker a core (pytest-xdist), at most 8 (a worker and the workflow builds it starts hold up to ~1 GB each),
+# a test file's tests in one worker: its module fixtures, such as a workflow build of a minute, are made once.
+# (The session's tiny pants build is made by each worker that has a test of it.)
 test: $(STAMP)
-	$(PY) -m pytest -q -n auto --dist loadfile tests
+	$(PY) -m pytest -q -n auto --maxprocesses 8 --dist loadfile tests
 
 $(CLUSTER_STAMP): $(STAMP) requirements-cluster.txt
 	$(PY) -m pip install -q -r requirements-cluster.txt
