@@ -9,7 +9,8 @@ CUDA run with those threads per vertex in the sweeps (ClothSolver's sweep_lanes;
 `--frame-kernels sweeps,block` times each run with each way of launching a frame (settings.frame_kernel: a kernel
 per sweep, or the whole frame in one launch of a block per world where the cloth fits, sim/xpbd/block_frame.py;
 default: the simulate stage's, SolverSettings' frame_kernel); each row names the one that ran, its
-cloth-frames/s and its speed over the sweeps of the same variant. `pants-paper` is the paper profile's low-res pants (max_edge 0.08, 757 vertices).
+cloth-frames/s and its speed over the sweeps of the same variant. `pants-paper` is the paper profile's low-res
+pants (max_edge 0.08, 757 vertices).
 Usage:
   python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,pants-paper,tshirt] [--frames 10]
   [--warmup 3] [--substeps 8] [--iterations 75] [--lanes 1,4] [--frame-kernels sweeps,block] [--out table.md]
