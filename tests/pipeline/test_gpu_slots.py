@@ -35,8 +35,8 @@ def start_job(tmp_path, count, visible=None, per_gpu=None, rank_of=None, whole=F
     env.pop("CUDA_VISIBLE_DEVICES", None)
     if visible is not None:
         env["CUDA_VISIBLE_DEVICES"] = visible
-    return subprocess.Popen([sys.executable, "-c", WHOLE_JOB if whole else JOB], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen([sys.executable, "-c", WHOLE_JOB if whole else JOB], env=env, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 def test_jobs_take_distinct_gpus_wait_and_get_a_released_one(tmp_path):
