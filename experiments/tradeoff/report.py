@@ -13,6 +13,10 @@ from pipeline.core.h5 import atomic_write
 
 PAPER_UNIT = 1e-3          # errors are shown x 1e-3 scene units, as the scene's report (paper Table 3)
 FRAME_60HZ_MS = 1e3 / 60
+# A learned path counts as below Loop subdivision only by a gain a user would see: the paper-profile networks fed
+# 1 x 20 runs they were not trained on land 0.01 % below Loop's held-out error (48.711 against 48.717), which is
+# Loop's answer, not the network's.
+LOOP_GAIN = 1.05
 
 
 def pareto_front(ms: np.ndarray, error: np.ndarray) -> np.ndarray:
@@ -145,19 +149,23 @@ def findings(table: Tradeoff) -> list[str]:
 
 
 def _fastest_beating_loop(table: Tradeoff, split: str, error: np.ndarray) -> list[str]:
-    """The fastest learned path (fp32 or, where timed, the fused network) whose error is below Loop subdivision
-    alone's at its own budget: what the learned path is for (issue 36 asks 10x the reference with it)."""
+    """The fastest learned path (fp32 or, where timed, the fused network) whose error is at least LOOP_GAIN times
+    below Loop subdivision alone's at its own budget: what the learned path is for (issue 36 asks 10x the reference
+    with it)."""
     c = table.columns
     loop = {_budget(table, i): error[i] for i in np.flatnonzero(c["method"] == LOOP)}
-    beating = [i for i in np.flatnonzero(c["method"] == LEARNED) if error[i] < loop.get(_budget(table, i), -1.0)]
+    beating = [i for i in np.flatnonzero(c["method"] == LEARNED)
+               if error[i] * LOOP_GAIN <= loop.get(_budget(table, i), -1.0)]
+    below = f"{LOOP_GAIN - 1:.0%} below Loop subdivision alone's"
     if not beating:
-        return [f"No learned path has a {split} L1 below Loop subdivision alone's at its budget."]
+        return [f"No learned path has a {split} L1 at least {below} at its budget."]
     speedup = lambda i: np.nanmax([c["speedup"][i], c["speedup_fused"][i]])  # noqa: E731
     best = max(beating, key=speedup)
     fused = c["speedup_fused"][best] > c["speedup"][best]
-    return [f"Fastest learned path below Loop subdivision's {split} L1: {labels(table)[best]}"
+    floor = loop[_budget(table, best)]
+    return [f"Fastest learned path at least {below} {split} L1 at its budget: {labels(table)[best]}"
             f"{' with the fused bf16 network' if fused else ''}, {split} L1 {error[best]:.3f} against Loop's "
-            f"{loop[_budget(table, best)]:.3f}, "
+            f"{floor:.3f} ({floor / error[best]:.2f}x lower), "
             f"{c['ms_total_fused' if fused else 'ms_total'][best]:.3g} ms a frame: **{speedup(best):.1f}x** the "
             f"reference high-res run."]
 

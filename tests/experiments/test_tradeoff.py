@@ -249,7 +249,8 @@ def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_r
                "25 ms a frame (4.00x)" in line for line in lines)
     assert lines[-1] == ("For 60 Hz (16.7 ms a frame) on this device: 1 sub, RC9 x0.25 (matched), test L1 2.000 in "
                          "10 ms.")
-    assert "No learned path has a test L1 below Loop subdivision alone's at its budget." in lines   # no Loop rows
+    assert ("No learned path has a test L1 at least 5% below Loop subdivision alone's at its budget."
+            in lines)   # no Loop rows
 
 
 def test_a_budget_of_fewer_iterations_is_its_own_budget_in_the_findings_and_labels():
@@ -269,22 +270,25 @@ def test_a_budget_of_fewer_iterations_is_its_own_budget_in_the_findings_and_labe
             "at its own budget (+200%).") in lines
     assert ("Matched training at 1 x 10: RC9 x0.25 trained on 1 x 10 inputs has test L1 2.000 against 3.000 "
             "trained on 4-substep inputs and 1.000 at 4 substeps: it removes 50% of the input shift.") in lines
-    assert ("Fastest learned path below Loop subdivision's test L1: 1 x 10, RC9 x0.25 (matched), test L1 2.000 "
-            "against Loop's 3.100, 5 ms a frame: **20.0x** the reference high-res run.") in lines
+    assert ("Fastest learned path at least 5% below Loop subdivision alone's test L1 at its budget: 1 x 10, RC9 x0.25 "
+            "(matched), test L1 2.000 against Loop's 3.100 (1.55x lower), 5 ms a frame: **20.0x** the reference "
+            "high-res run.") in lines
 
 
-def test_findings_name_the_fastest_learned_path_below_loop_subdivision_with_the_fused_network_where_faster():
-    """Budget 1: Loop alone 3.0; the scene-trained network (2.9, 10 ms) and the matched one (2.0, 12 ms, fused
-    6 ms) beat it; budget 4's network (1.0) is slower (40 ms). The matched one with its fused network is fastest."""
+def test_findings_name_the_fastest_learned_path_clearly_below_loop_subdivision_fused_where_faster():
+    """Budget 1: Loop alone 3.0; the scene-trained network (2.9, 5 ms) is 3 % below it, no gain a user sees (the
+    input shift's networks land there), so the matched one (2.0, 12 ms, fused 6 ms) is named though slower; budget
+    4's network (1.0) is slower still (40 ms)."""
     def loop(n, l1, ms):
         return make_row(LOOP, "none", n, 30, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED, 100.0)
-    rows = [learned(1, 4, 2.9e-3, 10.0), make_row(LEARNED, "RC9 x0.125", 1, 30, (1, 30), 50,
-                                                  {"test": {"l1": 2e-3, "l2": 2e-3}},
-                                                  4.0, 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
+    rows = [learned(1, 4, 2.9e-3, 5.0), make_row(LEARNED, "RC9 x0.125", 1, 30, (1, 30), 50,
+                                                 {"test": {"l1": 2e-3, "l2": 2e-3}},
+                                                 4.0, 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
             loop(1, 3e-3, 4.0), learned(4, 4, 1e-3, 40.0), loop(4, 1.5e-3, 39.0)]
     lines = findings(table(rows))
-    assert ("Fastest learned path below Loop subdivision's test L1: 1 sub, RC9 x0.125 (matched) with the fused bf16 "
-            "network, test L1 2.000 against Loop's 3.000, 6 ms a frame: **16.7x** the reference high-res run.") in lines
+    assert ("Fastest learned path at least 5% below Loop subdivision alone's test L1 at its budget: 1 sub, RC9 x0.125 "
+            "(matched) with the fused bf16 network, test L1 2.000 against Loop's 3.000 (1.50x lower), 6 ms a frame: "
+            "**16.7x** the reference high-res run.") in lines
 
 
 def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_methods(tmp_path):
