@@ -13,11 +13,12 @@ from pathlib import Path
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-SNAKEMAKE = Path(sys.executable).parent / "snakemake"
+# This interpreter's Snakemake as a module: a script beside sys.executable exists in a venv, not in every install.
+SNAKEMAKE = (sys.executable, "-m", "snakemake")
 
 
 def snakemake(workdir, *args):
-    return subprocess.run([str(SNAKEMAKE), "--cores", "2", "--snakefile", str(REPO / "Snakefile"),
+    return subprocess.run([*SNAKEMAKE, "--cores", "2", "--snakefile", str(REPO / "Snakefile"),
                            "--directory", str(workdir), *args], capture_output=True, text=True)
 
 

@@ -32,6 +32,7 @@ from pipeline.artifacts.model import load_model, save_model
 from pipeline.artifacts.operators import load_hierarchy
 from pipeline.artifacts.subdiv import read_subdivision
 from stage_inputs import grid
+from workflow_runs import SNAKEMAKE
 
 SPEC = FeatureSpec(("velocity", "body", "laplacian", "gravity"), "local", "local", "gravity")
 NETWORK = NetworkSpec("D8 D16 D D16", "RC7", "max", in_channels=SPEC.channels)
@@ -309,9 +310,8 @@ def test_workflow_exports_on_request_only(tmp_path):
     """`results/<scene>/deploy` plans the export_model rule with paths and flags only; `results/<scene>/` (what
     `make run` builds) does not."""
     def dry_run(target: str) -> str:
-        done = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--cores", "1", "--snakefile",
-                               str(REPO / "Snakefile"), "--directory", str(tmp_path), "-n", "-p", target],
-                              capture_output=True, text=True, timeout=300)
+        done = subprocess.run([*SNAKEMAKE, "--cores", "1", "--snakefile", str(REPO / "Snakefile"), "--directory",
+                               str(tmp_path), "-n", "-p", target], capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, done.stderr[-2000:]
         return done.stdout
     planned = dry_run("results/patch/deploy")

@@ -5,13 +5,12 @@ substitution in the architecture and checks the planned commands)."""
 from __future__ import annotations
 
 import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 import yaml
 
 from hostile import REPO, assert_refused, files_in, run_stage
+from workflow_runs import SNAKEMAKE
 
 # Each would create `pwned` in the working directory if a shell ever saw it unquoted.
 BAD_NAMES = ["pa`touch pwned`", "$(touch pwned)", "x;touch pwned", "../escape", "-flag"]
@@ -42,7 +41,7 @@ def test_plain_scene_names_are_accepted(tmp_path):
 
 def test_workflow_with_such_a_scene_stops_before_any_job(tmp_path):
     config = _config_with_scene(tmp_path, BAD_NAMES[0])
-    run = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--cores", "1", "--snakefile",
+    run = subprocess.run([*SNAKEMAKE, "--cores", "1", "--snakefile",
                           str(REPO / "Snakefile"), "--directory", str(tmp_path), f"results/{BAD_NAMES[0]}/scene.h5",
                           "--configfile", str(config)], capture_output=True, text=True, timeout=300)
     assert run.returncode != 0
