@@ -1,9 +1,11 @@
 """The speed-accuracy figure: error against ms per frame (log-log), every configuration a labelled point whose
 marker says what it is (learned path by training input, Loop subdivision alone, a cheaper high-res run), the
 Pareto front drawn and the reference high-res run's ms as a line, so that a person sees at a glance which one to
-pick for a budget."""
+pick for a budget; where the learned paths were also timed with the fused network (CUDA), those times as hollow
+markers and their front dotted: what a user deploys there."""
 from __future__ import annotations
 
+import dataclasses
 import io
 
 import numpy as np
@@ -18,13 +20,29 @@ MARKER_HALF = 3.0                   # half a scatter marker's width (its default
 COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 
 
+@dataclasses.dataclass(frozen=True)
+class Faster:
+    """The same points timed again with a faster part (the fused network on CUDA): `ms` per point (NaN where not
+    timed again), `fronts` split -> the Pareto front mask with those ms, `label` what the faster part is, `first`
+    what the first timing had in its place."""
+
+    ms: np.ndarray
+    fronts: dict[str, np.ndarray]
+    label: str
+    first: str
+
+
 def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarray], fronts: dict[str, np.ndarray],
                   groups: list[str], reference_ms: float | None = None, reference_label: str = "high-res reference",
-                  unit: str = "L1 (x 1e-3 scene units)") -> bytes:
+                  unit: str = "L1 (x 1e-3 scene units)", fast: Faster | None = None) -> bytes:
     """A PNG (its bytes) with one panel per split of `errors` (split -> one error per point): each point at
     (ms, error) with its label and the marker of its group (`groups`, one name per point, in the legend), the
-    points of `fronts[split]` (a mask) joined as the Pareto front, and `reference_ms` a vertical line."""
+    points of `fronts[split]` (a mask) joined as the Pareto front, and `reference_ms` a vertical line; with `fast`,
+    the points it times again (the same path with a faster network) as hollow markers joined to their own, and
+    its front."""
     ms = np.asarray(ms, dtype=np.float64)
+    fast_ms = np.full_like(ms, np.nan) if fast is None else np.asarray(fast.ms, dtype=np.float64)
+    timed = np.flatnonzero(np.isfinite(fast_ms))
     kinds = list(dict.fromkeys(groups))
     fig = Figure(figsize=(7.2 * len(errors), 6.2), dpi=120)
     FigureCanvasAgg(fig)
@@ -35,10 +53,18 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
             mask = np.array([g == kind for g in groups])
             ax.scatter(ms[mask], error[mask], marker=MARKERS[k % len(MARKERS)], color=COLOURS[k % len(COLOURS)],
                        label=kind, zorder=3)
-        on_front = np.flatnonzero(fronts[split])
-        order = on_front[np.argsort(ms[on_front])]
-        ax.step(ms[order], error[order], where="post", color="tab:red", linewidth=1.5, label="Pareto front",
-                zorder=2)
+            again = np.intersect1d(np.flatnonzero(mask), timed)
+            if len(again):
+                ax.scatter(fast_ms[again], error[again], marker=MARKERS[k % len(MARKERS)], facecolors="none",
+                           edgecolors=COLOURS[k % len(COLOURS)], zorder=3)
+        for i in timed:     # each faster point joined to its own: the same error, less time
+            ax.plot([ms[i], fast_ms[i]], [error[i], error[i]], color="gray", linewidth=0.6, zorder=1)
+        if len(timed):
+            ax.scatter([], [], marker="o", facecolors="none", edgecolors="black", label=fast.label)
+        _front(ax, ms, error, fronts[split], "-", "Pareto front" if fast is None else f"Pareto front, {fast.first}")
+        if fast is not None:
+            _front(ax, np.where(np.isfinite(fast_ms), fast_ms, ms), error, fast.fronts[split], ":",
+                   f"Pareto front, {fast.label}")
         if reference_ms is not None:
             ax.axvline(reference_ms, color="black", linestyle="--", linewidth=1, label=reference_label)
         ax.set_xscale("log")
@@ -58,22 +84,36 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
     for ax, error in zip(fig.axes, errors.values()):
         error = np.asarray(error, dtype=np.float64)
         anchors = ax.transData.transform(np.column_stack([ms, error])) * to_points
+        unlabelled = ax.transData.transform(np.column_stack([fast_ms[timed], error[timed]])) * to_points
         bounds = tuple(np.asarray(ax.bbox.extents) * to_points)
-        for label, (x, y), offset in zip(labels, zip(ms, error), place_labels(anchors, labels, bounds=bounds)):
+        for label, (x, y), offset in zip(labels, zip(ms, error),
+                                         place_labels(anchors, labels, bounds=bounds, unlabelled=unlabelled)):
             ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE)
     png = io.BytesIO()
     fig.savefig(png, format="png")
     return png.getvalue()
 
 
+def _front(ax, ms: np.ndarray, error: np.ndarray, on_front: np.ndarray, style: str, label: str) -> None:
+    """The points of mask `on_front` joined as a staircase: the least error for a budget of ms."""
+    on_front = np.flatnonzero(on_front)
+    order = on_front[np.argsort(ms[on_front])]
+    ax.step(ms[order], error[order], where="post", color="tab:red", linestyle=style, linewidth=1.5, label=label,
+            zorder=2)
+
+
 def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZE,
-                 bounds: tuple[float, float, float, float] | None = None) -> list[tuple[float, float]]:
+                 bounds: tuple[float, float, float, float] | None = None,
+                 unlabelled: np.ndarray | None = None) -> list[tuple[float, float]]:
     """An offset (points) per label from its anchor (N, 2), in points: the first of LABEL_OFFSETS, then the same
     heights left of the point, whose box (text width estimated from its length) meets no box placed before it and
     no other point's marker, and lies within `bounds` (x0, y0, x1, y1: the panel, in points) if given; so that
     points at nearly the same place (networks of two widths at one budget) keep readable labels and a point at a
-    panel's edge keeps its label inside. If none is free, the first within bounds (else the first)."""
+    panel's edge keeps its label inside; `unlabelled` (M, 2): markers without a label, kept clear too. If none is
+    free, the first within bounds (else the first)."""
     markers = [(x - MARKER_HALF, y - MARKER_HALF, x + MARKER_HALF, y + MARKER_HALF) for x, y in anchors]
+    others = [] if unlabelled is None else [(x - MARKER_HALF, y - MARKER_HALF, x + MARKER_HALF, y + MARKER_HALF)
+                                            for x, y in unlabelled]
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
     for i, ((x, y), label) in enumerate(zip(anchors, labels)):
@@ -82,7 +122,7 @@ def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZ
         boxes = [(x + dx, y + dy, x + dx + width, y + dy + height) for dx, dy in candidates]
         inside = [bounds is None or (b[0] >= bounds[0] and b[1] >= bounds[1] and b[2] <= bounds[2]
                                      and b[3] <= bounds[3]) for b in boxes]
-        obstacles = placed + markers[:i] + markers[i + 1:]
+        obstacles = placed + markers[:i] + markers[i + 1:] + others
         free = [k for k, box in enumerate(boxes) if inside[k] and not any(_overlap(box, b) for b in obstacles)]
         k = free[0] if free else next((k for k, ok in enumerate(inside) if ok), 0)
         placed.append(boxes[k])

@@ -56,7 +56,7 @@ import torch
 
 from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff,
                                           write_tradeoff)
-from experiments.tradeoff.report import groups, labels, pareto_front, plotted_errors, write_report
+from experiments.tradeoff.report import pareto_plot, write_report
 from experiments.tradeoff.solve_timing import TimedSequence, free_high_res_ms, low_res_ms
 from geometry.rigid import apply_rigid_inverse
 from model.inference import CapturedCall, padded_stencil
@@ -73,7 +73,6 @@ from pipeline.core.h5 import atomic_write
 from pipeline.core.torch_setup import configure_torch, timing_device
 from pipeline.tasks import frames_of
 from pipeline.tasks.timing import WARMUP_RUNS, pick_frames, time_inference
-from viz.tradeoff_plot import tradeoff_plot
 
 SCHEDULES = ("iteration", "substep")
 
@@ -434,11 +433,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         rows += [high_res_row(run, origins, args.sim_high, ms_high) for run in high_res]
     table = table_of(rows, where, torch.get_num_threads(), reference)
     write_tradeoff(args.table, vars(args), table)
-    errors = plotted_errors(table)
     with atomic_write(args.plot) as f:
-        f.write(tradeoff_plot(labels(table), table.columns["ms_total"], errors,
-                              {split: pareto_front(table.columns["ms_total"], e) for split, e in errors.items()},
-                              groups(table), ms_high, f"high-res reference, free ({reference.substeps} x "
-                              f"{reference.iterations}, not held to a low-res run)"))
+        f.write(pareto_plot(table, ms_high))
     write_report(Path(args.report), Path(args.plot), scene_report, table, os.getloadavg())
 

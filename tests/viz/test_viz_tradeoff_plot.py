@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, MARKER_HALF, place_labels, tradeoff_plot
+from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, MARKER_HALF, Faster, place_labels, tradeoff_plot
 
 
 def _box(anchor, offset, label):
@@ -49,3 +49,26 @@ def test_the_figure_is_a_png_with_coincident_points():
                         {"test": np.array([True, False, True]), "held-out": np.array([True, False, True])},
                         ["learned", "learned", "high-res"], reference_ms=300.0)
     assert png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
+
+
+def test_labels_keep_clear_of_the_unlabelled_markers_of_the_faster_timing():
+    """A hollow marker (the same path timed with the fused network) where a label's first place would be sends
+    the label elsewhere; without it the label takes the first place."""
+    labels, anchors = ["1 sub, RC9 x0.25"], np.array([[100.0, 100.0]])
+    first = _box(anchors[0], LABEL_OFFSETS[0], labels[0])
+    hollow = np.array([[(first[0] + first[2]) / 2, (first[1] + first[3]) / 2]])
+    assert place_labels(anchors, labels) == [LABEL_OFFSETS[0]]
+    offset = place_labels(anchors, labels, unlabelled=hollow)[0]
+    box = _box(anchors[0], offset, labels[0])
+    marker = (hollow[0, 0] - MARKER_HALF, hollow[0, 1] - MARKER_HALF, hollow[0, 0] + MARKER_HALF,
+              hollow[0, 1] + MARKER_HALF)
+    assert offset != LABEL_OFFSETS[0] and not _overlap(box, marker)
+
+
+def test_the_figure_with_a_faster_timing_differs_from_the_figure_without():
+    ms, errors = np.array([10.0, 4.0]), {"test": np.array([1.0, 2.0])}
+    fronts, groups = {"test": np.array([True, True])}, ["learned", "Loop"]
+    plain = tradeoff_plot(["a", "b"], ms, errors, fronts, groups)
+    fast = Faster(np.array([3.0, np.nan]), {"test": np.array([True, False])}, "fused", "fp32")
+    both = tradeoff_plot(["a", "b"], ms, errors, fronts, groups, fast=fast)
+    assert both.startswith(b"\x89PNG\r\n\x1a\n") and both != plain
