@@ -18,8 +18,8 @@ gather-GEMM, the form before products-first), fused-fold-bf16-graph (norms appli
 convolutions that read them: fewer launches for narrow networks), fused-pdl-bf16-graph and
 fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's overlap of a launch with
 the kernel before it), exported (the torch.export program of deploy/export.py, loaded back: net is not separate
-there), exported-graph, exported-fused (CUDA: the export's AOTInductor package of the fused bf16 path, loaded back
-with aoti_load_package, as deploy/runner.py --fused runs it). Graph modes copy each call's inputs into the
+there), exported-graph, exported-fused (CUDA: the export's program of the fused bf16 path, its Triton launchers
+operators in it, loaded back). Graph modes copy each call's inputs into the
 graph's static buffers inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
 (positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
@@ -34,16 +34,15 @@ import argparse
 import io
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch._inductor import aoti_load_package
 from torch.export.passes import move_to_device_pass
 
-from deploy.export import FUSED_PACKAGE, PROGRAM, export_upsampler, sample_inputs
+from deploy.export import PROGRAM, export_upsampler, sample_inputs
+from deploy.runner import FUSED_PROGRAM
 from geometry.loop_subdivision import loop_subdivide
 from meshops import build_operators
 from model.feature_regressor import FeatureRegressor, FeatureSpec
@@ -153,9 +152,8 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
     names = list(inputs)
     if kind == "exported-fused":
         files = export_upsampler(model, mesh, subdivision, faces, frame_time=1 / 60, fused_device=str(device))
-        package = Path(tempfile.mkdtemp()) / FUSED_PACKAGE
-        package.write_bytes(files[FUSED_PACKAGE])
-        compiled = aoti_load_package(str(package))
+        # Its operators are registered here by the project's own modules (the export's package is their copy).
+        compiled = torch.export.load(io.BytesIO(files[FUSED_PROGRAM])).module()
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: compiled(**dict(zip(names, x)))
     if kind == "exported":

@@ -10,17 +10,23 @@ and high-res faces, and a copy of deploy/runner.py. Before returning, the loaded
 eager fp32 network on a sample batch; a difference beyond EXPORT_TOLERANCE is an error, not a file.
 
 Exported on CUDA (`fused_device`), the folder also holds what a user deploys there: the same learned path with the
-fused bf16 network (model.fused_network, its Triton kernels registered as torch.library.triton_op operators),
-exported and compiled by AOTInductor into one package (`FUSED_PACKAGE`: native code and the kernels' cubins,
-loaded by `torch._inductor.aoti_load_package` without this project or Triton), checked the same way within
-FUSED_TOLERANCE.
+fused bf16 network (model.fused_network and model.fused_features, their Triton launchers registered as
+torch.library.triton_op operators, learned_cloth::*), exported as a second program (`FUSED_PROGRAM`, saved and
+checked like the first, within FUSED_TOLERANCE) in which each launcher is one operator, and the operators' source
+as a package of the folder (`KERNELS`: the project modules that define them, copied with their imports of each
+other made relative), which deploy/runner.py imports before loading that program: torch with Triton (which
+PyTorch's CUDA wheels bring) and no project code. AOTInductor, which would compile the kernels into the package
+instead, was the first form; its loader crashed for any package (a plain ATen one too) in the torch 2.11 image the
+GPU tests run in, so it could not be verified there.
 """
 from __future__ import annotations
 
+import ast
 import copy
 import io
 import json
-import tempfile
+import re
+import sys
 from pathlib import Path
 from typing import Callable
 from typing import Any, Mapping
@@ -34,16 +40,20 @@ from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch
 from model.inference import FastRegressor, FastUpsampler, needed_inputs
 from model.mesh_hierarchy import MeshHierarchy
-from deploy.runner import FORMAT, FUSED_PACKAGE, HIGH_FACES, LOW_FACES, PROGRAM
+from deploy.runner import (FORMAT, FUSED_PROGRAM, HIGH_FACES, KERNELS, LOW_FACES, OPERATOR_NAMESPACE, OPERATORS,
+                           PROGRAM)
 
 MANIFEST, RUNNER = "upsampler.json", "runner.py"
-# What an export folder holds (FUSED_PACKAGE only when exported on CUDA).
-EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER, FUSED_PACKAGE)
+# The project modules that define the fused operators, in the export's KERNELS package (model/<name>.py).
+KERNEL_MODULES = ("triton_conv", "triton_features", "layers", "local_frames")
+# What an export folder holds (FUSED_PROGRAM and KERNELS only when exported on CUDA).
+EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER, FUSED_PROGRAM,
+                *(f"{KERNELS}/{name}.py" for name in ("__init__", *KERNEL_MODULES)))
 # Largest |exported - eager| displacement over the largest |eager| displacement of the export check (fp32; the
 # two differ by summation order only: ~1e-6 in the tests, but 1.9e-4 for an untrained RC13 with body inputs at 15k
 # vertices in bench/infer.py, where instance norms of near-constant random features amplify rounding).
 EXPORT_TOLERANCE = 1e-3
-# The fused package's bound against the eager fp32 network, the same measure: its hidden layers are bf16 (0.3-1 %
+# The fused program's bound against the eager fp32 network, the same measure: its hidden layers are bf16 (0.3-1 %
 # of the largest displacement measured, model/inference.py), held to issue 36's 1 %.
 FUSED_TOLERANCE = 1e-2
 # name -> (shape, meaning) of every input a program may take (model.inference.UPSAMPLER_INPUTS, deploy.runner.INPUTS);
@@ -122,8 +132,8 @@ def export_upsampler(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: 
 
     `frame_time` (seconds between the training frames) is the manifest's default for the program's `frame_time`
     input; a model with velocity or acceleration inputs needs it. `provenance` (plain values) goes into the
-    manifest. `fused_device` (a CUDA device): also the AOTInductor package of the fused bf16 path, compiled for
-    that device's GPU. ValueError for a network or mesh that cannot be exported, or an export that does not
+    manifest. `fused_device` (a CUDA device): also the program of the fused bf16 path on that device and the
+    package of its operators. ValueError for a network or mesh that cannot be exported, or an export that does not
     reproduce the eager network."""
     if not isinstance(model, FeatureRegressor):
         raise ValueError(f"only an encoder-decoder on per-vertex features can be exported, not a "
@@ -137,18 +147,15 @@ def export_upsampler(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: 
     low_faces = coarse_faces(subdivision, high_faces, high_rest)
     upsampler = FastUpsampler(FastRegressor(model, mesh), subdivision).eval()
     example = sample_inputs(names, high_rest[:subdivision.shape[1]], frame_time=frame_time or 1 / 60)
-    program = _exported(upsampler, example)
-    program.example_inputs = None        # saved, they would be unpickled at load
-    buffer = io.BytesIO()
-    torch.export.save(program, buffer)
-    loaded = torch.export.load(io.BytesIO(buffer.getvalue())).module()
+    program, loaded = _saved(_exported(upsampler, example))
     check = lambda run: _difference_from_eager(run, model, mesh, subdivision, names, high_rest,  # noqa: E731
                                                frame_time)
     difference = _within(check(loaded), EXPORT_TOLERANCE, "the exported program")
-    files = {PROGRAM: buffer.getvalue()}
+    files = {PROGRAM: program}
     fused = None
     if fused_device is not None:
-        files[FUSED_PACKAGE], fused = _fused_package(model, mesh, subdivision, example, fused_device, check)
+        files[FUSED_PROGRAM], fused = _fused_program(model, mesh, subdivision, example, fused_device, check)
+        files.update(kernel_package())
     manifest = {
         "format": FORMAT, "program": PROGRAM, "torch": torch.__version__,
         "inputs": [{"name": name, "shape": INPUTS[name][0], "meaning": INPUTS[name][1]} for name in names],
@@ -179,30 +186,69 @@ def _exported(upsampler: FastUpsampler, example: Mapping[str, torch.Tensor]) -> 
                                    dynamic_shapes={name: dims.get(name, {0: batch}) for name in example})
 
 
-def _fused_package(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp.spmatrix,
+def _saved(program: torch.export.ExportedProgram) -> tuple[bytes, torch.nn.Module]:
+    """The program's archive, written without example inputs (loading would unpickle them), and the module loaded
+    back from those bytes: what a user gets."""
+    program.example_inputs = None
+    buffer = io.BytesIO()
+    torch.export.save(program, buffer)
+    return buffer.getvalue(), torch.export.load(io.BytesIO(buffer.getvalue())).module()
+
+
+def _fused_program(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp.spmatrix,
                    example: Mapping[str, torch.Tensor], device: str,
                    check: Callable[[Callable], float]) -> tuple[bytes, dict[str, Any]]:
-    """The AOTInductor package of the learned path with the fused bf16 network on `device` (CUDA), and its
-    manifest entry; ValueError if it differs from the eager fp32 network by more than FUSED_TOLERANCE."""
-    # Imported here: AOTInductor is the compiler of CUDA builds' exports, not needed by the CPU export.
-    from torch._inductor import aoti_compile_and_package, aoti_load_package
-
+    """The program of the learned path with the fused bf16 network on `device` (CUDA), each Triton launcher one
+    learned_cloth operator in it, and its manifest entry; ValueError if it differs from the eager fp32 network by
+    more than FUSED_TOLERANCE or calls an operator the KERNELS package does not define."""
     on_device = {name: value.to(device) for name, value in example.items()}
     fused = FastUpsampler(FastRegressor(model, mesh, torch.bfloat16, fused=True), subdivision).to(device).eval()
-    with tempfile.TemporaryDirectory() as folder:     # the package checked as loaded back from its file
-        path = aoti_compile_and_package(_exported(fused, on_device), package_path=f"{folder}/{FUSED_PACKAGE}")
-        compiled = aoti_load_package(path)
+    exported = _exported(fused, on_device)
+    calls = sorted({str(node.target) for node in exported.graph.nodes
+                    if str(node.target).startswith(f"{OPERATOR_NAMESPACE}.")})
+    program, loaded = _saved(exported)
+    if not {call.split(".")[1] for call in calls} <= set(OPERATORS):
+        raise ValueError(f"the fused program calls {calls}, not all among the operators the runner knows "
+                         f"({', '.join(OPERATORS)})")
 
-        def run(**inputs: torch.Tensor) -> torch.Tensor:
-            with torch.no_grad():
-                return compiled(**{name: value.to(device) for name, value in inputs.items()}).cpu()
-        difference = _within(check(run), FUSED_TOLERANCE, "the fused package")
-        package = Path(path).read_bytes()
-    return package, {"package": FUSED_PACKAGE, "device": "cuda", "gpu": torch.cuda.get_device_name(device),
+    def run(**inputs: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return loaded(**{name: value.to(device) for name, value in inputs.items()}).cpu()
+    difference = _within(check(run), FUSED_TOLERANCE, "the fused program")
+    import triton       # the kernels' compiler, with PyTorch's CUDA builds (not a CPU requirement)
+    return program, {"program": FUSED_PROGRAM, "kernels": KERNELS, "operators": calls, "device": "cuda",
+                     "gpu": torch.cuda.get_device_name(device), "triton": triton.__version__,
                      "network": "model.fused_network: bf16 hidden layers, fp32 first and last convolutions",
                      "max_difference_vs_eager": difference, "tolerance": FUSED_TOLERANCE,
-                     "meaning": "an AOTInductor package (native code compiled for this GPU and torch version) of "
-                                "the learned path with the fused network; the difference as export_check's"}
+                     "meaning": "a torch.export program of the learned path with the fused network, its Triton "
+                                "launchers as the KERNELS package's operators (compiled by Triton at first call "
+                                "for the GPU it runs on); the difference as export_check's"}
+
+
+def kernel_package() -> dict[str, bytes]:
+    """The KERNELS package's files (path in the export -> contents): model/<KERNEL_MODULES>.py with their imports
+    of each other made relative, and an __init__.py importing the two that register operators. ValueError if a
+    module imports another project module (the package would not import without the project)."""
+    files = {f"{KERNELS}/__init__.py": (
+        '"""The fused network\'s Triton operators (learned_cloth::*), copied from the project\'s model/ at export: '
+        'importing this\npackage registers them (deploy/runner.py does, before loading the fused program)."""\n'
+        "from . import triton_conv, triton_features  # noqa: F401\n").encode()}
+    for name in KERNEL_MODULES:
+        source = re.sub(r"^(\s*)from model\.(\w+) import", r"\1from .\2 import",
+                        (Path(__file__).parents[1] / "model" / f"{name}.py").read_text(), flags=re.M)
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, ast.ImportFrom) and node.level:      # a module of the package itself
+                outside = [f"model.{node.module}"] if node.module not in KERNEL_MODULES else []
+            else:
+                roots = ([alias.name for alias in node.names] if isinstance(node, ast.Import) else
+                         [node.module] if isinstance(node, ast.ImportFrom) else [])
+                outside = [root for root in roots if root.split(".")[0] not in (*sys.stdlib_module_names, "torch",
+                                                                                 "triton", "numpy")]
+            if outside:
+                raise ValueError(f"model/{name}.py imports {outside[0]}: the operators' package would need the "
+                                 f"project")
+        files[f"{KERNELS}/{name}.py"] = source.encode()
+    return files
 
 
 def _difference_from_eager(run: Callable[..., torch.Tensor], model: FeatureRegressor, mesh: MeshHierarchy,

@@ -17,14 +17,16 @@ the training data's, from the manifest). Frames go through the program --batch a
 The program is loaded with torch.export.load only after checking that nothing in it would be unpickled (every
 tensor stored raw, no example inputs, no compiled code): a .pt2 from elsewhere is refused, never executed.
 
---fused (with --device cuda) runs instead the export's AOTInductor package of the fused bf16 network, if it was
-exported on CUDA (upsampler.json's `fused`): native code compiled at export for that GPU and torch version, loaded
-with torch._inductor.aoti_load_package. Compiled code cannot be checked the way the program is: run only packages
-you exported yourself.
+--fused (with --device cuda) runs instead the export's program of the fused bf16 network, if it was exported on
+CUDA (upsampler.json's `fused`): its Triton launchers are operators (learned_cloth::*) defined by the export's
+`kernels` package, which this script imports first (Python code from the export folder, run as it is: use --fused
+only with exports you made yourself); the program itself is checked like the other. Triton, which PyTorch's CUDA
+wheels bring, compiles the kernels at the first call.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import sys
 import zipfile
@@ -36,7 +38,10 @@ from torch.export.passes import move_to_device_pass
 
 FORMAT = "trimesh-cnn/deployed-1"
 PROGRAM, LOW_FACES, HIGH_FACES = "upsampler.pt2", "low_faces.npy", "high_faces.npy"
-FUSED_PACKAGE = "upsampler_fused_cuda.pt2"      # the AOTInductor package of an export made on CUDA
+FUSED_PROGRAM = "upsampler_fused_cuda.pt2"      # the fused network's program, in an export made on CUDA
+KERNELS = "kernels"                             # the package defining its operators, in the same export
+OPERATOR_NAMESPACE = "learned_cloth"
+OPERATORS = ("fused_conv", "gather_sum", "few_channel_conv", "normed_products", "prepare", "features")
 INPUTS = ("low_positions", "low_previous", "low_before_previous", "capsule_a", "capsule_b", "radius_a", "radius_b",
           "gravity", "frame_time")
 
@@ -69,7 +74,7 @@ def check_no_pickle(path: Path) -> None:
 
 
 def load_export(folder: Path, device: str, fused: bool = False):
-    """The program (as a callable module on `device`; with `fused`, the fused package's compiled model), its
+    """The program (as a callable module on `device`; with `fused`, the fused network's program), its
     manifest and the low- and high-res faces."""
     try:
         manifest = json.loads((folder / "upsampler.json").read_text())
@@ -109,19 +114,35 @@ def load_program(path: Path, device: str):
 
 
 def load_fused(folder: Path, manifest: dict, device: str):
-    """The export's AOTInductor package of the fused network (compiled code: trusted, not checked), callable
-    with the program's inputs as keywords; RunnerError for an export without one or a device that is not CUDA."""
+    """The export's program of the fused network as a callable module on `device`, its operators registered from
+    the export's KERNELS package first; RunnerError for an export without one or a device that is not CUDA."""
     if not isinstance(manifest.get("fused"), dict) or not device.startswith("cuda"):
-        raise RunnerError(f"{folder}: --fused runs the fused package of an export made on CUDA, on --device cuda "
+        raise RunnerError(f"{folder}: --fused runs the fused program of an export made on CUDA, on --device cuda "
                           f"(this export has {'one' if manifest.get('fused') else 'none'})")
-    path = folder / FUSED_PACKAGE
+    register_operators(folder / KERNELS)
+    return load_program(folder / FUSED_PROGRAM, device)
+
+
+def register_operators(package: Path) -> None:
+    """Import the package at `package`, whose modules register the learned_cloth operators, unless this process
+    has them already (the project's own model.triton_conv and model.triton_features define the same)."""
+    namespace = getattr(torch.ops, OPERATOR_NAMESPACE)
+    have = [hasattr(namespace, name) for name in OPERATORS]
+    if all(have):
+        return
+    if any(have):
+        raise RunnerError(f"{package}: this process defines some of the {OPERATOR_NAMESPACE} operators but not all "
+                          f"(import model.triton_conv and model.triton_features, or neither)")
+    spec = importlib.util.spec_from_file_location(f"{OPERATOR_NAMESPACE}_kernels", package / "__init__.py",
+                                                  submodule_search_locations=[str(package)])
     try:
-        # Imported here: the CPU path needs no compiler runtime.
-        from torch._inductor import aoti_load_package
-        index = torch.device(device).index
-        return aoti_load_package(str(path), device_index=-1 if index is None else index)
-    except Exception as err:  # a package of another GPU, torch version or a damaged one
-        raise _unloadable(path, device, err) from None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+    except Exception as err:  # no Triton (a CPU build of torch), or a damaged package
+        sys.modules.pop(spec.name, None)
+        raise RunnerError(f"{package}: the fused operators cannot be imported ({type(err).__name__}: {err}); they "
+                          f"need Triton, which PyTorch's CUDA wheels install") from None
 
 
 def read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -244,8 +265,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, required=True, help=".npy (F, V_high, 3) or .obj")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--fused", action="store_true",
-                        help="run the fused bf16 package (an export made on CUDA; --device cuda) instead of the "
-                             "program")
+                        help="run the fused bf16 program (an export made on CUDA; --device cuda) instead of the "
+                             "fp32 one")
     parser.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--batch", type=int, default=16, help="frames per call")
     parser.add_argument("--gravity", help="X,Y,Z or a .npy (F, 3): gravity's direction (default 0,-1,0)")

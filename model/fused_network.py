@@ -11,7 +11,7 @@ launches (model.triton_conv):
   written out; an unpooling (or a chain of them) is a 1-wide row map the gather reads through; a concatenation is
   a second input segment filling the next weight rows; the conv's epilogue adds the bias and, when a norm reads
   the output, the per-channel sums of it and of its square (atomics into the conv's own zeroed (B, 2, N) buffer:
-  each launcher is a functional custom operator, so that torch.export and AOTInductor take the network whole).
+  each launcher is a functional custom operator, so that torch.export keeps the network whole, one operator a launch).
 * **norm** -> a `Prepare` launch turns the sums into mean and 1/std and writes leaky((x - mean) / std) once, so
   the 9-13 gathers of each value do not repeat the arithmetic; a pooling (or a chain of k of them, a 2^k-wide map
   averaged or maxed) is folded into the same kind of launch. With `fold_norms` (for narrow networks, whose
@@ -358,8 +358,8 @@ class FusedNetwork(nn.Module):
         if not (x.is_cuda or os.environ.get("TRITON_INTERPRET") == "1"):
             raise ValueError("the fused network runs on CUDA (FastNetwork is the CPU path)")
         # Imported here: Triton comes with PyTorch's CUDA builds and is not a requirement of the CPU install. Each
-        # launcher is a custom operator (torch.library.triton_op), so torch.export keeps it and AOTInductor
-        # compiles its kernels (deploy/export.py).
+        # launcher is a custom operator (torch.library.triton_op), so torch.export keeps it as one operator of the
+        # program (deploy/export.py).
         from model.triton_conv import few_channel_conv, fused_conv, gather_sum, normed_products, prepare
 
         outputs: list[torch.Tensor] = []

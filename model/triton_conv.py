@@ -25,8 +25,9 @@
   gather (NORM).
 
 Each launcher is a custom operator, `torch.library.triton_op` (learned_cloth::<name>), its kernels launched through
-`wrap_triton`: eager calls run them as before, `torch.export` keeps each as one operator of the program, and
-AOTInductor compiles their kernels into a package that runs without this module or Triton (deploy/export.py). The
+`wrap_triton`: eager calls run them as before, and `torch.export` keeps each as one operator of the program, which
+an export on CUDA ships with a copy of this module that defines them (deploy/export.py: keep it importing only
+torch, Triton and the package's other modules, as its export checks). The
 operators are functional: each allocates and returns its output and, for a norm, that output's per-channel sums
 (B, 2, N) fp32, [b, 0] the sums and [b, 1] the sums of squares, which `prepare` reads.
 

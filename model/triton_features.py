@@ -10,7 +10,7 @@ tangent, bitangent, normal. Same formulas and case splits as model.features and 
 run in another order (a vertex's faces in table order instead of atomic adds), so results agree to rounding.
 
 The launcher is a custom operator (`torch.library.triton_op`, learned_cloth::features), like model.triton_conv's:
-torch.export keeps it as one operator and AOTInductor compiles its kernel. Set TRITON_INTERPRET=1 before importing
+torch.export keeps it as one operator, defined in an export by a copy of this module. Set TRITON_INTERPRET=1 before importing
 this module to run it on the CPU with Triton's interpreter (the tests do).
 """
 from __future__ import annotations

@@ -8,8 +8,9 @@ tables), upsampler.json (the program's inputs), low_faces.npy, high_faces.npy an
 or .npy frames with torch and numpy alone (deploy/README.md; docs/artifacts.md lists the files). The export is
 checked against the eager network before anything is written. --frame-time (default with --settings: the
 scene's `solver.dt`) is recorded as the default frame time of a model that sees velocities. On a CUDA --device
-(default with --settings: the scene's `device`) OUT_DIR also receives upsampler_fused_cuda.pt2, the AOTInductor
-package of the same path with the fused bf16 network (deploy/README.md), checked the same way.
+(default with --settings: the scene's `device`) OUT_DIR also receives upsampler_fused_cuda.pt2, the program of the
+same path with the fused bf16 network, and kernels/, the package of its Triton operators (deploy/README.md),
+checked the same way.
 """
 from __future__ import annotations
 

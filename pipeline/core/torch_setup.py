@@ -49,7 +49,7 @@ def set_arithmetic(deterministic: bool, tf32: bool) -> None:
     # The flag itself, not torch.use_deterministic_algorithms: in torch 2.13 that also copies it into
     # Inductor's config (its "skip on-device benchmarking" mode), importing torch._inductor to do so: ~1.1 s of
     # every train and evaluate process on the CPU machine, and no stage compiles with Inductor (the fused network
-    # launches its Triton kernels itself; deploy's AOTInductor export does not come here). Where Inductor is
+    # launches its Triton kernels itself). Where Inductor is
     # loaded already, its copy is kept in step as the public call would.
     torch._C._set_deterministic_algorithms(deterministic)
     inductor = sys.modules.get("torch._inductor.config")

@@ -10,6 +10,7 @@ import importlib.util
 import io
 import json
 import os
+import re
 import subprocess
 import sys
 import zipfile
@@ -157,32 +158,83 @@ def test_runner_without_the_project_upsamples_like_the_eager_network(work, tmp_p
     assert np.abs(displacement).max() > 1e-3          # the network is not silent
 
 
-def test_a_cpu_export_has_no_fused_package_and_the_runner_says_so(work, tmp_path, monkeypatch):
+def test_a_cpu_export_has_no_fused_program_and_the_runner_says_so(work, tmp_path, monkeypatch):
     assert json.loads((work / "export" / "upsampler.json").read_text())["fused"] is None
-    assert not (work / "export" / runner.FUSED_PACKAGE).exists()
+    assert not (work / "export" / runner.FUSED_PROGRAM).exists() and not (work / "export" / runner.KERNELS).exists()
     monkeypatch.chdir(tmp_path)
     np.save("frames.npy", _sequence(work, 1))
     np.savez("body.npz", **_capsules(1))
-    with pytest.raises(runner.RunnerError, match="--fused runs the fused package of an export made on CUDA"):
+    with pytest.raises(runner.RunnerError, match="--fused runs the fused program of an export made on CUDA"):
         runner.main([str(work / "export"), "frames.npy", "--out", "x.npy", "--capsules", "body.npz", "--fused"])
 
 
+def test_the_operators_package_is_the_projects_modules_with_relative_imports_and_refuses_a_project_import(
+        monkeypatch):
+    files = export.kernel_package()
+    assert set(files) == {f"{runner.KERNELS}/{name}.py" for name in ("__init__", *export.KERNEL_MODULES)}
+    for name in export.KERNEL_MODULES:
+        source = files[f"{runner.KERNELS}/{name}.py"].decode()
+        original = (REPO / "model" / f"{name}.py").read_text()
+        assert "from model." not in source and source.count("\n") == original.count("\n")
+        assert source.replace("from .", "from model.") == original
+    # The operators the modules register are the runner's list.
+    defined = re.findall(r'@triton_op\(f"\{NAMESPACE\}::(\w+)"', "".join(
+        (REPO / "model" / f"{name}.py").read_text() for name in export.KERNEL_MODULES))
+    assert sorted(defined) == sorted(runner.OPERATORS)
+    monkeypatch.setattr(export, "KERNEL_MODULES", ("triton_conv", "layers", "fused_network"))  # needs mesh_hierarchy
+    with pytest.raises(ValueError, match="model/fused_network.py imports model.mesh_hierarchy: the operators' "
+                                         "package would need the project"):
+        export.kernel_package()
+
+
+def test_a_runner_without_the_operators_package_says_what_it_needs(tmp_path, monkeypatch):
+    monkeypatch.setattr(runner, "OPERATORS", ("no_such_operator",))     # none registered in this process
+    with pytest.raises(runner.RunnerError, match="the fused operators cannot be imported .* need Triton"):
+        runner.register_operators(tmp_path / "kernels")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("triton") is None,
+                    reason="the operators are Triton kernels (PyTorch's CUDA wheels bring Triton; the CPU build does not)")
+def test_the_operators_package_registers_every_operator_of_the_project_without_it(tmp_path):
+    """Written into a folder and imported by the runner in an interpreter that cannot import the project, the
+    package registers every operator of runner.OPERATORS."""
+    for name, contents in export.kernel_package().items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(contents)
+    sites = [str(Path(torch.__file__).parents[1]), str(Path(importlib.util.find_spec("triton").origin).parents[1])]
+    script = f"""
+import runpy, sys
+sys.path += {sites!r}
+runner = runpy.run_path({str(REPO / "deploy" / "runner.py")!r})
+runner["register_operators"](runner["Path"]({str(tmp_path / runner.KERNELS)!r}))
+import torch
+leaked = sorted({{m.split(".")[0] for m in sys.modules}} & set({PROJECT_PACKAGES!r}))
+missing = [n for n in runner["OPERATORS"] if not hasattr(torch.ops.learned_cloth, n)]
+sys.exit(f"leaked {{leaked}}, missing {{missing}}" if leaked or missing else 0)
+"""
+    done = subprocess.run([sys.executable, "-S", "-c", script], cwd=tmp_path, env={**os.environ, "PYTHONPATH": ""},
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr + done.stdout
+
+
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
-                    reason="the fused package is compiled for a CUDA GPU, with Triton")
-def test_the_fused_package_runs_without_the_project_within_one_percent_of_the_fp32_network(work, tmp_path):
-    """Exported on CUDA, the folder also holds the AOTInductor package of the fused bf16 path; the runner, in a
-    fresh interpreter without the project (or Triton's Python kernels: compiled in), runs it with --fused within
-    1 % of the eager fp32 network's largest displacement, as the export checked."""
+                    reason="the fused program's operators are Triton kernels for a CUDA GPU")
+def test_the_fused_program_runs_without_the_project_within_one_percent_of_the_fp32_network(work, tmp_path):
+    """Exported on CUDA, the folder also holds the program of the fused bf16 path and the package of its
+    operators; the runner, in a fresh interpreter without the project, registers them from the package and runs
+    the program with --fused within 1 % of the eager fp32 network's largest displacement, as the export checked."""
     export_dir = work / "export_cuda"
     if not export_dir.exists():
         cli.run(export_model.main, [str(work / name) for name in ("model.pt", "operators.h5", "subdiv.h5")]
                 + [str(export_dir), "--frame-time", str(FRAME_TIME), "--device", "cuda", "--quiet"])
     fused = json.loads((export_dir / "upsampler.json").read_text())["fused"]
-    assert fused["package"] == runner.FUSED_PACKAGE and (export_dir / runner.FUSED_PACKAGE).stat().st_size > 0
-    assert fused["max_difference_vs_eager"] <= FUSED_TOLERANCE
+    assert fused["program"] == runner.FUSED_PROGRAM and (export_dir / runner.FUSED_PROGRAM).stat().st_size > 0
+    assert fused["kernels"] == runner.KERNELS and (export_dir / runner.KERNELS / "triton_conv.py").is_file()
+    assert fused["operators"] and fused["max_difference_vs_eager"] <= FUSED_TOLERANCE
+    runner.check_no_pickle(export_dir / runner.FUSED_PROGRAM)
     got, displacement = _run_without_the_project(export_dir, tmp_path, "--fused", "--device", "cuda")
     difference = np.abs(got - displacement).max() / np.abs(displacement).max()
-    print(f"fused package vs eager fp32: {difference:.1e} of the largest displacement")
+    print(f"fused program vs eager fp32: {difference:.1e} of the largest displacement")
     assert difference <= FUSED_TOLERANCE
 
 

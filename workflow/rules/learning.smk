@@ -77,7 +77,7 @@ rule evaluate:
 
 # On request only (`snakemake results/<scene>/deploy`), not part of `results/<scene>/`: the trained model as a
 # self-contained upsampler that runs with torch and numpy alone (deploy/README.md); a scene on CUDA also gets the
-# fused bf16 network's AOTInductor package, compiled on the job's GPU.
+# fused bf16 network's program and the package of its Triton operators, checked on the job's GPU.
 rule export_model:
     input:
         settings=f"{OUT}/settings.json", model=f"{OUT}/model.pt", operators=f"{OUT}/operators.h5",
