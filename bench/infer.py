@@ -19,7 +19,8 @@ convolutions that read them: fewer launches for narrow networks), fused-pdl-bf16
 fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's overlap of a launch with
 the kernel before it), exported (the torch.export program of deploy/export.py, loaded back: net is not separate
 there), exported-graph, exported-fused (CUDA: the export's program of the fused bf16 path, its Triton launchers
-operators in it, loaded back). Graph modes copy each call's inputs into the
+operators in it, loaded back), exported-fused-graph (that program replayed as one CUDA graph: what
+deploy/runner.py --fused runs). Graph modes copy each call's inputs into the
 graph's static buffers inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
 (positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
@@ -47,7 +48,8 @@ from geometry.loop_subdivision import loop_subdivide
 from meshops import build_operators
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameBatch
-from model.inference import CapturedCall, FastRegressor, FastUpsampler, needed_inputs
+from model.cuda_graph import CapturedCall
+from model.inference import FastRegressor, FastUpsampler, needed_inputs
 from model.mesh_hierarchy import mesh_hierarchy
 from model.networks import NetworkSpec, build_network
 from scenes.flag_mesh import flag_cloth
@@ -80,7 +82,8 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-fold-pdl-bf16-graph": ("fused-fold-pdl", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
          "exported-graph": ("exported", torch.float32, True, False, False),
-         "exported-fused": ("exported-fused", torch.bfloat16, False, False, False)}
+         "exported-fused": ("exported-fused", torch.bfloat16, False, False, False),
+         "exported-fused-graph": ("exported-fused", torch.bfloat16, True, False, False)}
 # Paper Table 3, "DL + SubD" ms on an RTX 2080 Ti, by high-res vertex count.
 PAPER_MS = {4063: {"RC13": 9.4, "RC9": 5.7, "RC9x/2": 3.7, "RC9x/4": 2.2},
             8654: {"RC13": 17.6, "RC9": 10.2, "RC9x/2": 5.9, "RC9x/4": 3.4},

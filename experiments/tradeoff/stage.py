@@ -59,7 +59,8 @@ from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_
 from experiments.tradeoff.report import pareto_plot, write_report
 from experiments.tradeoff.solve_timing import TimedSequence, free_high_res_ms, low_res_ms
 from geometry.rigid import apply_rigid_inverse
-from model.inference import CapturedCall, padded_stencil
+from model.cuda_graph import CapturedCall
+from model.inference import padded_stencil
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
 from pipeline.artifacts.evaluation import read_errors, read_network_timing

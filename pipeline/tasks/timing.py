@@ -15,7 +15,8 @@ import numpy as np
 import torch
 
 from model.features import FrameStore
-from model.inference import CapturedCall, FastRegressor, captured_frames
+from model.cuda_graph import CapturedCall
+from model.inference import FastRegressor, captured_frames
 from model.tasks import VectorStore
 from pipeline.artifacts.evaluation import FusedTiming
 
