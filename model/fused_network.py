@@ -24,6 +24,10 @@ launches (model.triton_conv):
 * **input normalisation** -> the first convolution's prologue, (x - offset) / scale, on its few channels; the
   output scale is folded into the last convolution's weights.
 
+With `persistent` the plan's launches become the steps of one kernel (model.persistent_network: a grid barrier
+between steps, every convolution gathering), which removes the launches' floors at the cost of cuBLAS's products:
+faster for a narrow network (RC9 x/4), much slower for a wide one (RC13), so an option, off by default.
+
 The plan (`fused_plan`) is the network compiled to those launches; `run_plan_reference` executes it with PyTorch
 operators on any device and is the specification the Triton kernels are tested against; `FusedNetwork` runs it
 on CUDA. The variance is E[x^2] - E[x]^2 of fp32 sums (the form a one-pass epilogue can accumulate), so results
@@ -307,18 +311,24 @@ class FusedNetwork(nn.Module):
 
     def __init__(self, net: EncoderDecoder, mesh: MeshHierarchy, input_offset: torch.Tensor,
                  input_scale: torch.Tensor, output_scale: float, dtype: torch.dtype = torch.float32,
-                 products: bool | None = None, fold_norms: bool = False, pdl: bool = False):
+                 products: bool | None = None, fold_norms: bool = False, pdl: bool = False,
+                 persistent: bool = False):
         """`products`: how the convolutions run - None: each by the rules (`products_first`, then
         `few_channels`, else a gather-GEMM); True: products first wherever nothing applied on load forbids it;
         False: every one a gather-GEMM (the form before products-first, for comparison). `fold_norms`: norms
         without a pooling applied on load by the convolutions reading them (fewer launches; see the module).
         `pdl`: each Triton kernel a programmatic dependent launch (model.triton_conv; Hopper, CUDA only): its
-        launch overlaps the kernel before it. Off by default until measured faster; the export keeps it off."""
+        launch overlaps the kernel before it. Off by default until measured faster; the export keeps it off.
+        `persistent`: the whole plan in one launch (model.persistent_network; no convolution products first: a
+        few-channel one as the rules say, the others gathering), a grid barrier between its steps."""
         super().__init__()
+        if persistent and (pdl or products):
+            raise ValueError("persistent: one launch, whose convolutions gather (no pdl, no products first)")
         if pdl and not _pdl_supported():
             raise ValueError("pdl: needs a CUDA build of Triton with grid dependency control (not the interpreter) "
                              "and a Hopper or later GPU")
-        self.pdl = pdl
+        self.pdl, self.persistent = pdl, persistent
+        self._persistent_plan = None            # built on the first call, for its device's multiprocessors
         mesh = mesh.to("cpu")
         self.plan = aligned_plan(fused_plan(net, mesh, output_scale, fold_norms), ALIGN, FEW_CHANNELS)
         self.pool_max = net.pool_kind == "max"
@@ -329,7 +339,7 @@ class FusedNetwork(nn.Module):
         def form(launch: FusedConv) -> str:
             if products is False:
                 return "gather"
-            if can_take_products(launch) and (products or products_first(launch)):
+            if not persistent and can_take_products(launch) and (products or products_first(launch)):
                 return "products"
             return "few" if few_channels(launch) else "gather"
         self.forms = {index: form(self.plan[index]) for index in convs}
@@ -362,6 +372,8 @@ class FusedNetwork(nn.Module):
         # program (deploy/export.py).
         from model.triton_conv import few_channel_conv, fused_conv, gather_sum, normed_products, prepare
 
+        if self.persistent:
+            return self._run_persistent(x)
         outputs: list[torch.Tensor] = []
         sums: dict[int, torch.Tensor] = {}        # a normed conv's index -> its output's sums (B, 2, N)
         source_of = lambda index: x.float().contiguous() if index == NETWORK_INPUT else outputs[index]  # noqa: E731
@@ -400,4 +412,15 @@ class FusedNetwork(nn.Module):
                                                   norms[1] if len(norms) == 2 else None, weight, bias, out_dtype,
                                                   launch.stats, self.pdl)
             outputs.append(out)
+        return outputs[-1]
+
+    def _run_persistent(self, x: torch.Tensor) -> torch.Tensor:
+        """The plan as one persistent kernel (model.persistent_network): each step's output allocated here."""
+        from model.persistent_network import PersistentPlan, programs_for
+        if self._persistent_plan is None:
+            self._persistent_plan = PersistentPlan(self, programs_for(x.device))
+        plan, last = self._persistent_plan, len(self.plan) - 1
+        outputs = [torch.empty(x.shape[0], plan.vertices[index], plan.channels[index], device=x.device,
+                               dtype=torch.float32 if index == last else self.dtype) for index in range(last + 1)]
+        plan.run(self, x.float().contiguous(), outputs)
         return outputs[-1]

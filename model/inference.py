@@ -161,11 +161,12 @@ class FastRegressor(nn.Module):
 
     def __init__(self, model: FeatureRegressor, mesh: MeshHierarchy, dtype: torch.dtype = torch.float32,
                  fused: bool = False, products: bool | None = None, fold_norms: bool = False, pdl: bool = False,
-                 fused_features: bool = True):
+                 persistent: bool = False, fused_features: bool = True):
         """`fused`: the network in model.fused_network's few launches (Triton; CUDA only) instead of
         FastNetwork's gather + matmul per convolution and, with `fused_features`, the input features in one
-        kernel (model.fused_features) where it computes them all; `products`, `fold_norms`, `pdl`:
-        FusedNetwork's choice of convolution form, of where norms are applied and of dependent launches."""
+        kernel (model.fused_features) where it computes them all; `products`, `fold_norms`, `pdl`, `persistent`:
+        FusedNetwork's choice of convolution form, of where norms are applied, of dependent launches and of one
+        persistent kernel for the whole network."""
         super().__init__()
         if not isinstance(model, FeatureRegressor):
             raise ValueError(f"fast inference runs the encoder-decoder's FeatureRegressor only, got a "
@@ -174,7 +175,8 @@ class FastRegressor(nn.Module):
         orders = locality_orders(mesh)
         args = (model.net, reorder_hierarchy(mesh, orders), model.input_offset, model.input_scale,
                 float(model.output_scale), dtype)
-        self.network = (FusedNetwork(*args, products=products, fold_norms=fold_norms, pdl=pdl) if fused
+        self.network = (FusedNetwork(*args, products=products, fold_norms=fold_norms, pdl=pdl,
+                                     persistent=persistent) if fused
                         else FastNetwork(*args))
         order, new_of = orders[0], inverse_order(orders[0])
         faces, rest = model.features.faces.cpu().numpy(), model.features.rest.cpu().numpy()

@@ -153,38 +153,49 @@ def _conv_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_ptr, w
                  EPS: tl.constexpr, SLOPE: tl.constexpr, PDL: tl.constexpr, BLOCK_M: tl.constexpr,
                  BLOCK_N: tl.constexpr):
     frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
+    _conv_tile(rows, outs, row_ok, out_ok, out_ptr + frame * n_vertices * n_out, sums_ptr + frame * sums_batch_stride,
+               sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr, n_out,
+               src1_ptr + frame * src1_vertices * c1, map1_ptr, src1_vertices, c1,
+               src2_ptr + frame * src2_vertices * c2, map2_ptr, src2_vertices, c2,
+               norm1_ptr + frame * 2 * c1, norm2_ptr + frame * 2 * c2, L, SLOTS, MAPPED1, MAPPED2, TWO, AFFINE,
+               NORM1, NORM2, STATS, PRECISE, BLOCK_M, BLOCK_N, BLOCK_K, EPS, SLOPE)
+
+
+@triton.jit
+def _conv_tile(rows, outs, row_ok, out_ok, out, sums, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
+               n_out, src1, map1_ptr, src1_vertices, c1, src2, map2_ptr, src2_vertices, c2, norm1, norm2,
+               L: tl.constexpr, SLOTS: tl.constexpr, MAPPED1: tl.constexpr, MAPPED2: tl.constexpr,
+               TWO: tl.constexpr, AFFINE: tl.constexpr, NORM1: tl.constexpr, NORM2: tl.constexpr,
+               STATS: tl.constexpr, PRECISE: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr,
+               BLOCK_K: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr):
+    """`fused_conv`'s (BLOCK_M, BLOCK_N) output tile of one frame (out, sums, src and norm pointers at that
+    frame's data): the kernel's body, which model.persistent_network's kernel calls too."""
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     width = c1 + c2
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
     mapped = entries
     if MAPPED1:                                             # an unpooling: the coarse vertex of each neighbour
         mapped = tl.load(map1_ptr + entries, mask=valid, other=0)
-    acc = _dot_segment(acc, src1_ptr + frame * src1_vertices * c1, mapped, valid, weight_ptr, affine_ptr,
-                       norm1_ptr + frame * 2 * c1, src1_vertices, outs, out_ok, c1, 0, width, n_out, L, SLOTS,
-                       AFFINE, NORM1, PRECISE, BLOCK_K, EPS, SLOPE)
+    acc = _dot_segment(acc, src1, mapped, valid, weight_ptr, affine_ptr, norm1, src1_vertices, outs, out_ok, c1, 0,
+                       width, n_out, L, SLOTS, AFFINE, NORM1, PRECISE, BLOCK_K, EPS, SLOPE)
     if TWO:
         mapped = entries
         if MAPPED2:
             mapped = tl.load(map2_ptr + entries, mask=valid, other=0)
-        acc = _dot_segment(acc, src2_ptr + frame * src2_vertices * c2, mapped, valid, weight_ptr, affine_ptr,
-                           norm2_ptr + frame * 2 * c2, src2_vertices, outs, out_ok, c2, c1, width, n_out, L, SLOTS,
-                           False, NORM2, PRECISE, BLOCK_K, EPS, SLOPE)
-    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
-            n_vertices, n_out, STATS)
+        acc = _dot_segment(acc, src2, mapped, valid, weight_ptr, affine_ptr, norm2, src2_vertices, outs, out_ok, c2,
+                           c1, width, n_out, L, SLOTS, False, NORM2, PRECISE, BLOCK_K, EPS, SLOPE)
+    _finish(acc, out, sums, sums_second, bias_ptr, rows, row_ok, outs, out_ok, n_out, STATS)
 
 
 @triton.jit
-def _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
-            n_vertices, n_out, STATS: tl.constexpr):
+def _finish(acc, out, sums, sums_second, bias_ptr, rows, row_ok, outs, out_ok, n_out, STATS: tl.constexpr):
     """A convolution's epilogue: + bias, stored in the output's dtype, and for a norm the fp32 per-channel sums
-    of the tile and of its square added to the frame's (atomics)."""
+    of the tile and of its square added to the frame's (atomics; `out`, `sums`: the frame's)."""
     acc += tl.load(bias_ptr + outs, mask=out_ok, other=0.0)[None, :]
     keep = row_ok[:, None] & out_ok[None, :]
-    tl.store(out_ptr + frame * n_vertices * n_out + rows[:, None].to(tl.int64) * n_out + outs[None, :],
-             acc.to(out_ptr.dtype.element_ty), mask=keep)
+    tl.store(out + rows[:, None].to(tl.int64) * n_out + outs[None, :], acc.to(out.dtype.element_ty), mask=keep)
     if STATS:
         kept = tl.where(keep, acc, 0.0)
-        sums = sums_ptr + frame * sums_batch_stride
         tl.atomic_add(sums + outs, tl.sum(kept, axis=0), mask=out_ok)
         tl.atomic_add(sums + sums_second + outs, tl.sum(kept * kept, axis=0), mask=out_ok)
 
@@ -216,8 +227,8 @@ def _gather_sum_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table_
         acc = _add_products(acc, src1, map1_ptr, entry, valid, slot, outs, mask, n_out, MAPPED1, L)
         if TWO:
             acc = _add_products(acc, src2, map2_ptr, entry, valid, slot, outs, mask, n_out, MAPPED2, L)
-    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
-            n_vertices, n_out, STATS)
+    _finish(acc, out_ptr + frame * n_vertices * n_out, sums_ptr + frame * sums_batch_stride, sums_second, bias_ptr,
+            rows, row_ok, outs, out_ok, n_out, STATS)
 
 
 @triton.jit
@@ -227,11 +238,22 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
                         NORM: tl.constexpr, STATS: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
                         PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr):
     frame, rows, outs, row_ok, out_ok = _tile(n_vertices, n_out, BLOCK_M, BLOCK_N, PDL)
+    _few_channel_tile(rows, outs, row_ok, out_ok, out_ptr + frame * n_vertices * n_out,
+                      sums_ptr + frame * sums_batch_stride, sums_second, table_ptr, weight_ptr, bias_ptr, affine_ptr,
+                      norm_ptr + frame * 2 * C, n_out, src_ptr + frame * src_vertices * C, map_ptr, src_vertices, C,
+                      L, SLOTS, MAPPED, AFFINE, NORM, STATS, BLOCK_M, BLOCK_N, EPS, SLOPE)
+
+
+@triton.jit
+def _few_channel_tile(rows, outs, row_ok, out_ok, out, sums, sums_second, table_ptr, weight_ptr, bias_ptr,
+                      affine_ptr, norm, n_out, src, map_ptr, src_vertices, C: tl.constexpr, L: tl.constexpr,
+                      SLOTS: tl.constexpr, MAPPED: tl.constexpr, AFFINE: tl.constexpr, NORM: tl.constexpr,
+                      STATS: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_N: tl.constexpr, EPS: tl.constexpr,
+                      SLOPE: tl.constexpr):
+    """`few_channel_conv`'s output tile of one frame (pointers at that frame's data), as `_conv_tile`."""
     entries, valid = _slot_rows(table_ptr, rows, row_ok, L, SLOTS)
     if MAPPED:
         entries = tl.load(map_ptr + entries, mask=valid, other=0)
-    src = src_ptr + frame * src_vertices * C
-    norm = norm_ptr + frame * 2 * C
     slots = tl.arange(0, SLOTS)
     acc = tl.zeros((BLOCK_M, BLOCK_N), dtype=tl.float32)
     # Per channel, every slot's value of the tile's rows in one (BLOCK_M, SLOTS) gather - C gathers in all, none
@@ -247,8 +269,7 @@ def _few_channel_kernel(out_ptr, sums_ptr, sums_batch_stride, sums_second, table
         w = tl.load(weight_ptr + (slots[:, None] * C + c) * n_out + outs[None, :],
                     mask=(slots[:, None] < L) & out_ok[None, :], other=0.0).to(tl.float32)
         acc = tl.dot(x, w, acc, input_precision="ieee")
-    _finish(acc, out_ptr, sums_ptr, sums_batch_stride, sums_second, bias_ptr, frame, rows, row_ok, outs, out_ok,
-            n_vertices, n_out, STATS)
+    _finish(acc, out, sums, sums_second, bias_ptr, rows, row_ok, outs, out_ok, n_out, STATS)
 
 
 @triton.jit
@@ -257,10 +278,19 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_ro
                     POOL_MAX: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr,
                     PDL: tl.constexpr, BLOCK_M: tl.constexpr, BLOCK_C: tl.constexpr):
     frame, rows, cols, row_ok, col_ok = _tile(n_rows, channels, BLOCK_M, BLOCK_C, PDL)
+    _prepare_tile(rows, cols, row_ok, col_ok, out_ptr + frame * n_rows * channels,
+                  src_ptr + frame * src_vertices * channels, map_ptr, sums_ptr + frame * sums_batch_stride,
+                  src_vertices, channels, P, MAPPED, NORMALIZE, POOL_MAX, BLOCK_M, BLOCK_C, EPS, SLOPE)
+
+
+@triton.jit
+def _prepare_tile(rows, cols, row_ok, col_ok, out, src, map_ptr, sums, src_vertices, channels, P: tl.constexpr,
+                  MAPPED: tl.constexpr, NORMALIZE: tl.constexpr, POOL_MAX: tl.constexpr, BLOCK_M: tl.constexpr,
+                  BLOCK_C: tl.constexpr, EPS: tl.constexpr, SLOPE: tl.constexpr):
+    """`prepare`'s tile of one frame (pointers at that frame's data), as `_conv_tile`."""
     mask = row_ok[:, None] & col_ok[None, :]
-    src = src_ptr + frame * src_vertices * channels
     if NORMALIZE:
-        mean, factor = _norm_stats(sums_ptr + frame * sums_batch_stride, cols, col_ok, channels, src_vertices, EPS)
+        mean, factor = _norm_stats(sums, cols, col_ok, channels, src_vertices, EPS)
     result = tl.zeros((BLOCK_M, BLOCK_C), dtype=tl.float32)
     paths = tl.arange(0, P)
     if MAPPED:      # all P source rows at once (P is a power of two), so the P gathers below overlap
@@ -283,8 +313,7 @@ def _prepare_kernel(out_ptr, src_ptr, map_ptr, sums_ptr, sums_batch_stride, n_ro
             result = result + x
     if not POOL_MAX and P > 1:
         result = result * (1.0 / P)
-    tl.store(out_ptr + frame * n_rows * channels + rows[:, None].to(tl.int64) * channels + cols[None, :],
-             result.to(out_ptr.dtype.element_ty), mask=mask)
+    tl.store(out + rows[:, None].to(tl.int64) * channels + cols[None, :], result.to(out.dtype.element_ty), mask=mask)
 
 
 @triton.jit

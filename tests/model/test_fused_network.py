@@ -158,9 +158,11 @@ def test_slot_products_summed_over_the_table_are_the_convolution():
 
 
 # The forms the kernels are checked in: every convolution a gather-GEMM; products first wherever they can be;
-# and both again with the norms folded into their readers' loads (`fold_norms`).
+# and both again with the norms folded into their readers' loads (`fold_norms`); the whole plan as one persistent
+# kernel (gathering), with and without the fold (one program in the interpreter, one per multiprocessor on CUDA).
 VARIANTS = {"gather": dict(products=False), "products": dict(products=True), "fold": dict(fold_norms=True),
-            "fold gather": dict(products=False, fold_norms=True), "fold products": dict(products=True, fold_norms=True)}
+            "fold gather": dict(products=False, fold_norms=True), "fold products": dict(products=True, fold_norms=True),
+            "persistent": dict(persistent=True), "fold persistent": dict(fold_norms=True, persistent=True)}
 # Compiled kernels only: dependent launches (no such thing in the interpreter) change no arithmetic.
 CUDA_VARIANTS = {**VARIANTS, "pdl": dict(pdl=True), "fold pdl": dict(fold_norms=True, pdl=True)}
 
@@ -201,6 +203,20 @@ def test_dependent_launches_are_refused_where_they_cannot_run():
     with pytest.raises(ValueError, match="pdl: needs a CUDA build of Triton"):
         FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16, pdl=True)
     assert FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16).pdl is False
+
+
+def test_the_persistent_kernel_gathers_every_convolution_and_refuses_what_it_cannot_run():
+    """One persistent launch has no cuBLAS products and no dependent launches: its convolutions are the rules'
+    few-channel ones and gather-GEMMs otherwise, and asking for products or pdl with it is one clear error."""
+    net, mesh, offset, scale, _ = _case("max", ARCHS[1])
+    rules = FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16)
+    persistent = FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16, persistent=True)
+    assert "products" in rules.forms.values() and "products" not in persistent.forms.values()
+    assert {i for i, form in persistent.forms.items() if form == "few"} == \
+        {i for i, form in rules.forms.items() if form == "few"} and "gather" in persistent.forms.values()
+    for option in (dict(products=True), dict(pdl=True)):
+        with pytest.raises(ValueError, match="persistent: one launch"):
+            FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16, persistent=True, **option)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None or torch.cuda.is_available(),
