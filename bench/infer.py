@@ -18,11 +18,11 @@ gather-GEMM, the form before products-first), fused-fold-bf16-graph (norms appli
 convolutions that read them: fewer launches for narrow networks), fused-pdl-bf16-graph and
 fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's overlap of a launch with
 the kernel before it), fused-persistent-bf16-graph (the folded plan as one persistent kernel, a grid barrier
-between its steps: model/persistent_network.py), exported (the torch.export program of deploy/export.py, loaded back: net is not separate
-there), exported-graph, exported-fused (CUDA: the export's program of the fused bf16 path, its Triton launchers
-operators in it, loaded back), exported-fused-graph (that program replayed as one CUDA graph: what
-deploy/runner.py --fused runs). Graph modes copy each call's inputs into the
-graph's static buffers inside the timed call, as a tool would. The error column is the
+between its steps: model/persistent_network.py), exported (the torch.export program of deploy/export.py, loaded
+back: net is not separate there), exported-graph, exported-fused (CUDA: the export's program of the fused bf16
+path, its Triton launchers operators in it, loaded back), exported-fused-graph (that program replayed as one CUDA
+graph: what deploy/runner.py --fused runs). Graph modes copy each call's inputs into the graph's static buffers
+inside the timed call, as a tool would. The error column is the
 largest |whole - eager whole| over the largest eager displacement. --features picks the inputs: `paper`
 (positions, as the paper) or `body` (velocity, body, Laplacian, gravity in local frames: the pants scene's;
 16 random capsules). Median over repeats after warm-up. Usage:
@@ -170,8 +170,8 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         fast = FastUpsampler(FastRegressor(model, mesh.to("cpu")), subdivision).to(device)
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
-    if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl", "fused-fold-persistent",
-                "fused-torch-features"):
+    if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl",
+                "fused-fold-persistent", "fused-torch-features"):
         products = False if kind == "fused-gather" else None
         upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind != "fast", products=products,
                                                 fold_norms="fold" in kind, pdl="pdl" in kind,
