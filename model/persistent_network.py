@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import linecache
+from typing import NamedTuple
 
 import torch
 import triton
@@ -63,6 +64,18 @@ def grid_barrier(counter, target):
         pass
     tl.atomic_add(counter, 0, sem="acquire", scope="gpu")
     tl.debug_barrier()
+
+
+class _Input(NamedTuple):
+    """A convolution segment as the generated call passes it (text for pointers, numbers and flags)."""
+
+    src: str              # the frame's source pointer
+    rows_map: str         # its unpooling map's argument (the table when unmapped: never read)
+    rows: int             # the source's rows
+    channels: int
+    mapped: bool
+    norm: str             # the source's norm sums pointer
+    normalize: bool
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,37 +153,36 @@ class PersistentPlan:
         table, weight, bias = (self._arg(f"table_{launch.level}"), self._arg(f"weight_{index}"),
                                self._arg(f"bias_{index}"))
         size = network.get_buffer(f"table_{launch.level}").shape[1]
-        segments = []
+        inputs = []
         for number, segment in enumerate(launch.segments):
             src, src_rows, channels = self._source(segment.source, segment.channels, network)
             mapped = segment.rows is not None
-            segments.append((f"{src} + frame * {src_rows * channels}",
-                             self._arg(f"rows_{index}_{number}") if mapped else table, src_rows, channels, mapped,
-                             self._sums(segment.source), segment.normalize))
-        stats, block_m = f"{self._sums(index)}, {cols}", _block_rows(rows, self.programs)
+            inputs.append(_Input(f"{src} + frame * {src_rows * channels}",
+                                 self._arg(f"rows_{index}_{number}") if mapped else table, src_rows, channels,
+                                 mapped, self._sums(segment.source), segment.normalize))
+        block_m, block_n = _block_rows(rows, self.programs), min(64, max(16, triton.next_power_of_2(cols)))
+        head = (f"rows, cols, row_ok, col_ok, {out}, {self._sums(index)}, {cols}, {table}, {weight}, {bias}, "
+                f"affine")
+        first = inputs[0]
         if network.forms[index] == "few":
-            src, rows_map, src_rows, channels, mapped, norm, normalize = segments[0]
-            block_n = min(64, max(16, triton.next_power_of_2(cols)))
-            call = (f"_few_channel_tile(rows, cols, row_ok, col_ok, {out}, {stats}, {table}, {weight}, {bias}, "
-                    f"affine, {norm}, {cols}, {src}, {rows_map}, {src_rows}, {channels}, {size}, "
-                    f"{max(16, triton.next_power_of_2(size))}, {mapped}, {launch.segments[0].affine}, {normalize}, "
-                    f"{launch.stats}, {block_m}, {block_n}, {NORM_EPS!r}, {LEAKY_SLOPE!r})")
+            call = (f"_few_channel_tile({head}, {first.norm}, {cols}, {first.src}, {first.rows_map}, {first.rows}, "
+                    f"{first.channels}, {size}, {max(16, triton.next_power_of_2(size))}, {first.mapped}, "
+                    f"{launch.segments[0].affine}, {first.normalize}, {launch.stats}, {block_m}, {block_n}, "
+                    f"{NORM_EPS!r}, {LEAKY_SLOPE!r})")
             return _Step(rows, cols, block_m, block_n, call)
         if network.forms[index] != "gather":
             raise ValueError(f"the persistent kernel gathers every convolution; step {index} is "
                              f"'{network.forms[index]}'")
-        two = len(segments) == 2
-        first, second = segments[0], segments[1] if two else segments[0]
-        c2 = second[3] if two else 0
-        block_n = min(64, max(16, triton.next_power_of_2(cols)))
-        block_k = min(64, max(16, triton.next_power_of_2(min(first[3], c2) if c2 else first[3])))
+        # A one-segment convolution passes its input again as the (unread) second, with 0 channels.
+        second = inputs[1] if len(inputs) == 2 else first._replace(channels=0, mapped=False, normalize=False)
+        narrower = min(first.channels, second.channels) if second.channels else first.channels
+        block_k = min(64, max(16, triton.next_power_of_2(narrower)))
         precise = network.get_buffer(f"weight_{index}").dtype == torch.float32
-        call = (f"_conv_tile(rows, cols, row_ok, col_ok, {out}, {stats}, {table}, {weight}, {bias}, affine, {cols}, "
-                f"{first[0]}, {first[1]}, {first[2]}, {first[3]}, {second[0]}, {second[1]}, {second[2]}, {c2}, "
-                f"{first[5]}, {second[5]}, {size}, {triton.next_power_of_2(size)}, {first[4]}, "
-                f"{second[4] if two else False}, {two}, {launch.segments[0].affine}, {first[6]}, "
-                f"{second[6] if two else False}, {launch.stats}, {precise}, {block_m}, {block_n}, {block_k}, "
-                f"{NORM_EPS!r}, {LEAKY_SLOPE!r})")
+        call = (f"_conv_tile({head}, {cols}, {first.src}, {first.rows_map}, {first.rows}, {first.channels}, "
+                f"{second.src}, {second.rows_map}, {second.rows}, {second.channels}, {first.norm}, {second.norm}, "
+                f"{size}, {triton.next_power_of_2(size)}, {first.mapped}, {second.mapped}, {len(inputs) == 2}, "
+                f"{launch.segments[0].affine}, {first.normalize}, {second.normalize}, {launch.stats}, {precise}, "
+                f"{block_m}, {block_n}, {block_k}, {NORM_EPS!r}, {LEAKY_SLOPE!r})")
         return _Step(rows, cols, block_m, block_n, call)
 
     def run(self, network, x: torch.Tensor, outputs: list[torch.Tensor]) -> None:
