@@ -17,8 +17,9 @@ model/features.py's PyTorch features: the baseline of that kernel), fused-gather
 gather-GEMM, the form before products-first), fused-fold-bf16-graph (norms applied on load by the gathering
 convolutions that read them: fewer launches for narrow networks), fused-pdl-bf16-graph and
 fused-fold-pdl-bf16-graph (each Triton kernel a programmatic dependent launch: Hopper's overlap of a launch with
-the kernel before it), fused-persistent-bf16-graph (the folded plan as one persistent kernel, a grid barrier
-between its steps: model/persistent_network.py), exported (the torch.export program of deploy/export.py, loaded
+the kernel before it), fused-persistent-bf16-graph (the plan as one persistent kernel, a grid barrier
+between its phases: model/persistent_network.py), fused-fold-persistent-bf16-graph (the same on the folded
+plan), exported (the torch.export program of deploy/export.py, loaded
 back: net is not separate there), exported-graph, exported-fused (CUDA: the export's program of the fused bf16
 path, its Triton launchers operators in it, loaded back), exported-fused-graph (that program replayed as one CUDA
 graph: what deploy/runner.py --fused runs). Graph modes copy each call's inputs into the graph's static buffers
@@ -81,7 +82,8 @@ MODES = {"eager": ("eager", torch.float32, False, False, False),
          "fused-fold-bf16-graph": ("fused-fold", torch.bfloat16, True, False, False),
          "fused-pdl-bf16-graph": ("fused-pdl", torch.bfloat16, True, False, False),
          "fused-fold-pdl-bf16-graph": ("fused-fold-pdl", torch.bfloat16, True, False, False),
-         "fused-persistent-bf16-graph": ("fused-fold-persistent", torch.bfloat16, True, False, False),
+         "fused-persistent-bf16-graph": ("fused-persistent", torch.bfloat16, True, False, False),
+         "fused-fold-persistent-bf16-graph": ("fused-fold-persistent", torch.bfloat16, True, False, False),
          "exported": ("exported", torch.float32, False, False, False),
          "exported-graph": ("exported", torch.float32, True, False, False),
          "exported-fused": ("exported-fused", torch.bfloat16, False, False, False),
@@ -171,7 +173,7 @@ def paths(model: FeatureRegressor, mesh, subdivision, faces, mode: str, inputs: 
         return None, lambda *x: fast.subdivide(x[0]), lambda *x: module(**dict(zip(names, x)))
     model, mesh = model.to(device), mesh.to(device)
     if kind in ("fast", "fused", "fused-gather", "fused-fold", "fused-pdl", "fused-fold-pdl",
-                "fused-fold-persistent", "fused-torch-features"):
+                "fused-persistent", "fused-fold-persistent", "fused-torch-features"):
         products = False if kind == "fused-gather" else None
         upsampler = FastUpsampler(FastRegressor(model, mesh, dtype, fused=kind != "fast", products=products,
                                                 fold_norms="fold" in kind, pdl="pdl" in kind,

@@ -167,6 +167,19 @@ def fused_plan(net: EncoderDecoder, mesh: MeshHierarchy, output_scale: float,
     return planner.plan
 
 
+def plan_phases(plan: list[FusedConv | Prepare]) -> list[list[int]]:
+    """The plan's steps grouped into phases, in order: a step runs in the phase after the latest of its sources'
+    (its inputs and their norm sums): steps of one phase read only finished values, so they may run at once - in
+    model.persistent_network's kernel, between the same two grid barriers (a skip connection's normalised copy
+    beside the pooling that reads the same convolution)."""
+    phase_of: list[int] = []
+    for launch in plan:
+        sources = [launch.source] if isinstance(launch, Prepare) else [s.source for s in launch.segments]
+        phase_of.append(1 + max((phase_of[s] for s in sources if s != NETWORK_INPUT), default=-1))
+    return [[index for index, phase in enumerate(phase_of) if phase == number]
+            for number in range(max(phase_of) + 1)]
+
+
 # Below this many input channels a segment's products (L * out values a row) outweigh the gathered inputs they
 # replace (L * channels) by too much, and the input affine is applied on load: those convolutions gather first.
 PRODUCTS_MIN_CHANNELS = 16

@@ -34,7 +34,7 @@ import triton.language as tl
 
 from model import triton_conv
 from model.layers import LEAKY_SLOPE, NORM_EPS
-from model.fused_network import NETWORK_INPUT, FusedConv, Prepare
+from model.fused_network import NETWORK_INPUT, FusedConv, Prepare, plan_phases
 
 SUMS_ALIGN = 32                # floats: a step's norm sums start on a 128-byte line of their own
 NUM_WARPS = 4
@@ -119,7 +119,8 @@ class PersistentPlan:
         self.names: list[str] = ["x", "affine", "sums", "sync"]   # the kernel's tensor arguments, in order
         self._tensors: list[str] = []                             # the network's buffers behind names[4:]
         steps = [self._step(index, launch, network) for index, launch in enumerate(plan)]
-        self.kernel = _compile(_kernel_source(self.names, steps))
+        self.phases = [[steps[index] for index in phase] for phase in plan_phases(plan)]
+        self.kernel = _compile(_kernel_source(self.names, len(plan), self.phases))
 
     def _arg(self, buffer: str) -> str:
         """The kernel argument holding the network's buffer `buffer` (each passed once)."""
@@ -197,23 +198,29 @@ class PersistentPlan:
         self.kernel[(self.programs,)](batch, *tensors, *outputs, PROGRAMS=self.programs, num_warps=NUM_WARPS)
 
 
-def _kernel_source(names: list[str], steps: list[_Step]) -> str:
-    """The kernel's text: each step's tiles dealt round-robin over the programs, a grid barrier after each step
-    but the last."""
-    outs = [f"out{index}" for index in range(len(steps))]
+def _kernel_source(names: list[str], n_steps: int, phases: list[list[_Step]]) -> str:
+    """The kernel's text: each phase's tiles (its steps' one after another) dealt round-robin over the programs,
+    a grid barrier after each phase but the last."""
+    outs = [f"out{index}" for index in range(n_steps)]
     lines = ["@triton.jit",
              f"def persistent_network(batch, {', '.join(names + outs)}, PROGRAMS: tl.constexpr):",
              "    program = tl.program_id(0)"]
-    for number, step in enumerate(steps):
-        tiles = f"batch * {-(-step.rows // step.block_m) * -(-step.cols // step.block_n)}"
+    for number, phase in enumerate(phases):
+        ends, end = [], "0"                  # each step's tiles end at this tile number of the phase
+        for step in phase:
+            end = f"{end} + batch * {-(-step.rows // step.block_m) * -(-step.cols // step.block_n)}"
+            ends.append(end)
         # Every program runs the same trip count and skips the tiles past the end.
-        lines += [f"    for first in range(0, {tiles}, PROGRAMS):",
-                  "        tile = first + program",
-                  f"        if tile < {tiles}:",
-                  f"            frame, rows, cols, row_ok, col_ok = _tile_of(tile, {step.rows}, {step.cols}, "
-                  f"{step.block_m}, {step.block_n})",
-                  f"            {step.call}"]
-        if number < len(steps) - 1:
+        lines += [f"    for first in range(0, {end}, PROGRAMS):",
+                  "        tile = first + program"]
+        start = "0"
+        for step, end in zip(phase, ends):
+            lines += [f"        if (tile >= {start}) & (tile < {end}):",
+                      f"            frame, rows, cols, row_ok, col_ok = _tile_of(tile - ({start}), {step.rows}, "
+                      f"{step.cols}, {step.block_m}, {step.block_n})",
+                      f"            {step.call}"]
+            start = end
+        if number < len(phases) - 1:
             lines.append(f"    _grid_barrier(sync, {number + 1} * PROGRAMS)")
     return "\n".join(lines) + "\n"
 

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from model.fused_network import (NETWORK_INPUT, FusedConv, FusedNetwork, Prepare, aligned_plan, fused_plan,
-                                 products_first, run_plan_reference, slot_weights)
+                                 plan_phases, products_first, run_plan_reference, slot_weights)
 from model.layers import mesh_conv
 from model.inference import FastNetwork
 from model.networks import NetworkSpec, build_network
@@ -217,6 +217,24 @@ def test_the_persistent_kernel_gathers_every_convolution_and_refuses_what_it_can
     for option in (dict(products=True), dict(pdl=True)):
         with pytest.raises(ValueError, match="persistent: one launch"):
             FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16, persistent=True, **option)
+
+
+def test_plan_phases_put_each_step_right_after_its_sources():
+    """The persistent kernel's phases (one grid barrier each): every step once, after each of its sources, and as
+    early as that allows - in phase 0 or right after one of its sources - so the unfolded plan's normalised
+    copies for skip connections share a phase with the pooling that reads the same convolution."""
+    net, mesh, offset, scale, _ = _case("max", ARCHS[1])
+    for fold in (False, True):
+        plan = FusedNetwork(net, mesh, offset, scale, 0.3, torch.bfloat16, fold_norms=fold, persistent=True).plan
+        phases = plan_phases(plan)
+        phase_of = {step: number for number, phase in enumerate(phases) for step in phase}
+        assert sorted(phase_of) == list(range(len(plan))) and all(phases)
+        for step, launch in enumerate(plan):
+            sources = [launch.source] if isinstance(launch, Prepare) else [s.source for s in launch.segments]
+            before = [phase_of[s] for s in sources if s != NETWORK_INPUT]
+            assert all(phase < phase_of[step] for phase in before)
+            assert phase_of[step] == (max(before) + 1 if before else 0)
+        assert (len(phases) < len(plan)) == (not fold)
 
 
 @pytest.mark.skipif(importlib.util.find_spec("triton") is None or torch.cuda.is_available(),
