@@ -25,8 +25,9 @@ launches (model.triton_conv):
   output scale is folded into the last convolution's weights.
 
 With `persistent` the plan's launches become the steps of one kernel (model.persistent_network: a grid barrier
-between steps, every convolution gathering), which removes the launches' floors at the cost of cuBLAS's products:
-faster for a narrow network (RC9 x/4), much slower for a wide one (RC13), so an option, off by default.
+between phases of steps, `plan_phases`; every convolution gathering), which removes the launches' floors at the
+cost of cuBLAS's products: faster for a narrow network (RC9 x/4), much slower for a wide one (RC13), so an option,
+off by default; best without `fold_norms` (a norm on load slows every gathering loop that reads it).
 
 The plan (`fused_plan`) is the network compiled to those launches; `run_plan_reference` executes it with PyTorch
 operators on any device and is the specification the Triton kernels are tested against; `FusedNetwork` runs it

@@ -1,13 +1,19 @@
-"""The fused network's whole plan in one launch: a persistent Triton kernel with a grid-wide barrier between steps.
+"""The fused network's whole plan in one launch: a persistent Triton kernel with a grid-wide barrier between phases.
 
 A small network's frame (RC9 x/4 at 15k vertices) is ~45 dependent kernels of a few microseconds each, every one
 at a kernel's floor (launch ramp, one partial wave, drain) plus ~1 us a graph node between them
-(docs/performance.md, "Inference"). Here the plan's launches (model.fused_network: with `fold_norms`, one step a
-convolution or pooling; every convolution gathering) become the steps of one kernel:
-one program per multiprocessor, each step's output tiles dealt round-robin over the programs, then a grid barrier
-(an arrival counter in global memory: release on arrival, acquire after the spin) so the next step reads a
-complete input and complete norm sums. The steps run the same tile functions as the separate kernels
-(model.triton_conv: `_conv_tile`, `_few_channel_tile`, `_prepare_tile`), so the arithmetic is theirs.
+(docs/performance.md, "Inference"). Here the plan's launches (model.fused_network: one step a convolution, a
+pooling or a norm; every convolution gathering) become the steps of one kernel, grouped into phases
+(`fused_network.plan_phases`: a step in the phase after its sources', so a skip connection's normalised copy runs
+beside the pooling of the same value): one program per multiprocessor, each phase's output tiles dealt
+round-robin over the programs, then a grid barrier (an arrival counter in global memory: release on arrival,
+acquire after the spin) so the next phase reads complete inputs and complete norm sums. The steps run the same
+tile functions as the separate kernels (model.triton_conv: `_conv_tile`, `_few_channel_tile`, `_prepare_tile`),
+so the arithmetic is theirs.
+
+The unfolded plan is the faster one here: a norm written once by its own step costs a barrier and a ~1 us pass,
+where folded into the readers (`fold_norms`) it makes every gathering loop of the decoder 2-3x slower an iteration
+(timestamps on an H200: docs/history/performance-log.md, "The persistent kernel's phases").
 
 The kernel's text is generated from the plan (its shapes and flags are compile-time constants, as the separate
 kernels' are) and compiled by Triton like any other; only integers and names of this module's making go into it,
