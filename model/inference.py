@@ -236,8 +236,17 @@ class FastUpsampler(nn.Module):
         self.register_buffer("stencil_weights", torch.as_tensor(weights)[..., None])
 
     def subdivide(self, low: torch.Tensor) -> torch.Tensor:
-        """S x_low (B, V_high, 3), rows in the locality order."""
-        return (low[:, self.stencil_columns] * self.stencil_weights).sum(dim=2)
+        """S x_low (B, V_high, 3), rows in the locality order: each row the weighted sum of its stencil's low-res
+        rows, as one embedding_bag (the gather and the sum in one kernel, where indexing, a product and a sum
+        took three)."""
+        batch, n_low, _ = low.shape
+        columns, weights = self.stencil_columns, self.stencil_weights[..., 0].to(low.dtype)
+        if batch > 1:       # frame b's rows are rows b * n_low + v of the frames' stacked table
+            offsets = n_low * torch.arange(batch, device=low.device)
+            columns = (columns[None] + offsets[:, None, None]).flatten(0, 1)
+            weights = weights.repeat(batch, 1)
+        rows = F.embedding_bag(columns, low.reshape(batch * n_low, 3), per_sample_weights=weights, mode="sum")
+        return rows.view(batch, -1, 3)
 
     def forward(self, low_positions: torch.Tensor, low_previous: torch.Tensor | None = None,
                 low_before_previous: torch.Tensor | None = None, capsule_a: torch.Tensor | None = None,
