@@ -216,6 +216,20 @@ def padded_stencil(matrix: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
     return columns, weights
 
 
+def stencil_product(columns: torch.Tensor, weights: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """`padded_stencil`'s matrix times each frame of x (B, V, C): (B, rows, C), row i the weighted sum of x's
+    rows columns[i, :]. One embedding_bag: the gather and the sum in one kernel, where indexing, a product and a
+    sum took three (docs/performance.md, I14)."""
+    batch, n_rows, channels = x.shape
+    weights = weights.to(x.dtype)
+    if batch > 1:       # frame b's rows are rows b * V + v of the frames' stacked table
+        offsets = n_rows * torch.arange(batch, device=x.device)
+        columns = (columns[None] + offsets[:, None, None]).flatten(0, 1)
+        weights = weights.repeat(batch, 1)
+    rows = F.embedding_bag(columns, x.reshape(batch * n_rows, channels), per_sample_weights=weights, mode="sum")
+    return rows.view(batch, -1, channels)
+
+
 class FastUpsampler(nn.Module):
     """The whole learned path of one or more frames: low-res positions x_low (B, V_low, 3) -> Loop subdivision
     S x_low (rows in the locality order) -> input features -> network -> S x_low + displacement (B, V_high, 3),
@@ -233,20 +247,11 @@ class FastUpsampler(nn.Module):
         self.regressor = regressor
         columns, weights = padded_stencil(sp.csr_matrix(subdivision)[regressor.order.numpy()])
         self.register_buffer("stencil_columns", torch.as_tensor(columns))
-        self.register_buffer("stencil_weights", torch.as_tensor(weights)[..., None])
+        self.register_buffer("stencil_weights", torch.as_tensor(weights))
 
     def subdivide(self, low: torch.Tensor) -> torch.Tensor:
-        """S x_low (B, V_high, 3), rows in the locality order: each row the weighted sum of its stencil's low-res
-        rows, as one embedding_bag (the gather and the sum in one kernel, where indexing, a product and a sum
-        took three)."""
-        batch, n_low, _ = low.shape
-        columns, weights = self.stencil_columns, self.stencil_weights[..., 0].to(low.dtype)
-        if batch > 1:       # frame b's rows are rows b * n_low + v of the frames' stacked table
-            offsets = n_low * torch.arange(batch, device=low.device)
-            columns = (columns[None] + offsets[:, None, None]).flatten(0, 1)
-            weights = weights.repeat(batch, 1)
-        rows = F.embedding_bag(columns, low.reshape(batch * n_low, 3), per_sample_weights=weights, mode="sum")
-        return rows.view(batch, -1, 3)
+        """S x_low (B, V_high, 3), rows in the locality order."""
+        return stencil_product(self.stencil_columns, self.stencil_weights, low)
 
     def forward(self, low_positions: torch.Tensor, low_previous: torch.Tensor | None = None,
                 low_before_previous: torch.Tensor | None = None, capsule_a: torch.Tensor | None = None,

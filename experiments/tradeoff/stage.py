@@ -60,7 +60,7 @@ from experiments.tradeoff.report import pareto_plot, write_report
 from experiments.tradeoff.solve_timing import TimedSequence, free_high_res_ms, low_res_ms
 from geometry.rigid import apply_rigid_inverse
 from model.cuda_graph import CapturedCall
-from model.inference import padded_stencil
+from model.inference import padded_stencil, stencil_product
 from pipeline.artifacts.dataset import load_dataset
 from pipeline.artifacts.dataset import FrameOrigins, read_frame_origins
 from pipeline.artifacts.evaluation import read_errors, read_network_timing
@@ -80,14 +80,13 @@ SCHEDULES = ("iteration", "substep")
 
 def time_subdivision(S: sp.spmatrix, low: np.ndarray, device: torch.device, frames: int) -> np.ndarray:
     """ms of Loop subdivision S x_low per frame (`low`: (F, V_low, 3) frames, cycled) as the deployment runs it
-    (model.inference's padded stencil: a gather and a weighted sum; one replayed CUDA graph on a GPU), each after
+    (model.inference.stencil_product of its padded stencil; one replayed CUDA graph on a GPU), each after
     WARMUP_RUNS untimed runs, synchronised on CUDA."""
     columns, weights = (torch.as_tensor(a, device=device) for a in padded_stencil(S))
-    weights = weights[..., None]
     inputs = torch.as_tensor(low, dtype=torch.float32, device=device)[:, None]     # (F, 1, V_low, 3)
 
     def subdivide(x: torch.Tensor) -> torch.Tensor:
-        return (x[:, columns] * weights).sum(dim=2)
+        return stencil_product(columns, weights, x)
 
     run = CapturedCall(subdivide, inputs[0]) if device.type == "cuda" else subdivide
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)

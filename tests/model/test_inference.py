@@ -11,7 +11,8 @@ from geometry.loop_subdivision import loop_subdivide
 from model.feature_regressor import FeatureRegressor, FeatureSpec
 from model.features import FrameBatch
 from model.inference import (FastNetwork, FastRegressor, FastUpsampler, UPSAMPLER_INPUTS, inverse_order,
-                             locality_orders, needed_inputs, padded_stencil, reorder_hierarchy)
+                             locality_orders, needed_inputs, padded_stencil, reorder_hierarchy,
+                             stencil_product)
 from model.networks import NetworkSpec, build_network
 from model_meshes import build_hierarchy, grid_mesh
 
@@ -105,13 +106,17 @@ def test_fast_network_refuses_the_decoder(grid):
         FastNetwork(decoder, mesh, torch.zeros(5), torch.ones(5), 1.0)
 
 
-def test_padded_stencil_is_the_sparse_product():
+def test_padded_stencil_and_its_product_are_the_sparse_product():
     low, low_faces = grid_mesh(4, 5)
     subdivision, _ = loop_subdivide(low, low_faces, 2)
     columns, weights = padded_stencil(subdivision)
     x = np.random.default_rng(1).normal(size=(len(low), 3))
     np.testing.assert_allclose((x[columns] * weights[..., None]).sum(axis=1), subdivision @ x, rtol=1e-6,
                                atol=1e-6)
+    frames = np.random.default_rng(2).normal(size=(3, len(low), 4))       # a batch, channels other than xyz
+    got = stencil_product(torch.as_tensor(columns), torch.as_tensor(weights), torch.as_tensor(frames))
+    assert got.dtype == torch.float64 and got.shape == (3, subdivision.shape[0], 4)
+    np.testing.assert_allclose(got.numpy(), np.stack([subdivision @ f for f in frames]), rtol=1e-12, atol=1e-12)
 
 
 def test_upsampler_is_subdivision_plus_the_eager_displacement():
