@@ -12,7 +12,7 @@ tile functions as the separate kernels (model.triton_conv: `_conv_tile`, `_few_c
 so the arithmetic is theirs.
 
 The unfolded plan is the faster one here: a norm written once by its own step costs a barrier and a ~1 us pass,
-where folded into the readers (`fold_norms`) it makes every gathering loop of the decoder 2-3x slower an iteration
+where folded into the readers (`fold_norms`) it makes every gathering loop of the decoder 1.5-3x slower an iteration
 (timestamps on an H200: docs/history/performance-log.md, "The persistent kernel's phases").
 
 The kernel's text is generated from the plan (its shapes and flags are compile-time constants, as the separate
@@ -125,8 +125,8 @@ class PersistentPlan:
         self.names: list[str] = ["x", "affine", "sums", "sync"]   # the kernel's tensor arguments, in order
         self._tensors: list[str] = []                             # the network's buffers behind names[4:]
         steps = [self._step(index, launch, network) for index, launch in enumerate(plan)]
-        self.phases = [[steps[index] for index in phase] for phase in plan_phases(plan)]
-        self.kernel = _compile(_kernel_source(self.names, len(plan), self.phases))
+        phases = [[steps[index] for index in phase] for phase in plan_phases(plan)]
+        self.kernel = _compile(_kernel_source(self.names, len(plan), phases))
 
     def _arg(self, buffer: str) -> str:
         """The kernel argument holding the network's buffer `buffer` (each passed once)."""
