@@ -221,6 +221,8 @@ def stencil_product(columns: torch.Tensor, weights: torch.Tensor, x: torch.Tenso
     rows columns[i, :]. One embedding_bag: the gather and the sum in one kernel, where indexing, a product and a
     sum took three (docs/performance.md, I14)."""
     batch, n_rows, channels = x.shape
+    if batch == 0:          # no frames: nothing to gather from (the bags would index an empty table)
+        return x.new_zeros((0, len(columns), channels))
     weights = weights.to(x.dtype)
     if batch > 1:       # frame b's rows are rows b * V + v of the frames' stacked table
         offsets = n_rows * torch.arange(batch, device=x.device)

@@ -117,6 +117,8 @@ def test_padded_stencil_and_its_product_are_the_sparse_product():
     got = stencil_product(torch.as_tensor(columns), torch.as_tensor(weights), torch.as_tensor(frames))
     assert got.dtype == torch.float64 and got.shape == (3, subdivision.shape[0], 4)
     np.testing.assert_allclose(got.numpy(), np.stack([subdivision @ f for f in frames]), rtol=1e-12, atol=1e-12)
+    assert stencil_product(torch.as_tensor(columns), torch.as_tensor(weights), torch.zeros(0, len(low), 3)).shape == \
+        (0, subdivision.shape[0], 3)
 
 
 def test_upsampler_is_subdivision_plus_the_eager_displacement():
