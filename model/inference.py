@@ -223,13 +223,11 @@ def stencil_product(columns: torch.Tensor, weights: torch.Tensor, x: torch.Tenso
     batch, n_rows, channels = x.shape
     if batch == 0:          # no frames: nothing to gather from (the bags would index an empty table)
         return x.new_zeros((0, len(columns), channels))
-    weights = weights.to(x.dtype)
-    if batch > 1:       # frame b's rows are rows b * V + v of the frames' stacked table
-        offsets = n_rows * torch.arange(batch, device=x.device)
-        columns = (columns[None] + offsets[:, None, None]).flatten(0, 1)
-        weights = weights.repeat(batch, 1)
-    rows = F.embedding_bag(columns, x.reshape(batch * n_rows, channels), per_sample_weights=weights, mode="sum")
-    return rows.view(batch, -1, channels)
+    # One table row per vertex holding its values in every frame (a view for one frame), so the stencil's bags
+    # serve the whole batch as they are.
+    table = x.transpose(0, 1).reshape(n_rows, batch * channels)
+    rows = F.embedding_bag(columns, table, per_sample_weights=weights.to(x.dtype), mode="sum")
+    return rows.view(-1, batch, channels).transpose(0, 1).contiguous()
 
 
 class FastUpsampler(nn.Module):
