@@ -45,7 +45,7 @@ from deploy.runner import (FORMAT, FUSED_PROGRAM, HIGH_FACES, KERNELS, LOW_FACES
 
 MANIFEST, RUNNER = "upsampler.json", "runner.py"
 # The project modules that define the fused operators, in the export's KERNELS package (model/<name>.py).
-KERNEL_MODULES = ("triton_conv", "triton_features", "layers", "local_frames", "cuda_graph")
+KERNEL_MODULES = ("triton_conv", "triton_features", "triton_stencil", "layers", "local_frames", "cuda_graph")
 # What an export folder holds (FUSED_PROGRAM and KERNELS only when exported on CUDA).
 EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER, FUSED_PROGRAM,
                 *(f"{KERNELS}/{name}.py" for name in ("__init__", *KERNEL_MODULES)))
@@ -233,7 +233,7 @@ def kernel_package() -> dict[str, bytes]:
         '"""The fused network\'s Triton operators (learned_cloth::*) and the CUDA-graph replay the runner runs them in,\n'
         'copied from the project\'s model/ at export: importing this package registers the operators\n'
         '(deploy/runner.py does, before loading the fused program)."""\n'
-        "from . import cuda_graph, triton_conv, triton_features  # noqa: F401\n").encode()}
+        "from . import cuda_graph, triton_conv, triton_features, triton_stencil  # noqa: F401\n").encode()}
     for name in KERNEL_MODULES:
         source = re.sub(r"^(\s*)from model\.(\w+) import", r"\1from .\2 import",
                         (Path(__file__).parents[1] / "model" / f"{name}.py").read_text(), flags=re.M)

@@ -216,10 +216,15 @@ def padded_stencil(matrix: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
     return columns, weights
 
 
-def stencil_product(columns: torch.Tensor, weights: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+def stencil_product(columns: torch.Tensor, weights: torch.Tensor, x: torch.Tensor,
+                    kernel: bool = False) -> torch.Tensor:
     """`padded_stencil`'s matrix times each frame of x (B, V, C): (B, rows, C), row i the weighted sum of x's
     rows columns[i, :]. One embedding_bag: the gather and the sum in one kernel, where indexing, a product and a
-    sum took three (docs/performance.md, I14)."""
+    sum took three (docs/performance.md, I14); with `kernel`, model.triton_stencil's kernel (CUDA, or Triton's
+    interpreter): on a GPU ATen's embedding_bag is slow for rows this short (18 us at 15k rows on an H200, I15)."""
+    if kernel:
+        from model.triton_stencil import stencil    # Triton: with PyTorch's CUDA builds, not the CPU install
+        return stencil(columns, weights, x.contiguous(), None, None)
     batch, n_rows, channels = x.shape
     if batch == 0:          # no frames: nothing to gather from (the bags would index an empty table)
         return x.new_zeros((0, len(columns), channels))
@@ -248,10 +253,12 @@ class FastUpsampler(nn.Module):
         columns, weights = padded_stencil(sp.csr_matrix(subdivision)[regressor.order.numpy()])
         self.register_buffer("stencil_columns", torch.as_tensor(columns))
         self.register_buffer("stencil_weights", torch.as_tensor(weights))
+        # The fused network runs on CUDA (or Triton's interpreter): so do the subdivision and the sum after it.
+        self.kernel = isinstance(regressor.network, FusedNetwork)
 
     def subdivide(self, low: torch.Tensor) -> torch.Tensor:
         """S x_low (B, V_high, 3), rows in the locality order."""
-        return stencil_product(self.stencil_columns, self.stencil_weights, low)
+        return stencil_product(self.stencil_columns, self.stencil_weights, low, self.kernel)
 
     def forward(self, low_positions: torch.Tensor, low_previous: torch.Tensor | None = None,
                 low_before_previous: torch.Tensor | None = None, capsule_a: torch.Tensor | None = None,
@@ -262,8 +269,14 @@ class FastUpsampler(nn.Module):
         previous = None if low_previous is None else self.subdivide(low_previous)
         before = None if low_before_previous is None else self.subdivide(low_before_previous)
         frame = FrameBatch(smooth, previous, before, capsule_a, capsule_b, radius_a, radius_b, gravity, frame_time)
-        high = smooth + self.regressor.displacement_reordered(frame)
-        return high.index_select(1, self.regressor.new_of)
+        displacement = self.regressor.displacement_reordered(frame)
+        if self.kernel:
+            # S x_low again, plus the displacement, each row read from its place in the locality order: one
+            # kernel where the sum and the reorder took two (7 us of a 0.15 ms frame on an H200, I15).
+            from model.triton_stencil import stencil
+            return stencil(self.stencil_columns, self.stencil_weights, low_positions.contiguous(),
+                           self.regressor.new_of, displacement.contiguous())
+        return (smooth + displacement).index_select(1, self.regressor.new_of)
 
 
 # The inputs of FastUpsampler.forward each feature (model.features names) or local frame needs.
