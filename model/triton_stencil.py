@@ -19,7 +19,7 @@ from torch.library import triton_op, wrap_triton
 
 from model.triton_conv import NAMESPACE
 
-BLOCK = 128
+BLOCK = 32          # rows a program: 4 x more programs than 128 rows, 1.7 us where 3.0 (15k rows, H200)
 
 
 @triton.jit
