@@ -6,9 +6,13 @@ The tiny pants (workflow_runs.tiny_pants) built once per session, in one Snakema
 on them: `results/pants/` (the garment scene's own test reads this run) and the targets the selected tests name
 with `@pytest.mark.tiny_pants_target(TARGET, **blocks)`, each with its block of the scene's config (`study`,
 `tradeoff`: workflow-only settings, so they change none of the scene's jobs). One run lets the study's and the
-trade-off's jobs fill the cores while the scene's chain of jobs waits on its last ones."""
+trade-off's jobs fill the cores while the scene's chain of jobs waits on its last ones. Under pytest-xdist the
+workers share that one build (a file lock in the session's shared temporary folder): two builds side by side on
+CI's two cores each took twice as long as one."""
 from __future__ import annotations
 
+import fcntl
+import json
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,9 +40,32 @@ class TinyPants:
 def tiny_pants_build(request, tmp_path_factory) -> TinyPants:
     """tiny_pants with two training sequences simulated as one batch (`shard: 2`) and the held-out walk:
     `results/pants/` and the targets of the selected tests' `tiny_pants_target` marks, built by one run that
-    goes on past a failed job (`--keep-going`), returned as it ended: each test checks it."""
+    goes on past a failed job (`--keep-going`), returned as it ended: each test checks it. Under pytest-xdist
+    the first worker to need it builds it; the others wait on the lock, then read its record (every worker
+    collects the same tests, so the same marks)."""
+    if not hasattr(request.config, "workerinput"):         # no xdist, or its controller
+        return _build_tiny_pants(request, tmp_path_factory.mktemp("tiny_pants"))
+    shared = tmp_path_factory.getbasetemp().parent
+    record = shared / "tiny_pants.json"
+    with open(shared / "tiny_pants.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)           # released when the file closes, or if this worker dies
+        if record.exists():
+            saved = json.loads(record.read_text())
+            return TinyPants(Path(saved["workdir"]), Path(saved["config"]), tuple(saved["targets"]),
+                             subprocess.CompletedProcess(**saved["run"]))
+        built = _build_tiny_pants(request, shared / "tiny_pants")
+        run = built.run
+        # Written whole after the build, under the lock: a worker that finds the record finds a finished build.
+        record.write_text(json.dumps({"workdir": str(built.workdir), "config": str(built.config),
+                                      "targets": list(built.targets),
+                                      "run": {"args": run.args, "returncode": run.returncode,
+                                              "stdout": run.stdout, "stderr": run.stderr}}))
+        return built
+
+
+def _build_tiny_pants(request, workdir: Path) -> TinyPants:
     marks = [mark for item in request.session.items for mark in item.iter_markers("tiny_pants_target")]
-    workdir = tmp_path_factory.mktemp("tiny_pants")
+    workdir.mkdir(parents=True, exist_ok=True)
     config = tiny_pants(workdir, shard=2)
     overlay = yaml.safe_load(config.read_text())
     pants = overlay["profiles"]["cpu"]["scenes"]["pants"]
