@@ -14,9 +14,15 @@ from matplotlib.figure import Figure
 
 MARKERS = ("o", "^", "s", "D", "v", "P", "X")
 LABEL_SIZE = 7                      # points
-# Where a label may go, in points from its point, tried in order: up and right of it, then further below and above.
-LABEL_OFFSETS = ((4, 4), (4, -11), (4, 15), (4, -22), (4, 26), (4, -33), (4, 37))
 MARKER_HALF = 3.0                   # half a scatter marker's width (its default size, 36 points^2), in points
+# Where a label may go, in points from its point, tried in order: up and right of it, then further below and above
+# (a cluster of points at one budget, the networks and Loop subdivision at 8 substeps, needs the far ones).
+LABEL_OFFSETS = ((4, 4), (4, -11), (4, 15), (4, -22), (4, 26), (4, -33), (4, 37), (4, -44), (4, 48), (4, -55),
+                 (4, 59))
+# A label whose box is further than this from its point (points) is joined to it by a line: near a cluster a label
+# a few lines away would otherwise read as another point's.
+LEADER_GAP = 7.0
+LEADER = {"arrowstyle": "-", "color": "0.45", "linewidth": 0.5, "shrinkA": 0.0, "shrinkB": MARKER_HALF}
 COLOURS = ("tab:blue", "tab:orange", "tab:gray", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 
 
@@ -88,7 +94,9 @@ def tradeoff_plot(labels: list[str], ms: np.ndarray, errors: dict[str, np.ndarra
         bounds = tuple(np.asarray(ax.bbox.extents) * to_points)
         for label, (x, y), offset in zip(labels, zip(ms, error),
                                          place_labels(anchors, labels, bounds=bounds, unlabelled=unlabelled)):
-            ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE)
+            far = label_gap(offset, label) > LEADER_GAP
+            ax.annotate(label, (x, y), textcoords="offset points", xytext=offset, fontsize=LABEL_SIZE,
+                        arrowprops=LEADER if far else None)
     png = io.BytesIO()
     fig.savefig(png, format="png")
     return png.getvalue()
@@ -117,9 +125,9 @@ def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZ
     placed: list[tuple[float, float, float, float]] = []
     offsets = []
     for i, ((x, y), label) in enumerate(zip(anchors, labels)):
-        width, height = 0.6 * size * len(label), size + 1.0
+        width = label_box((0.0, 0.0), label, size)[2]
         candidates = [*LABEL_OFFSETS, *((-dx - width, dy) for dx, dy in LABEL_OFFSETS)]
-        boxes = [(x + dx, y + dy, x + dx + width, y + dy + height) for dx, dy in candidates]
+        boxes = [tuple(np.add(label_box(offset, label, size), (x, y, x, y))) for offset in candidates]
         inside = [bounds is None or (b[0] >= bounds[0] and b[1] >= bounds[1] and b[2] <= bounds[2]
                                      and b[3] <= bounds[3]) for b in boxes]
         obstacles = placed + markers[:i] + markers[i + 1:] + others
@@ -128,6 +136,17 @@ def place_labels(anchors: np.ndarray, labels: list[str], size: float = LABEL_SIZ
         placed.append(boxes[k])
         offsets.append(candidates[k])
     return offsets
+
+
+def label_box(offset: tuple[float, float], label: str, size: float = LABEL_SIZE) -> tuple[float, float, float, float]:
+    """A label's box (x0, y0, x1, y1) relative to its point, in points: its width estimated from its length."""
+    return offset[0], offset[1], offset[0] + 0.6 * size * len(label), offset[1] + size + 1.0
+
+
+def label_gap(offset: tuple[float, float], label: str, size: float = LABEL_SIZE) -> float:
+    """How far (points) a label's box at `offset` is from its point."""
+    x0, y0, x1, y1 = label_box(offset, label, size)
+    return float(np.hypot(max(x0, 0.0, -x1), max(y0, 0.0, -y1)))
 
 
 def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:

@@ -1,10 +1,11 @@
 """The speed-accuracy figure's labels: points at nearly one place (networks of two widths at one budget) must keep
-readable, non-overlapping labels."""
+readable, non-overlapping labels, a label placed away from its point joined to it by a line."""
 from __future__ import annotations
 
 import numpy as np
 
-from viz.tradeoff_plot import LABEL_OFFSETS, LABEL_SIZE, MARKER_HALF, Faster, place_labels, tradeoff_plot
+from viz.tradeoff_plot import (LABEL_OFFSETS, LABEL_SIZE, LEADER_GAP, MARKER_HALF, Faster, label_gap, place_labels,
+                               tradeoff_plot)
 
 
 def _box(anchor, offset, label):
@@ -24,6 +25,22 @@ def test_labels_of_coincident_points_do_not_overlap_and_lone_points_keep_the_fir
     assert not any(_overlap(boxes[i], boxes[j]) for i in range(3) for j in range(i + 1, 3))
     assert offsets[0] == LABEL_OFFSETS[0] and offsets[3] == LABEL_OFFSETS[0]
     assert len(set(offsets[:3])) == 3
+
+
+def test_a_cluster_of_a_budgets_points_gets_disjoint_labels_and_the_far_ones_a_leader_line():
+    """Ten points within a marker of each other (every network and Loop subdivision at 8 substeps): each label a
+    box of its own, off the other points' markers; the ones not beside their point are joined to it."""
+    labels = [f"8 sub, RC{9 + k % 5} x/{2 ** (k % 3)}" for k in range(10)]
+    anchors = np.array([[200.0 + k % 3, 150.0 + k % 4] for k in range(10)])
+    offsets = place_labels(anchors, labels)
+    boxes = [_box(a, o, lab) for a, o, lab in zip(anchors, offsets, labels)]
+    assert not any(_overlap(boxes[i], boxes[j]) for i in range(10) for j in range(i + 1, 10))
+    gaps = [label_gap(offset, label) for offset, label in zip(offsets, labels)]
+    assert gaps[0] < LEADER_GAP and sum(gap > LEADER_GAP for gap in gaps) >= 6
+    # beside its point: the first two places, above or below it on the right; a place three lines up is not
+    assert label_gap(LABEL_OFFSETS[1], labels[0]) < LEADER_GAP < label_gap(LABEL_OFFSETS[2], labels[0])
+    left = (-LABEL_OFFSETS[0][0] - _box((0, 0), (0, 0), labels[0])[2], LABEL_OFFSETS[0][1])
+    assert label_gap(left, labels[0]) < LEADER_GAP
 
 
 def test_a_label_stays_inside_its_panel_and_off_the_other_points():
