@@ -145,7 +145,8 @@ class Replayed:
 
 def register_operators(package: Path) -> None:
     """Import the package at `package`, whose modules register the learned_cloth operators, unless this process
-    has them already (the project's own model.triton_conv, model.triton_features and model.triton_stencil define the same)."""
+    has them already (the project's own model.triton_conv, model.triton_features and model.triton_stencil define
+    the same)."""
     namespace = getattr(torch.ops, OPERATOR_NAMESPACE)
     have = [hasattr(namespace, name) for name in OPERATORS]
     if all(have):
