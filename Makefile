@@ -17,7 +17,8 @@ CLUSTER_STAMP := $(VENV)/.cluster-$(shell cat requirements-cluster.txt | sha1sum
 
 GPU_TESTS := tests/sim/test_block_frame.py tests/sim/test_fem_cuda.py tests/sim/test_fem.py tests/sim/test_batched.py \
 	tests/sim/test_collision.py tests/model/test_training_step.py tests/model/test_fused_network.py \
-	tests/model/test_fused_features.py tests/pipeline/test_inference_timing.py tests/deploy/test_deploy_export.py
+	tests/model/test_fused_features.py tests/model/test_triton_stencil.py tests/pipeline/test_inference_timing.py \
+	tests/deploy/test_deploy_export.py
 
 .PHONY: setup run test test-cluster test-gpu bench clean
 
