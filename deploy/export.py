@@ -45,7 +45,8 @@ from deploy.runner import (FORMAT, FUSED_PROGRAM, HIGH_FACES, KERNELS, LOW_FACES
 
 MANIFEST, RUNNER = "upsampler.json", "runner.py"
 # The project modules that define the fused operators, in the export's KERNELS package (model/<name>.py).
-KERNEL_MODULES = ("triton_conv", "triton_features", "triton_stencil", "layers", "local_frames", "cuda_graph")
+KERNEL_MODULES = ("triton_conv", "triton_features", "triton_stencil", "persistent_kernel", "layers", "local_frames",
+                  "cuda_graph")
 # What an export folder holds (FUSED_PROGRAM and KERNELS only when exported on CUDA).
 EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER, FUSED_PROGRAM,
                 *(f"{KERNELS}/{name}.py" for name in ("__init__", *KERNEL_MODULES)))
@@ -202,7 +203,7 @@ def _fused_program(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp
     learned_cloth operator in it, and its manifest entry; ValueError if it differs from the eager fp32 network by
     more than FUSED_TOLERANCE or calls an operator the KERNELS package does not define."""
     on_device = {name: value.to(device) for name, value in example.items()}
-    fused = FastUpsampler(FastRegressor(model, mesh, torch.bfloat16, fused=True), subdivision).to(device).eval()
+    fused, timings = _fastest_fused(model, mesh, subdivision, on_device)
     exported = _exported(fused, on_device)
     calls = sorted({str(node.target) for node in exported.graph.nodes
                     if str(node.target).startswith(f"{OPERATOR_NAMESPACE}.")})
@@ -219,21 +220,54 @@ def _fused_program(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp
     return program, {"program": FUSED_PROGRAM, "kernels": KERNELS, "operators": calls, "device": "cuda",
                      "gpu": torch.cuda.get_device_name(device), "triton": triton.__version__,
                      "network": "model.fused_network: bf16 hidden layers, fp32 first and last convolutions",
+                     "network_kernels": "persistent" if fused.regressor.network.persistent else "separate",
+                     "ms_per_call": timings,
                      "max_difference_vs_eager": difference, "tolerance": FUSED_TOLERANCE,
                      "meaning": "a torch.export program of the learned path with the fused network, its Triton "
                                 "launchers as the KERNELS package's operators (compiled by Triton at first call "
                                 "for the GPU it runs on); the difference as export_check's"}
 
 
+# The fused network's two forms an export times on its GPU, keeping the faster: a launch a step, or the whole plan
+# as one persistent kernel (0.14 against 0.20 ms for RC9 x/4 at 15k vertices on an H200; 4x slower for RC13,
+# whose wide layers lose cuBLAS's products: docs/performance.md).
+FUSED_FORMS = {"separate": {}, "persistent": {"persistent": True}}
+FORM_TIMING_CALLS = 20
+
+
+def _fastest_fused(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp.spmatrix,
+                   inputs: Mapping[str, torch.Tensor]) -> tuple[FastUpsampler, dict[str, float]]:
+    """The fused upsampler in the faster of FUSED_FORMS on the inputs' device, and each form's median ms a call
+    (the sample batch, one CUDA graph replayed FORM_TIMING_CALLS times after its capture's warm-up runs)."""
+    from model.cuda_graph import CapturedCall
+    names = list(inputs)
+    forms, timings = {}, {}
+    for name, options in FUSED_FORMS.items():
+        upsampler = FastUpsampler(FastRegressor(model, mesh, torch.bfloat16, fused=True, **options),
+                                  subdivision).to(next(iter(inputs.values())).device).eval()
+        replay = CapturedCall(lambda *values, run=upsampler: run(**dict(zip(names, values))), *inputs.values())
+        times = []
+        for _ in range(FORM_TIMING_CALLS):
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+            replay(*inputs.values())
+            end.record()
+            end.synchronize()
+            times.append(start.elapsed_time(end))
+        forms[name], timings[name] = upsampler, float(np.median(times))
+    return forms[min(timings, key=timings.get)], timings
+
+
 def kernel_package() -> dict[str, bytes]:
     """The KERNELS package's files (path in the export -> contents): model/<KERNEL_MODULES>.py with their imports
-    of each other made relative, and an __init__.py importing the two that register operators. ValueError if a
+    of each other made relative, and an __init__.py importing those that register operators. ValueError if a
     module imports another project module (the package would not import without the project)."""
     files = {f"{KERNELS}/__init__.py": (
         '"""The fused network\'s Triton operators (learned_cloth::*) and the CUDA-graph replay the runner runs them in,\n'
         'copied from the project\'s model/ at export: importing this package registers the operators\n'
         '(deploy/runner.py does, before loading the fused program)."""\n'
-        "from . import cuda_graph, triton_conv, triton_features, triton_stencil  # noqa: F401\n").encode()}
+        "from . import cuda_graph, persistent_kernel, triton_conv, triton_features, triton_stencil  # noqa: F401\n"
+    ).encode()}
     for name in KERNEL_MODULES:
         source = re.sub(r"^(\s*)from model\.(\w+) import", r"\1from .\2 import",
                         (Path(__file__).parents[1] / "model" / f"{name}.py").read_text(), flags=re.M)

@@ -41,7 +41,8 @@ PROGRAM, LOW_FACES, HIGH_FACES = "upsampler.pt2", "low_faces.npy", "high_faces.n
 FUSED_PROGRAM = "upsampler_fused_cuda.pt2"      # the fused network's program, in an export made on CUDA
 KERNELS = "kernels"                             # the package defining its operators, in the same export
 OPERATOR_NAMESPACE = "learned_cloth"
-OPERATORS = ("fused_conv", "gather_sum", "few_channel_conv", "normed_products", "prepare", "features", "stencil")
+OPERATORS = ("fused_conv", "gather_sum", "few_channel_conv", "normed_products", "prepare", "features", "stencil",
+             "persistent")
 INPUTS = ("low_positions", "low_previous", "low_before_previous", "capsule_a", "capsule_b", "radius_a", "radius_b",
           "gravity", "frame_time")
 
@@ -145,15 +146,15 @@ class Replayed:
 
 def register_operators(package: Path) -> None:
     """Import the package at `package`, whose modules register the learned_cloth operators, unless this process
-    has them already (the project's own model.triton_conv, model.triton_features and model.triton_stencil define
-    the same)."""
+    has them already (the project's own model.triton_conv, triton_features, triton_stencil and persistent_kernel
+    define the same)."""
     namespace = getattr(torch.ops, OPERATOR_NAMESPACE)
     have = [hasattr(namespace, name) for name in OPERATORS]
     if all(have):
         return
     if any(have):
         raise RunnerError(f"{package}: this process defines some of the {OPERATOR_NAMESPACE} operators but not all "
-                          f"(import model.triton_conv, model.triton_features and model.triton_stencil, or none)")
+                          f"(import model.triton_conv, triton_features, triton_stencil and persistent_kernel, or none)")
     _import(f"{OPERATOR_NAMESPACE}_kernels", package / "__init__.py", package)
 
 

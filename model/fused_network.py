@@ -342,7 +342,7 @@ class FusedNetwork(nn.Module):
             raise ValueError("pdl: needs a CUDA build of Triton with grid dependency control (not the interpreter) "
                              "and a Hopper or later GPU")
         self.pdl, self.persistent = pdl, persistent
-        self._persistent_plan = None            # built on the first call, for its device's multiprocessors
+        self._persistent_spec = None        # the persistent kernel's spec, made at the first call (needs Triton)
         mesh = mesh.to("cpu")
         self.plan = aligned_plan(fused_plan(net, mesh, output_scale, fold_norms), ALIGN, FEW_CHANNELS)
         self.pool_max = net.pool_kind == "max"
@@ -429,12 +429,11 @@ class FusedNetwork(nn.Module):
         return outputs[-1]
 
     def _run_persistent(self, x: torch.Tensor) -> torch.Tensor:
-        """The plan as one persistent kernel (model.persistent_network): each step's output allocated here."""
-        from model.persistent_network import PersistentPlan, programs_for
-        if self._persistent_plan is None:
-            self._persistent_plan = PersistentPlan(self, programs_for(x.device))
-        plan, last = self._persistent_plan, len(self.plan) - 1
-        outputs = [torch.empty(x.shape[0], plan.vertices[index], plan.channels[index], device=x.device,
-                               dtype=torch.float32 if index == last else self.dtype) for index in range(last + 1)]
-        plan.run(self, x.float().contiguous(), outputs)
-        return outputs[-1]
+        """The plan as one persistent kernel: model.persistent_kernel's operator on model.persistent_network's spec
+        (data: the kernel is made from it where it runs, for that GPU)."""
+        from model.persistent_kernel import persistent
+        from model.persistent_network import persistent_spec
+        if self._persistent_spec is None:
+            self._persistent_spec = persistent_spec(self, self.dtype)
+        spec, names = self._persistent_spec
+        return persistent(x.float().contiguous(), self.affine, [self.get_buffer(name) for name in names], spec)

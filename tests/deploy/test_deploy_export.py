@@ -219,11 +219,18 @@ sys.exit(f"leaked {{leaked}}, missing {{missing}}" if leaked or missing else 0)
 
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
                     reason="the fused program's operators are Triton kernels for a CUDA GPU")
-def test_the_fused_program_runs_without_the_project_within_one_percent_of_the_fp32_network(work, tmp_path):
+@pytest.mark.parametrize("form", [None, *export.FUSED_FORMS])
+def test_the_fused_program_runs_without_the_project_within_one_percent_of_the_fp32_network(work, tmp_path,
+                                                                                           monkeypatch, form):
     """Exported on CUDA, the folder also holds the program of the fused bf16 path and the package of its
     operators; the runner, in a fresh interpreter without the project, registers them from the package and runs
-    the program with --fused within 1 % of the eager fp32 network's largest displacement, as the export checked."""
-    export_dir = work / "export_cuda"
+    the program with --fused within 1 % of the eager fp32 network's largest displacement, as the export checked.
+    The export keeps the faster of the network's forms on its GPU (None: as it chooses), each form timed in the
+    manifest; either form, forced, exports and runs so (the persistent kernel made from its spec in that
+    interpreter)."""
+    if form is not None:
+        monkeypatch.setattr(export, "FUSED_FORMS", {form: export.FUSED_FORMS[form]})
+    export_dir = work / f"export_cuda_{form}"
     if not export_dir.exists():
         cli.run(export_model.main, [str(work / name) for name in ("model.pt", "operators.h5", "subdiv.h5")]
                 + [str(export_dir), "--frame-time", str(FRAME_TIME), "--device", "cuda", "--quiet"])
@@ -231,10 +238,16 @@ def test_the_fused_program_runs_without_the_project_within_one_percent_of_the_fp
     assert fused["program"] == runner.FUSED_PROGRAM and (export_dir / runner.FUSED_PROGRAM).stat().st_size > 0
     assert fused["kernels"] == runner.KERNELS and (export_dir / runner.KERNELS / "triton_conv.py").is_file()
     assert fused["operators"] and fused["max_difference_vs_eager"] <= FUSED_TOLERANCE
+    timings = fused["ms_per_call"]
+    assert set(timings) == ({form} if form else set(export.FUSED_FORMS)) and min(timings.values()) > 0
+    assert fused["network_kernels"] == min(timings, key=timings.get)
+    assert (f"{runner.OPERATOR_NAMESPACE}.persistent.default" in fused["operators"]) == \
+        (fused["network_kernels"] == "persistent")
     runner.check_no_pickle(export_dir / runner.FUSED_PROGRAM)
     got, displacement = _run_without_the_project(export_dir, tmp_path, "--fused", "--device", "cuda")
     difference = np.abs(got - displacement).max() / np.abs(displacement).max()
-    print(f"fused program vs eager fp32: {difference:.1e} of the largest displacement")
+    print(f"fused program ({fused['network_kernels']}, {timings}) vs eager fp32: {difference:.1e} of the largest "
+          f"displacement")
     assert difference <= FUSED_TOLERANCE
 
 
