@@ -81,13 +81,16 @@ NETWORK_INPUT = -1             # a source that is the network's input x, not a s
 def checked_spec(text: str, n_buffers: int) -> dict:
     """The spec in `text`, ValueError unless it is exactly a spec: known keys only, integers in [-1, 2^31) where
     an index may be absent and [0, 2^31) elsewhere, booleans, sources before their step, buffer indices below
-    `n_buffers`, phases that hold every step once after each of its sources."""
+    `n_buffers`, phases that hold every step once after each of its sources. What this guards is the kernel's
+    text (nothing but these numbers and flags goes into it); that the shapes match the buffers is the program's
+    own word, as for the other operators' tables (the runner's --fused: exports you made yourself)."""
     try:
         spec = json.loads(text)
     except json.JSONDecodeError as err:
         raise ValueError(f"persistent spec: not JSON ({err})") from None
     _keys(spec, {"version", "hidden_dtype", "sums_stride", "steps", "phases"}, "the spec")
-    if spec["version"] != SPEC_VERSION or spec["hidden_dtype"] not in HIDDEN_DTYPES:
+    if type(spec["version"]) is not int or spec["version"] != SPEC_VERSION or not isinstance(
+            spec["hidden_dtype"], str) or spec["hidden_dtype"] not in HIDDEN_DTYPES:
         raise ValueError(f"persistent spec: version {spec['version']!r} or hidden dtype {spec['hidden_dtype']!r} "
                          f"unknown")
     _count(spec["sums_stride"], "sums_stride")
@@ -122,7 +125,7 @@ def checked_spec(text: str, n_buffers: int) -> dict:
     phases = spec["phases"]
     flat = [i for phase in phases for i in phase] if isinstance(phases, list) and all(
         isinstance(phase, list) for phase in phases) else None
-    if flat is None or sorted(flat) != list(range(len(steps))) or any(type(i) is not int for i in flat):
+    if flat is None or any(type(i) is not int for i in flat) or sorted(flat) != list(range(len(steps))):
         raise ValueError("persistent spec: the phases do not hold every step once")
     phase_of = {i: number for number, phase in enumerate(phases) for i in phase}
     for index, step in enumerate(steps):
