@@ -45,8 +45,8 @@ from deploy.runner import (FORMAT, FUSED_PROGRAM, HIGH_FACES, KERNELS, LOW_FACES
 
 MANIFEST, RUNNER = "upsampler.json", "runner.py"
 # The project modules that define the fused operators, in the export's KERNELS package (model/<name>.py).
-KERNEL_MODULES = ("triton_conv", "triton_features", "triton_stencil", "persistent_kernel", "layers", "local_frames",
-                  "cuda_graph")
+KERNEL_MODULES = ("triton_conv", "triton_features", "triton_stencil", "persistent_kernel", "persistent_spec",
+                  "layers", "local_frames", "cuda_graph")
 # What an export folder holds (FUSED_PROGRAM and KERNELS only when exported on CUDA).
 EXPORT_FILES = (PROGRAM, MANIFEST, LOW_FACES, HIGH_FACES, RUNNER, FUSED_PROGRAM,
                 *(f"{KERNELS}/{name}.py" for name in ("__init__", *KERNEL_MODULES)))

@@ -23,9 +23,9 @@ import json
 import torch
 
 from model.fused_network import NETWORK_INPUT, FusedConv, Prepare, plan_phases
-from model.persistent_kernel import SPEC_VERSION, SUMS_ALIGN
+from model.persistent_spec import NETWORK_INPUT as SPEC_INPUT, SPEC_VERSION, SUMS_ALIGN
 
-assert NETWORK_INPUT == -1, "the spec numbers the network's input -1 (model.persistent_kernel.NETWORK_INPUT)"
+assert NETWORK_INPUT == SPEC_INPUT, "the plan and the spec number the network's input alike"
 
 
 def persistent_spec(network, hidden: torch.dtype) -> tuple[str, list[str]]:

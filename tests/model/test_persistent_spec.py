@@ -1,8 +1,8 @@
-"""The persistent kernel's spec (model.persistent_network writes it, model.persistent_kernel checks it and makes
-the kernel's text from it): a real network's spec passes and gives one grid barrier between phases; a spec from
-elsewhere (an exported program is a file) that is anything but numbers, flags and known keys is refused before
-any text is made from it. The kernel's results against the plan are tests/model/test_fused_network.py's
-("persistent" variants); these need Triton only to import the kernel module (not a CPU requirement)."""
+"""The persistent kernel's spec (model.persistent_network writes it, model.persistent_spec checks it,
+model.persistent_kernel makes the kernel's text from it): a real network's spec passes and gives one grid barrier
+between phases; a spec from elsewhere (an exported program is a file) that is anything but numbers, flags and
+known keys is refused before any text is made from it. The check needs no Triton (it runs in CI); the text does.
+The kernel's results against the plan are tests/model/test_fused_network.py's ("persistent" variants)."""
 from __future__ import annotations
 
 import copy
@@ -11,12 +11,10 @@ import json
 import pytest
 import torch
 
-pytest.importorskip("triton", reason="the persistent kernel's module imports Triton (PyTorch's CUDA wheels bring it)")
-
-from model.fused_network import FusedNetwork  # noqa: E402
-from model.persistent_kernel import checked_spec, kernel_source  # noqa: E402
-from model.persistent_network import persistent_spec  # noqa: E402
-from test_fused_network import ARCHS, _case  # noqa: E402
+from model.fused_network import FusedNetwork
+from model.persistent_network import persistent_spec
+from model.persistent_spec import checked_spec
+from test_fused_network import ARCHS, _case
 
 
 @pytest.fixture(scope="module")
@@ -27,11 +25,21 @@ def spec_and_buffers():
     return network, text, buffers
 
 
-def test_a_networks_spec_passes_and_makes_one_barrier_between_phases(spec_and_buffers):
+def test_a_networks_spec_passes_and_names_its_buffers(spec_and_buffers):
     network, text, buffers = spec_and_buffers
     spec = checked_spec(text, len(buffers))
     assert len(spec["steps"]) == len(network.plan) and spec["hidden_dtype"] == "bfloat16"
     assert all(name in dict(network.named_buffers()) for name in buffers) and len(set(buffers)) == len(buffers)
+    with pytest.raises(ValueError, match="persistent spec"):       # one buffer fewer than it names
+        checked_spec(text, len(buffers) - 1)
+
+
+def test_the_kernel_text_has_one_barrier_between_phases_and_depends_on_the_grid(spec_and_buffers):
+    pytest.importorskip("triton", reason="the kernel's text is made by the Triton module (PyTorch's CUDA wheels)")
+    from model.persistent_kernel import kernel_source
+
+    _, text, buffers = spec_and_buffers
+    spec = checked_spec(text, len(buffers))
     for programs in (1, 132):
         source = kernel_source(spec, len(buffers), programs)
         assert source.count("_grid_barrier(") == len(spec["phases"]) - 1
