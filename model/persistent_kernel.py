@@ -22,6 +22,7 @@ each barrier passes at once.
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import linecache
 
@@ -148,22 +149,21 @@ def kernel_source(spec: dict, n_buffers: int, programs: int) -> str:
 
 
 _COUNTER = itertools.count()
-_COMPILED: dict[str, object] = {}
 
 
-def _compile(source: str):
-    """The generated kernel as a Triton JIT function (one per distinct text). Triton reads a kernel's source
-    through `inspect`, so the text is registered with linecache under a file name of its own first."""
-    if source in _COMPILED:
-        return _COMPILED[source]
+@functools.lru_cache(maxsize=None)
+def _kernel(spec: str, n_buffers: int, programs: int) -> tuple[dict, object]:
+    """The checked spec and its kernel for a grid of `programs`, made once per (spec, buffers, grid): a call
+    pays neither the check nor the text again. Triton reads a kernel's source through `inspect`, so the text is
+    registered with linecache under a file name of its own first."""
+    checked = checked_spec(spec, n_buffers)
     filename = f"<persistent_network_{next(_COUNTER)}>"
-    text = "import triton\nimport triton.language as tl\n" + source
+    text = "import triton\nimport triton.language as tl\n" + kernel_source(checked, n_buffers, programs)
     linecache.cache[filename] = (len(text), None, text.splitlines(keepends=True), filename)
     scope = {"_conv_tile": _conv_tile, "_few_channel_tile": _few_channel_tile, "_prepare_tile": _prepare_tile,
              "_tile_of": tile_of, "_grid_barrier": grid_barrier}
     exec(compile(text, filename, "exec"), scope)    # noqa: S102 - text of this module's making (see the module)
-    _COMPILED[source] = scope["persistent_network"]
-    return _COMPILED[source]
+    return checked, scope["persistent_network"]
 
 
 def programs_for(device: torch.device) -> int:
@@ -178,9 +178,8 @@ def persistent(x: torch.Tensor, affine: torch.Tensor, buffers: list[torch.Tensor
     """The network of `spec` (model.persistent_network.persistent_spec) on raw features x (B, V_0, C) fp32
     contiguous, with the network's `buffers` (tables, weights, biases, maps, in the spec's numbering): its last
     step's output (B, V_0, out) fp32, the other steps' in the spec's hidden dtype."""
-    checked = checked_spec(spec, len(buffers))
     programs = programs_for(x.device)
-    kernel = _compile(kernel_source(checked, len(buffers), programs))
+    checked, kernel = _kernel(spec, len(buffers), programs)
     batch, steps = x.shape[0], checked["steps"]
     hidden = HIDDEN_DTYPES[checked["hidden_dtype"]]
     outputs = [x.new_empty(batch, step["rows"], step["cols"],
