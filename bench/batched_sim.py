@@ -16,12 +16,13 @@ sweep_lanes; default: the solver's). `--frame-kernels sweeps,block` times each B
 frame (settings.frame_kernel: a kernel per sweep, or the frame in one launch of a block per world where the cloth
 fits, sim/xpbd/block_frame.py: the low-res pants; default: the simulate stage's, SolverSettings' frame_kernel,
 so that an unqualified run times what the stage runs); each row names the one
-that ran and its speed over the sweeps of the same B; `--block-threads 512,1024` times the block with those
-threads a world (default: the solver's, one vertex a thread up to 1024). Usage:
+that ran and its speed over the sweeps of the same B; `--block-layouts 1024,128x8x4` times the block frame with
+those layouts (threads a block x blocks a world, a cluster x lanes a vertex: block_frame.BlockLayout; default: the
+solver's). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
-      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block] [--block-threads 512,1024]
-      [--out table.md]
+      [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block]
+      [--block-layouts 1024,128x8x4] [--out table.md]
 """
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
 from sim.xpbd.clearance import SubdividedOutsideBody
+from sim.xpbd.block_frame import BlockLayout
 from sim.xpbd.solver import frame_kernel_of
 
 MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loop subdivision
@@ -101,14 +103,14 @@ def low_res_run(low, settings, device, pins, targets, capsules, radii, worlds, n
 
 
 def make_solver(vertices, faces, settings, device, pins, capsules, radii, worlds, constraint, goals, start,
-                lanes=None, block_threads=None):
+                lanes=None, block_layout=None):
     """The solver of a batch of `worlds` (with the harmonic constraint: starting at `start`, held to `goals`)."""
     body = settings.body_collision
     model = ClothModel(vertices, faces, settings, pins, harmonic=constraint, capsule_radii=radii if body else None)
     inputs = FrameInputs(harmonic_target=None if constraint is None else goals[0],
                          capsules=capsules[:worlds, 0] if body else None)
     return ClothSolver(model, device, worlds=worlds, initial_inputs=inputs, initial_positions=start, sweep_lanes=lanes,
-                       block_threads=block_threads)
+                       block_layout=block_layout)
 
 
 def frame_inputs(f, worlds, targets, capsules, goals, body=True):
@@ -200,7 +202,8 @@ def main():
     parser.add_argument("--lanes", default="", help="threads per vertex in the sweeps, e.g. 1,4")
     parser.add_argument("--frame-kernels", default=SolverSettings().frame_kernel,
                         help="ways to launch a frame, e.g. sweeps,block,auto")
-    parser.add_argument("--block-threads", default="", help="threads a world in the block frame, e.g. 512,1024")
+    parser.add_argument("--block-layouts", default="",
+                        help="the block frame's layouts, THREADSxCLUSTER_BLOCKSxLANES, e.g. 1024,128x8x4")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
@@ -210,11 +213,11 @@ def main():
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
     lane_counts = [int(lanes) for lanes in args.lanes.split(",")] if args.lanes else [None]
-    # (lanes, frame kernel, block threads): lanes are the sweeps' threads a vertex, block threads the block's.
-    block_threads = [int(n) for n in args.block_threads.split(",")] if args.block_threads else [None]
-    variants = [(lanes, kernel, threads) for kernel in args.frame_kernels.split(",")
+    # (lanes, frame kernel, block layout): lanes are the sweeps' threads a vertex, the layout the block frame's.
+    layouts = [BlockLayout.from_text(t) for t in args.block_layouts.split(",")] if args.block_layouts else [None]
+    variants = [(lanes, kernel, layout) for kernel in args.frame_kernels.split(",")
                 for lanes in (lane_counts if kernel != "block" else [None])
-                for threads in (block_threads if kernel == "block" else [None])]
+                for layout in (layouts if kernel == "block" else [None])]
     rows = ["| level | V | B | launch | ms per batch frame | cloth-frames/s | x first row | speed over sweeps |",
             "|---|---|---|---|---|---|---|---|"]
     profiles = []
@@ -230,7 +233,7 @@ def main():
                 goals = harmonic_targets(constraint, S, x_low, capsules, radii, settings, args.device)
                 start = np.stack([S @ x for x in x_low[0]])
             sweeps_ms = None
-            for lanes, kernel, threads in variants:
+            for lanes, kernel, layout in variants:
                 variant = dataclasses.replace(settings, frame_kernel=kernel)
                 model_fits = kernel != "block" or frame_kernel_of(ClothModel(vertices, faces, variant, pins,
                                                                              capsule_radii=radii,
@@ -239,7 +242,7 @@ def main():
                 if not model_fits:
                     continue   # the cloth does not fit a block
                 solver = make_solver(vertices, faces, variant, args.device, pins, capsules, radii, worlds, constraint,
-                                     goals, start, lanes, threads)
+                                     goals, start, lanes, layout)
                 ms = time_batch(solver, goals, targets, capsules, args.frames, args.warmup)
                 rate = worlds * 1e3 / ms
                 base = base or rate

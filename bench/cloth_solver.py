@@ -9,11 +9,14 @@ CUDA run with those threads per vertex in the sweeps (ClothSolver's sweep_lanes;
 `--frame-kernels sweeps,block` times each run with each way of launching a frame (settings.frame_kernel: a kernel
 per sweep, or the whole frame in one launch of a block per world where the cloth fits, sim/xpbd/block_frame.py;
 default: the simulate stage's, SolverSettings' frame_kernel); each row names the one that ran, its
-cloth-frames/s and its speed over the sweeps of the same variant. `pants-paper` is the paper profile's low-res
-pants (max_edge 0.08, 757 vertices).
+cloth-frames/s and its speed over the sweeps of the same variant. `--block-layouts 1024,128x8x4` times the block
+frame with each of those layouts (threads a block x blocks a world, a cluster x lanes a vertex:
+block_frame.BlockLayout; default: the solver's). `pants-paper` is the paper profile's low-res pants (max_edge 0.08,
+757 vertices).
 Usage:
   python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,pants-paper,tshirt] [--frames 10]
-  [--warmup 3] [--substeps 8] [--iterations 75] [--lanes 1,4] [--frame-kernels sweeps,block] [--out table.md]
+  [--warmup 3] [--substeps 8] [--iterations 75] [--lanes 1,4] [--frame-kernels sweeps,block]
+  [--block-layouts 1024,128x8x4] [--out table.md]
 e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
 and the one-block frame against the sweeps: python bench/cloth_solver.py --devices cuda:0 --cases pants-paper
   --frame-kernels sweeps,block --skip-high
@@ -27,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import warp as wp
 
 from geometry.harmonics import harmonic_basis, harmonic_count
 from geometry.loop_subdivision import loop_subdivide
@@ -38,6 +42,8 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings, harmonic_constraint
+from sim.xpbd.solver import frame_kernel_of
+from sim.xpbd.block_frame import BlockLayout
 
 # Low-res grids: the flag of the CPU profile, the paper-sized flag, and one whose high-res mesh has ~15k vertices.
 CASES = {"flag-cpu": 0.12, "flag": 0.08, "15k": 0.046}
@@ -52,13 +58,14 @@ def build(max_edge: float):
     return (low, low_faces), (high, faces)
 
 
-def time_run(vertices, faces, settings, device, pins, frames, warmup, lanes, harmonic=None):
+def time_run(vertices, faces, settings, device, pins, frames, warmup, lanes, layout, harmonic=None):
     target = None
     if harmonic is not None:
         constraint, basis, mass = harmonic
         target = (mass[:, None] * basis).T @ vertices
     model = ClothModel(vertices, faces, settings, pins, harmonic=harmonic and harmonic[0])
-    solver = ClothSolver(model, device, initial_inputs=FrameInputs(harmonic_target=target), sweep_lanes=lanes)
+    solver = ClothSolver(model, device, initial_inputs=FrameInputs(harmonic_target=target), sweep_lanes=lanes,
+                         block_layout=layout)
     sway = np.array([0.05, 0.0, 0.03])
     times = []
     for f in range(warmup + frames):
@@ -87,11 +94,10 @@ def garment_inputs(kind: str, n_frames: int):
     return levels, ids, targets, capsules, radii
 
 
-def time_garment(vertices, faces, settings, device, pins, targets, capsules, radii, frames, warmup, lanes):
-    body = settings.body_collision
-    model = ClothModel(vertices, faces, settings, pins, capsule_radii=radii if body else None)
+def time_garment(model, device, targets, capsules, frames, warmup, lanes, layout):
+    body = model.settings.body_collision
     solver = ClothSolver(model, device, initial_inputs=FrameInputs(capsules=capsules[0] if body else None),
-                         sweep_lanes=lanes)
+                         sweep_lanes=lanes, block_layout=layout)
     times = []
     for f in range(1, warmup + frames + 1):
         start = time.perf_counter()
@@ -114,12 +120,14 @@ def garment_rows(case: str, args) -> list[str]:
                                    ("body", dict(body_collision=True)),
                                    ("body+self", dict(body_collision=True, self_collision=True))):
                 sweeps_ms = None
-                for lanes, kernel in run_variants(device, args):
+                for lanes, kernel, layout in run_variants(device, args):
                     settings = SolverSettings(**base, **switches, frame_kernel=kernel)
-                    ms, solver = time_garment(verts, faces, settings, device, pins, targets, capsules, radii,
-                                              args.frames, args.warmup, lanes)
-                    if kernel != "auto" and solver.frame_kernel != kernel:
+                    model = ClothModel(verts, faces, settings, pins,
+                                       capsule_radii=radii if settings.body_collision else None)
+                    if kernel != "auto" and frame_kernel_of(model, wp.get_device(device)) != kernel:
                         continue   # the cloth does not fit a block
+                    ms, solver = time_garment(model, device, targets, capsules, args.frames, args.warmup, lanes,
+                                              layout)
                     baseline = baseline or ms
                     sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
                     rows.append(row(case, level, len(verts), "-", device, solver, name, ms, baseline, sweeps_ms))
@@ -161,11 +169,14 @@ def flag_rows(case: str, args) -> list[str]:
             baseline = None
             for name, settings, harmonic in variants:
                 sweeps_ms = None
-                for lanes, kernel in run_variants(device, args):
-                    ms, solver = time_run(verts, faces, dataclasses.replace(settings, frame_kernel=kernel), device,
-                                          pins, args.frames, args.warmup, lanes, harmonic)
-                    if kernel != "auto" and solver.frame_kernel != kernel:
+                for lanes, kernel, layout in run_variants(device, args):
+                    variant = dataclasses.replace(settings, frame_kernel=kernel)
+                    if kernel != "auto" and frame_kernel_of(ClothModel(verts, faces, variant, pins,
+                                                                       harmonic=harmonic and harmonic[0]),
+                                                            wp.get_device(device)) != kernel:
                         continue   # the cloth does not fit a block
+                    ms, solver = time_run(verts, faces, variant, device, pins, args.frames, args.warmup, lanes, layout,
+                                          harmonic)
                     baseline = baseline or ms
                     sweeps_ms = ms if solver.frame_kernel == "sweeps" else sweeps_ms
                     rows.append(row(case, level, len(verts), k if harmonic else "-", device, solver, name, ms,
@@ -174,12 +185,15 @@ def flag_rows(case: str, args) -> list[str]:
     return rows
 
 
-def run_variants(device: str, args) -> list[tuple[int | None, str]]:
-    """The (sweep_lanes, frame_kernel) pairs to time on `device`: each of --lanes (None: the solver's default; the
-    CPU takes 1 only) with each of --frame-kernels but the one-block frame, which takes no lanes."""
+def run_variants(device: str, args) -> list[tuple[int | None, str, BlockLayout | None]]:
+    """The (sweep_lanes, frame_kernel, block_layout) to time on `device`: each of --lanes (None: the solver's
+    default; the CPU takes 1 only) with each of --frame-kernels but the block frame, which takes each of
+    --block-layouts (None: the solver's default) instead."""
     lanes = [int(n) for n in args.lanes.split(",")] if args.lanes and device.startswith("cuda") else [None]
-    kernels = args.frame_kernels.split(",")
-    return [(n, kernel) for kernel in kernels for n in (lanes if kernel != "block" else [None])]
+    layouts = [BlockLayout.from_text(t) for t in args.block_layouts.split(",")] if args.block_layouts else [None]
+    return [(n, kernel, layout) for kernel in args.frame_kernels.split(",")
+            for n in (lanes if kernel != "block" else [None])
+            for layout in (layouts if kernel == "block" else [None])]
 
 
 def main():
@@ -197,6 +211,8 @@ def main():
     # docs/performance.md), where a user reads the stage's speed.
     parser.add_argument("--frame-kernels", default=SolverSettings().frame_kernel,
                         help="ways to launch a frame, e.g. sweeps,block (default: the solver's)")
+    parser.add_argument("--block-layouts", default="",
+                        help="the block frame's layouts, THREADSxCLUSTER_BLOCKSxLANES, e.g. 1024,128x8x4")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
     rows = ["| mesh | level | V | K | device | launch | variant | ms/frame | cloth-frames/s | x first row | "

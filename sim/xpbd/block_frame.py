@@ -18,6 +18,9 @@ The harmonic projection (a reduction over the world) is not done here: a high-re
 """
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
+
 import warp as wp
 
 # Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function). No
@@ -26,8 +29,8 @@ wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
 from sim.xpbd.contact_sweep import swept_vertex
-from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
-                              predict_vertex, store_state)
+from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction, lane_of,
+                              lane_sum_vec3, predict_vertex, store_state)
 from sim.xpbd.self_contact import (SelfContacts, end_search, face_bounds, list_candidate, search_box,
                                    sort_face_list, start_search)
 
@@ -48,6 +51,71 @@ SHARED_VERTICES = 1536
 CHUNK_FACES = 32
 
 
+# Thread block clusters (Hopper and later, compute capability 9.0): a world of up to this many blocks, each on its
+# own multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
+# block a cloth"); a cluster's blocks meet at a hardware barrier and write into each other's shared memory.
+MAX_CLUSTER_BLOCKS = 16
+LANE_CHOICES = (1, 2, 4, 8, 16)
+
+
+@dataclass(frozen=True)
+class BlockLayout:
+    """How a world's frame is spread over threads: `threads` a block, `cluster_blocks` blocks a world (a thread
+    block cluster on CUDA, each block keeping a copy of the world's positions in its shared memory), `lanes`
+    threads a vertex in the Jacobi sweeps (kernels.lane_sum; the other steps take a vertex or triangle a thread)."""
+    threads: int
+    cluster_blocks: int = 1
+    lanes: int = 1
+
+    def __str__(self) -> str:
+        return f"{self.threads}x{self.cluster_blocks}x{self.lanes}"
+
+    @staticmethod
+    def from_text(text: str) -> "BlockLayout":
+        """"THREADS[xCLUSTER_BLOCKS[xLANES]]", as str() writes it (benches' arguments)."""
+        parts = text.split("x")
+        if not 1 <= len(parts) <= 3 or not all(part.isdigit() for part in parts):
+            raise ValueError(f"a block layout is THREADS[xCLUSTER_BLOCKS[xLANES]], e.g. 128x8x4; got {text!r}")
+        return BlockLayout(*(int(part) for part in parts))
+
+
+# The default where clusters serve (measured below, docs/performance.md): PLACEHOLDER
+CLUSTER_LAYOUT = BlockLayout(threads=256, cluster_blocks=4, lanes=4)
+
+
+def default_layout(world_vertices: int, device: wp.Device, shared: bool) -> BlockLayout:
+    """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA a world in
+    shared memory on a GPU with clusters: CLUSTER_LAYOUT; else one block of a thread a vertex (up to
+    MAX_BLOCK_THREADS)."""
+    if not device.is_cuda:
+        return BlockLayout(threads=1)
+    if shared and device.arch >= 90:
+        return CLUSTER_LAYOUT
+    return BlockLayout(threads=min(MAX_BLOCK_THREADS, 32 * -(-world_vertices // 32)))
+
+
+def checked_layout(layout: BlockLayout, device: wp.Device, shared: bool) -> BlockLayout:
+    """`layout`, or a ValueError that says what it may be on `device` (a world's positions in shared memory or
+    not: `shared`)."""
+    if not isinstance(layout, BlockLayout):
+        raise ValueError(f"block_layout must be a BlockLayout, got {type(layout).__name__}")
+    values = (layout.threads, layout.cluster_blocks, layout.lanes)
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in values):
+        raise ValueError(f"block_layout's threads, cluster_blocks and lanes must be integers, got {values}")
+    if not 1 <= layout.threads <= MAX_BLOCK_THREADS:
+        raise ValueError(f"block_layout.threads must be 1 to {MAX_BLOCK_THREADS}, got {layout.threads}")
+    lanes = LANE_CHOICES if device.is_cuda else (1,)
+    if layout.lanes not in lanes or layout.threads % layout.lanes:
+        raise ValueError(f"block_layout.lanes must be one of {lanes} on {device} and divide the threads, got "
+                         f"{layout.lanes} lanes of {layout.threads} threads")
+    clusters = device.is_cuda and device.arch >= 90 and shared
+    if layout.cluster_blocks != 1 and not (clusters and 1 <= layout.cluster_blocks <= MAX_CLUSTER_BLOCKS):
+        raise ValueError(f"block_layout.cluster_blocks must be 1 here, or up to {MAX_CLUSTER_BLOCKS} on a GPU with "
+                         f"thread block clusters (compute capability 9.0) for a world of at most {SHARED_VERTICES} "
+                         f"vertices; got {layout.cluster_blocks} on {device}")
+    return layout
+
+
 @wp.struct
 class FaceChunks:
     """The box of each chunk of CHUNK_FACES consecutive triangles of a world (the last may hold fewer), world after
@@ -59,15 +127,24 @@ class FaceChunks:
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
+#if __CUDA_ARCH__ >= 900
+    if (cluster_blocks > 1) {
+        // release/acquire at cluster scope: the cluster's writes before it, to shared memory anywhere in the
+        // cluster and to global memory, are seen by every thread of the cluster after it
+        asm volatile("barrier.cluster.arrive.release;\\n\\tbarrier.cluster.wait.acquire;" ::: "memory");
+        return;
+    }
+#endif
     __syncthreads();
 #else
     WP_TILE_SYNC();
 #endif
 """)
-def block_barrier():
-    """Every thread of the block waits here until all have arrived, and sees their writes before it. On the CPU
-    a block is one thread (nothing to wait for), or with warp.config.enable_cpu_blocks as many fibers, which take
-    turns at the barriers (what the tests use to check the barriers without a GPU)."""
+def world_barrier(cluster_blocks: int):
+    """Every thread of the world (its block, or the `cluster_blocks` blocks of its cluster) waits here until all
+    have arrived, and sees their writes before it. On the CPU a block is one thread (nothing to wait for), or with
+    warp.config.enable_cpu_blocks as many fibers, which take turns at the barriers (what the tests use to check the
+    barriers without a GPU)."""
     ...
 
 
@@ -86,6 +163,29 @@ def shared_positions(fallback: wp.array(dtype=wp.vec3), half: int, first: int,
                      in_shared: int) -> wp.array(dtype=wp.vec3):
     """With in_shared (CUDA), a view of half `half` (0 or 1) of the block's shared buffer indexed by the world's
     vertex ids (`first`, the world's first, is its first entry); else `fallback`, the global buffer."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
+    if (cluster_blocks > 1) {
+        // positions is a view of this block's shared memory: write the same place in every block of the cluster
+        // (mapa: the address of that place in block `rank`'s shared memory, within the cluster's window)
+        unsigned long long own = reinterpret_cast<unsigned long long>(wp::address(positions, i));
+        for (int rank = 0; rank < cluster_blocks; ++rank) {
+            unsigned long long copy;
+            asm volatile("mapa.u64 %0, %1, %2;" : "=l"(copy) : "l"(own), "r"(rank));
+            *reinterpret_cast<wp::vec3*>(copy) = value;
+        }
+        return;
+    }
+#endif
+    *wp::address(positions, i) = value;
+""")
+def store_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cluster_blocks: int):
+    """positions[i] = value, in every block's copy where a world is a cluster of blocks (each holding the
+    positions in its shared memory: shared_positions), so that a sweep's gathers stay in the block's own
+    memory."""
     ...
 
 
@@ -143,19 +243,22 @@ def search_own_world(i: int, sub: Substep, sc: SelfContacts, chunks: FaceChunks,
     end_search(i, search, sc)
 
 
-# No grid-stride loop: each thread is one lane of one world's block for the whole frame (a thread looping over
-# several would meet the barriers out of step).
-@wp.kernel(launch_bounds=MAX_BLOCK_THREADS, grid_stride=False)
-def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
-               sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
-               body_collision: int, self_collision: int, in_shared: int):
-    """Every substep of a frame for world `world` (launch_tiled over the worlds): the launches of
-    ClothSolver._launch_frame without harmonic projection, each a loop of the block's threads over the world's
-    vertices or triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs
-    the sweep kernels are launched with, one per substep and per iteration; with in_shared their positions
-    ping-pong in shared memory instead of the state's positions and the work array."""
-    world, thread = wp.tid()
-    threads = wp.block_dim()
+def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
+                sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
+                body_collision: int, self_collision: int, in_shared: int, cluster_blocks: int, lanes: int):
+    """Every substep of a frame for one world (launch_tiled over the worlds' blocks): the launches of
+    ClothSolver._launch_frame without harmonic projection, each a loop of the world's threads over its vertices or
+    triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs the sweep
+    kernels are launched with, one per substep and per iteration; with in_shared their positions ping-pong in
+    shared memory instead of the state's positions and the work array. A world is `cluster_blocks` consecutive
+    blocks (a thread block cluster on CUDA, each block with a copy of the positions in shared memory); in its
+    sweeps `lanes` threads share a vertex (kernels.lane_sum), as in the sweep kernels."""
+    block, block_thread = wp.tid()
+    world = block // cluster_blocks
+    thread = (block - world * cluster_blocks) * wp.block_dim() + block_thread   # within the world
+    threads = cluster_blocks * wp.block_dim()
+    item, lane = lane_of(thread, lanes)
+    items = threads // lanes
     n = substeps[0].world_vertices
     first, last = world * n, (world + 1) * n
     collide = body_collision != 0 or self_collision != 0
@@ -163,6 +266,7 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
     iterations = sweeps.shape[0]
     even = shared_positions(sweeps[0].x_in, 0, first, in_shared)
     odd = shared_positions(sweeps[0].x_out, 1, first, in_shared)
+    world_barrier(cluster_blocks)   # a cluster's blocks have all started before one writes to another's memory
     for s in range(substeps.shape[0]):
         sub = substeps[s]
         for i in range(first + thread, last, threads):
@@ -170,35 +274,59 @@ def step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: D
                 predict_near_body(i, sub, pins, capsules)
             else:
                 sub.x[i] = predict_vertex(i, sub, pins)
-            even[i] = sub.x[i]   # the first sweep's input (the same array, without in_shared)
-        block_barrier()
+            store_position(even, i, sub.x[i], cluster_blocks)   # the first sweep's input
+        world_barrier(cluster_blocks)
         if self_collision != 0:
             faces = sc.world_faces
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 face_bounds(t, sub.x, sub.x_prev, sc)
-            block_barrier()
+            world_barrier(cluster_blocks)
             for c in range(world * chunks.per_world + thread, (world + 1) * chunks.per_world, threads):
                 chunk_bounds(c, world, sc, chunks)
-            block_barrier()
+            world_barrier(cluster_blocks)
             for i in range(first + thread, last, threads):
                 search_own_world(i, sub, sc, chunks, overflow_flag)
-            block_barrier()
+            world_barrier(cluster_blocks)
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 sort_face_list(t, sc)
-            block_barrier()
+            world_barrier(cluster_blocks)
         for k in range(iterations):
             sweep = in_buffers(sweeps[k], k, even, odd)
-            for i in range(first + thread, last, threads):
+            for i in range(first + item, last, items):   # a vertex's lanes take the same turns
+                xi = sweep.x_in[i]
+                x_new = xi
                 if collide:
-                    sweep.x_out[i] = swept_vertex(i, 0, 1, sub, constraints, sweep, sc, capsules)
+                    x_new = swept_vertex(i, lane, lanes, sub, constraints, sweep, sc, capsules)
                 else:
-                    sweep.x_out[i] = sweep.x_in[i] + distance_correction(i, sweep.x_in[i], sub, constraints, sweep,
-                                                                         0, 1)
-            block_barrier()
-        # A vertex's end of the substep and next prediction read and write its own entries only: no barrier.
+                    x_new = xi + lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes),
+                                               lanes)
+                if lane == 0:
+                    store_position(sweep.x_out, i, x_new, cluster_blocks)
+            world_barrier(cluster_blocks)
+        # A vertex's end of the substep and next prediction read and write its own entries only: no barrier (the
+        # prediction writes vertex i into every block's copy, but the others read only their own vertices there
+        # until the next barrier).
         solved = in_buffers(sweeps[iterations - 1], iterations - 1, even, odd).x_out
         for i in range(first + thread, last, threads):
             if collide:
                 finish_vertex(i, sub, solved, capsules, 1)
             else:
                 store_state(i, solved[i], sub)
+
+
+@functools.cache
+def _frame_kernel(cluster_blocks: int, max_threads: int) -> wp.Kernel:
+    return wp.kernel(_step_frame, name=f"step_frame_{cluster_blocks}x{max_threads}", launch_bounds=max_threads,
+                     grid_stride=False, cluster_dim=cluster_blocks if cluster_blocks > 1 else None,
+                     module="unique", module_options={"fast_math": True, "enable_backward": False})
+
+
+def frame_kernel(layout: BlockLayout, device: wp.Device) -> wp.Kernel:
+    """The frame kernel for `layout` on `device`, its own module (compiled when first loaded). On CUDA the cluster
+    size is compiled in, and the block's threads are its launch bounds: the registers a thread may take (the
+    kernel spills at 64, the cap for 1,024 threads; fewer threads a block leave it more). The CPU runs any layout
+    with one kernel. No grid-stride loop: each thread is one lane of one world for the whole frame (a thread
+    looping over several would meet the barriers out of step)."""
+    if device.is_cuda:
+        return _frame_kernel(layout.cluster_blocks, layout.threads)
+    return _frame_kernel(1, MAX_BLOCK_THREADS)

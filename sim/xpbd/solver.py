@@ -134,16 +134,16 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
     with body collision, the capsules' end points (B, N, 2, 3). `sweep_lanes` threads share a vertex in each Jacobi
     sweep (default: cuda_sweep_lanes on CUDA, 1 on the CPU; the sums' order, not the physics, depends on it);
     `contact_capacity` is the self-contact lists' first room per vertex (they grow when a frame fills them).
-    `frame_kernel` is "block" where a frame is one launch of a block per world (sim.xpbd.block_frame; the
-    settings' `frame_kernel` and the cloth decide: frame_kernel_of), else "sweeps"; `block_threads` threads share
-    a world's vertices there (default: one vertex a thread, up to block_frame.MAX_BLOCK_THREADS; 1 on the CPU, where
-    more take turns as fibers with warp.config.enable_cpu_blocks and are 1 without), its sweeps' positions in
-    shared memory where the world fits (`block_shared`, CUDA).
+    `frame_kernel` is "block" where a frame is one launch of a block (or a cluster of blocks) per world
+    (sim.xpbd.block_frame; the settings' `frame_kernel` and the cloth decide: frame_kernel_of), else "sweeps";
+    `block_layout` spreads a world over threads there (block_frame.BlockLayout; default: block_frame.default_layout,
+    one thread on the CPU, where more take turns as fibers with warp.config.enable_cpu_blocks), its sweeps' positions
+    in shared memory where the world fits (`block_shared`, CUDA).
     """
 
     def __init__(self, model: ClothModel, device: str, worlds: int = 1, initial_inputs: FrameInputs = FrameInputs(),
                  initial_positions: np.ndarray | None = None, contact_capacity: int = CONTACT_CAPACITY,
-                 sweep_lanes: int | None = None, block_threads: int | None = None):
+                 sweep_lanes: int | None = None, block_layout: block_frame.BlockLayout | None = None):
         if not (isinstance(worlds, int) and worlds >= 1):
             raise ValueError(f"worlds must be a positive integer, got {worlds!r}")
         if initial_inputs.pin_targets is not None:
@@ -195,27 +195,24 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
         if self.frame_kernel == "block":
-            self._block_frame_arrays(block_threads)
-        elif block_threads is not None:
-            raise ValueError("block_threads applies to a frame stepped in one block (frame_kernel 'block') only")
+            self._block_frame_arrays(block_layout)
+        elif block_layout is not None:
+            raise ValueError("block_layout applies to a frame stepped in one launch (frame_kernel 'block') only")
         self.frames_stepped_again = 0      # frames whose self-contact lists overflowed (the log says how many)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
             arr(x0, wp.vec3), self._zeros(worlds * n, wp.vec3), worlds)
         self._graph = None
 
-    def _block_frame_arrays(self, threads: int | None) -> None:
-        """The threads of a world's block, the boxes of its search's chunks of triangles, and the structs of every
-        substep and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels
-        are launched with)."""
-        if threads is None:   # the CPU runs a block as one thread (Warp's fibers only with enable_cpu_blocks)
-            threads = min(block_frame.MAX_BLOCK_THREADS, 32 * math.ceil(self.world_vertices / 32)) \
-                if self.device.is_cuda else 1
-        elif not (isinstance(threads, int) and 1 <= threads <= block_frame.MAX_BLOCK_THREADS):
-            raise ValueError(f"block_threads must be 1 to {block_frame.MAX_BLOCK_THREADS}, got {threads!r}")
-        self.block_threads = threads
+    def _block_frame_arrays(self, layout: block_frame.BlockLayout | None) -> None:
+        """The threads of a world, the boxes of its search's chunks of triangles, and the structs of every substep
+        and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels are
+        launched with)."""
         # The sweeps' positions in shared memory (CUDA) where the world fits; on the CPU a block is one thread.
         self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
+        if layout is None:
+            layout = block_frame.default_layout(self.world_vertices, self.device, self.block_shared)
+        self.block_layout = block_frame.checked_layout(layout, self.device, self.block_shared)
         chunks = block_frame.FaceChunks()
         chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
         rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1
@@ -228,7 +225,10 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         """How a frame is launched, in words (benches and logs): the sweeps' lanes, or the block's threads."""
         if self.frame_kernel == "sweeps":
             return f"sweeps, {self.sweep_lanes} lane(s) a vertex"
-        return f"a block a world, {self.block_threads} thread(s)" + (", shared memory" if self.block_shared else "")
+        layout = self.block_layout
+        where = f"a cluster of {layout.cluster_blocks} blocks" if layout.cluster_blocks > 1 else "a block"
+        return (f"{where} a world, {layout.threads} thread(s) a block, {layout.lanes} lane(s) a vertex"
+                + (", shared memory" if self.block_shared else ""))
 
     def _per_world(self, value, shape: tuple[int, ...], name: str) -> np.ndarray:
         """`value` of shape (B, *shape) (or `shape` with one world) as rows world after world, (B shape[0], ...)."""
@@ -494,7 +494,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                 for module in (kernels, body_contact, self_contact, contact_sweep):
                     wp.load_module(module, device=self.device)
                 if self.frame_kernel == "block":
-                    wp.load_module(block_frame, device=self.device, block_dim=self.block_threads)
+                    wp.load_module(block_frame.frame_kernel(self.block_layout, self.device).module,
+                                   device=self.device, block_dim=self.block_layout.threads)
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._launch_frame()
                 self._graph = capture.graph
@@ -512,11 +513,13 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
                                 (self._saved_count, self.contacts.vertex_count)):
                 wp.copy(saved, live)
         if self.frame_kernel == "block":
-            wp.launch_tiled(block_frame.step_frame, dim=[self.worlds], block_dim=self.block_threads,
-                            device=self.device,
+            layout = self.block_layout
+            wp.launch_tiled(block_frame.frame_kernel(layout, self.device), dim=[self.worlds * layout.cluster_blocks],
+                            block_dim=layout.threads, device=self.device,
                             inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
                                     self.contacts, self._face_chunks, self.capsules, int(s.body_collision),
-                                    int(s.self_collision), int(self.block_shared)])
+                                    int(s.self_collision), int(self.block_shared), layout.cluster_blocks,
+                                    layout.lanes])
             return
         n = self.state.positions.shape[0]
         dev = self.device

@@ -17,6 +17,7 @@ from scenes.grid import first_row_pins, grid_cloth
 from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation,
                       harmonic_constraint)
 from sim.xpbd import block_frame
+from sim.xpbd.block_frame import BlockLayout
 from tests.sim.cloth_checks import coarse_pants_drives, contact_scene, run_worlds
 
 CUDA = pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
@@ -67,7 +68,7 @@ def close_to(reference, x, early=5):
 
 def test_contacts_step_as_the_sweeps_bit_for_bit():
     block, solver = contact_scene("cpu", frame_kernel="block")
-    assert solver.frame_kernel == "block" and solver.block_threads == 1 and not solver.block_shared
+    assert solver.frame_kernel == "block" and solver.block_layout == BlockLayout(1) and not solver.block_shared
     assert solver.contacts.vertex_count.numpy().max() > 0 and (solver.capsules.push.numpy() > 0).any()
     sweeps, solver = contact_scene("cpu", frame_kernel="sweeps")
     assert solver.frame_kernel == "sweeps"
@@ -95,7 +96,7 @@ def test_a_grid_folding_onto_itself_steps_as_the_sweeps():
 
 def hanging_run(hanging_cloth, frame_kernel, bending=True, **solver):
     """Two worlds of the hanging cloth (no contacts), their pins swung differently: the positions after 10 frames
-    (`solver`: more of ClothSolver's arguments; the sweeps take no block_threads)."""
+    (`solver`: more of ClothSolver's arguments; the sweeps take no block_layout)."""
     rest, faces, pins = hanging_cloth
     settings = SolverSettings(substeps=3, iterations=15, bending=bending, frame_kernel=frame_kernel)
     solver = ClothSolver(ClothModel(rest, faces, settings, pins), "cpu", worlds=2,
@@ -131,12 +132,12 @@ def test_threads_of_a_block_meet_at_the_barriers(threads, monkeypatch, pants_dri
     it reads (the sweeps' and the sorted lists' barriers and, without self-contact, the prediction's are caught so;
     the search's boxes, padded, hide a stale box for a while)."""
     monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    block, solver = contact_scene("cpu", frame_kernel="block", block_threads=threads)
-    assert solver.block_threads == threads
+    block, solver = contact_scene("cpu", frame_kernel="block", block_layout=BlockLayout(threads))
+    assert solver.block_layout.threads == threads
     np.testing.assert_array_equal(block, contact_scene("cpu", frame_kernel="sweeps")[0])
-    block, _ = pants_run(pants_drives, "block", block_threads=threads)
+    block, _ = pants_run(pants_drives, "block", block_layout=BlockLayout(threads))
     np.testing.assert_array_equal(block, pants_run(pants_drives, "sweeps")[0])
-    np.testing.assert_array_equal(*(hanging_run(hanging_cloth, frame_kernel, block_threads=threads)
+    np.testing.assert_array_equal(*(hanging_run(hanging_cloth, frame_kernel, block_layout=BlockLayout(threads))
                                     for frame_kernel in ("block", "sweeps")))
 
 
@@ -168,10 +169,16 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
     monkeypatch.setattr(block_frame, "MAX_BLOCK_VERTICES", len(rest) - 1)
     assert kernel("block") == "sweeps"            # too large for a block
     monkeypatch.undo()
-    with pytest.raises(ValueError, match="block_threads must be 1 to 1024"):
-        kernel("block", block_threads=0)
-    with pytest.raises(ValueError, match="block_threads applies"):
-        kernel("sweeps", block_threads=1)
+    with pytest.raises(ValueError, match="threads must be 1 to 1024"):
+        kernel("block", block_layout=BlockLayout(0))
+    with pytest.raises(ValueError, match="must be integers"):
+        kernel("block", block_layout=BlockLayout(32.0))
+    with pytest.raises(ValueError, match=r"lanes must be one of \(1,\) on cpu"):
+        kernel("block", block_layout=BlockLayout(32, lanes=4))
+    with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):   # no clusters on the CPU
+        kernel("block", block_layout=BlockLayout(32, cluster_blocks=2))
+    with pytest.raises(ValueError, match="block_layout applies"):
+        kernel("sweeps", block_layout=BlockLayout(1))
     with pytest.raises(ValueError, match="frame_kernel"):
         SolverSettings(frame_kernel="graph")
 
@@ -180,32 +187,46 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
 # CUDA: one vertex a thread, several, one thread a block; one world and three
 
 
+def cuda_clusters():
+    return wp.get_cuda_device_count() and wp.get_device("cuda:0").arch >= 90
+
+
+CLUSTERS = pytest.mark.skipif(not cuda_clusters(), reason="no CUDA device with thread block clusters")
+# One block of a thread a vertex (the default without clusters), a warp, one thread; clusters of 2 to 16 blocks with
+# 1 to 8 lanes a vertex (a block of 32 threads of 8 lanes: 4 vertices a block at a time).
+LAYOUTS = [None, BlockLayout(32), BlockLayout(1)]
+CLUSTER_LAYOUTS = [BlockLayout(256, 4, 4), BlockLayout(64, 2, 1), BlockLayout(32, 16, 8), BlockLayout(128, 8, 2)]
+
+
 @CUDA
-@pytest.mark.parametrize("threads", [None, 32, 1])
+@pytest.mark.parametrize("layout", LAYOUTS + [pytest.param(c, marks=CLUSTERS) for c in CLUSTER_LAYOUTS])
 @pytest.mark.parametrize("shared", [True, False])
-def test_cuda_block_agrees_with_the_cpu(threads, shared, monkeypatch):
+def test_cuda_block_agrees_with_the_cpu(layout, shared, monkeypatch):
+    if layout is not None and layout.cluster_blocks > 1 and not shared:
+        pytest.skip("a cluster keeps its world in shared memory")
     if not shared:   # the sweeps' positions in global memory, as a world too large for shared memory has them
         monkeypatch.setattr(block_frame, "SHARED_VERTICES", 0)
     cpu, _ = contact_scene("cpu", frame_kernel="block")
-    cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
+    cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
     assert solver.frame_kernel == "block" and solver.block_shared == shared
-    assert solver.block_threads == (threads or 32 * -(-solver.world_vertices // 32))
+    assert solver.block_layout == (layout or block_frame.default_layout(solver.world_vertices, solver.device,
+                                                                        shared))
     close_to(cpu, cuda)
-    again, _ = contact_scene("cuda:0", frame_kernel="block", block_threads=threads)
+    again, _ = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
     np.testing.assert_array_equal(again, cuda)   # deterministic: integer atomics only, lists sorted
     sweeps, _ = contact_scene("cuda:0", 1, frame_kernel="sweeps")
     close_to(sweeps, cuda)
 
 
 @CUDA
-@pytest.mark.parametrize("threads", [None, 32])
-def test_cuda_worlds_of_pants_agree_with_the_cpu(pants_drives, threads):
+@pytest.mark.parametrize("layout", [None, BlockLayout(32), pytest.param(BlockLayout(128, 8, 4), marks=CLUSTERS)])
+def test_cuda_worlds_of_pants_agree_with_the_cpu(pants_drives, layout):
     cpu, _ = pants_run(pants_drives, "block")
-    cuda, solver = pants_run(pants_drives, "block", "cuda:0", block_threads=threads)
+    cuda, solver = pants_run(pants_drives, "block", "cuda:0", block_layout=layout)
     assert solver.frame_kernel == "block"
     for w in range(len(MOTIONS)):
         close_to(cpu[w], cuda[w], early=3)   # karate amplifies a last bit sooner than the sheets do
-    alone, _ = pants_run(pants_drives, "block", "cuda:0", worlds=slice(2, 3), block_threads=threads)
+    alone, _ = pants_run(pants_drives, "block", "cuda:0", worlds=slice(2, 3), block_layout=layout)
     np.testing.assert_array_equal(cuda[2], alone[0])
 
 
