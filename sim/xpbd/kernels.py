@@ -85,6 +85,8 @@ class JacobiSweep:
     lambda_in: wp.array(dtype=float)   # (B C,) world w's multipliers are w C .. w C + C - 1
     lambda_out: wp.array(dtype=float)
     lambda_carry: float              # 0 on a substep's first iteration: resets the multipliers without a launch
+    lambda_per_entry: int            # 1: a multiplier per entry of the vertices' lists, (B E,), each endpoint
+                                     # keeping its own (see distance_correction); 0: one per constraint, (B C,)
 
 
 @wp.struct
@@ -176,12 +178,19 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     (alpha = 0: stretch, by default) needs no multiplier, its update being the same whatever lambda is, so its
     multiplier is neither read nor written (memory traffic, not arithmetic, bounds a batched sweep).
     `lambda_carry` is 0 on a substep's first iteration, which resets the multipliers without a separate launch.
+    With `lambda_per_entry` each endpoint keeps the constraint's multiplier in its own entry instead: both compute
+    the same update from the same inputs (|x_i - x_j| = |x_j - x_i| and w_i + w_j = w_j + w_i exactly), so the
+    two copies stay equal bit for bit and no thread reads what another wrote (the block frame's clusters, where
+    another block's global writes are seen only after a cluster barrier).
     This lane's share: entries lane, lane + lanes, ... of the vertex's list (lane_sum adds the shares up).
     """
     n = sub.world_vertices
     world = i // n
     first = world * n                         # world's first vertex
+    per_entry = sweep.lambda_per_entry != 0
     multipliers = world * constraints.params.shape[0]
+    if per_entry:
+        multipliers = world * constraints.entries.shape[0]
     own = i - first
     wi = constraints.inv_mass[own]
     dx = wp.vec3(0.0)
@@ -190,6 +199,9 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
         j = first + entry[0]
         c = entry[1]
         p = constraints.params[c]             # rest_min, rest_max, alpha_tilde, scale
+        slot = multipliers + c
+        if per_entry:
+            slot = multipliers + a
         d = xi - sweep.x_in[j]
         dist = wp.length(d)
         err = dist - wp.clamp(dist, p[0], p[1])
@@ -197,14 +209,14 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
         alpha = p[2]
         lam = float(0.0)
         if alpha != 0.0:
-            lam = sweep.lambda_in[multipliers + c] * sweep.lambda_carry
+            lam = sweep.lambda_in[slot] * sweep.lambda_carry
         lam_new = float(0.0)
         if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
             d_lambda = p[3] * (-err - alpha * lam) / (w_sum + alpha)
             dx = dx + (wi * d_lambda / dist) * d
             lam_new = lam + d_lambda
-        if i < j and alpha != 0.0:
-            sweep.lambda_out[multipliers + c] = lam_new
+        if (i < j or per_entry) and alpha != 0.0:
+            sweep.lambda_out[slot] = lam_new
     return dx
 
 

@@ -182,9 +182,11 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
         self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n, inv_mass)
-        total = worlds * self.n_constraints
+        # The block frame keeps a multiplier per entry of the vertices' lists (kernels.distance_correction).
+        per_entry = self.frame_kernel == "block"
+        total = worlds * (self.constraints.entries.shape[0] if per_entry else self.n_constraints)
         lambdas = (self._zeros(total, float), self._zeros(total, float))
-        self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas)
+        self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas, per_entry)
         self.harmonic_projection = (None if model.harmonic is None
                                     else self._harmonic_projection(model.harmonic, initial_inputs.harmonic_target, n))
 
@@ -309,7 +311,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         return dc, len(con.pairs)
 
     def _jacobi_sweeps(self, buffers: tuple[wp.array, wp.array],
-                       lambdas: tuple[wp.array, wp.array]) -> list[kernels.JacobiSweep]:
+                       lambdas: tuple[wp.array, wp.array], per_entry: bool) -> list[kernels.JacobiSweep]:
         """The buffers of each iteration of a substep: positions ping-pong between the state's positions and a work
         array, multipliers between two arrays, and the first iteration starts from zero multipliers. The last
         iteration's x_out holds the solved positions."""
@@ -319,6 +321,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             sweep.x_in, sweep.x_out = buffers[it % 2], buffers[(it + 1) % 2]
             sweep.lambda_in, sweep.lambda_out = lambdas[it % 2], lambdas[(it + 1) % 2]
             sweep.lambda_carry = 0.0 if it == 0 else 1.0
+            sweep.lambda_per_entry = int(per_entry)
             sweeps.append(sweep)
         return sweeps
 
