@@ -29,8 +29,8 @@ wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
 from sim.xpbd.contact_sweep import swept_vertex
-from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction, lane_of,
-                              lane_sum_vec3, predict_vertex, store_state)
+from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
+                              lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
 from sim.xpbd.self_contact import (SelfContacts, end_search, face_bounds, list_candidate, search_box,
                                    sort_face_list, start_search)
 
@@ -231,8 +231,9 @@ def init_sweep_barriers(cluster_blocks: int, even_barrier: int, odd_barrier: int
 @wp.func_native("""
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
     if (cluster_blocks > 1) {
+        // the vertex's lanes share the sends: lane l writes blocks l, l + lanes, ...
         unsigned int own = (unsigned int)__cvta_generic_to_shared(wp::address(positions, i));
-        for (int rank = 0; rank < cluster_blocks; ++rank) {
+        for (int rank = lane; rank < cluster_blocks; rank += lanes) {
             unsigned int place, arrivals;
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(place) : "r"(own), "r"(rank));
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(arrivals) : "r"(barrier), "r"(rank));
@@ -246,11 +247,13 @@ def init_sweep_barriers(cluster_blocks: int, even_barrier: int, odd_barrier: int
         return;
     }
 #endif
-    *wp::address(positions, i) = value;
+    if (lane == 0)
+        *wp::address(positions, i) = value;
 """)
-def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cluster_blocks: int, barrier: int):
-    """A sweep's positions[i] = value: in a cluster into every block's copy, counted on each block's `barrier`
-    (its sweep_barrier of this sweep); else a plain store."""
+def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cluster_blocks: int, barrier: int,
+                  lane: int, lanes: int):
+    """A sweep's positions[i] = value, from every lane of vertex i (all holding `value`): in a cluster into every
+    block's copy, counted on each block's `barrier` (its sweep_barrier of this sweep); else a plain store."""
     ...
 
 
@@ -393,8 +396,9 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 else:
                     x_new = xi + lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes),
                                                lanes)
-                if lane == 0:
-                    send_position(sweep.x_out, i, x_new, cluster_blocks, barriers[phase % 2])
+                # lane 0's result (the body's push is its alone) to every lane, which share the sends
+                send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barriers[phase % 2],
+                              lane, lanes)
             end_sweep(cluster_blocks, barriers[phase % 2], (phase // 2) % 2, n * 12)
         world_barrier(cluster_blocks)   # the last sweep's push on the capsules, read by other blocks below
         # A vertex's end of the substep and next prediction read and write its own entries only (the prediction

@@ -108,12 +108,20 @@ class HarmonicProjection:
 # warp shuffles, so every lane ends with the same bits (a + b = b + a in floating point); with one lane the sum is
 # the thread's own, in the order it always had. The mask names only the group's lanes: other groups of the warp
 # may be elsewhere in their loops, and a group is never split (lanes divide 32 and the launch is n * lanes wide).
-_LANE_SUM = """
-#if defined(__CUDA_ARCH__)
+_LANE_GROUP = """
     const unsigned int first = (threadIdx.x & 31u) & ~(unsigned int)(lanes - 1);
     const unsigned int group = (0xffffffffu >> (32 - lanes)) << first;
+"""
+_LANE_SUM = """
+#if defined(__CUDA_ARCH__)""" + _LANE_GROUP + """
     for (int m = 1; m < lanes; m <<= 1)
         value += __shfl_xor_sync(group, value, m);
+#endif
+    return value;
+"""
+_LANE_FIRST = """
+#if defined(__CUDA_ARCH__)""" + _LANE_GROUP + """
+    return __shfl_sync(group, value, first, 32);
 #endif
     return value;
 """
@@ -127,6 +135,12 @@ def lane_sum(value: float, lanes: int) -> float: ...
 def lane_count(value: int, lanes: int) -> int: ...
 
 
+@wp.func_native(_LANE_FIRST)
+def lane_first(value: float, lanes: int) -> float:
+    """The value of the group's first lane, in every lane."""
+    ...
+
+
 @wp.func
 def lane_of(tid: int, lanes: int):
     """The item (vertex, mode) thread tid works on and its lane there, in a launch of `lanes` threads an item."""
@@ -137,6 +151,11 @@ def lane_of(tid: int, lanes: int):
 @wp.func
 def lane_sum_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
     return wp.vec3(lane_sum(value[0], lanes), lane_sum(value[1], lanes), lane_sum(value[2], lanes))
+
+
+@wp.func
+def lane_first_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
+    return wp.vec3(lane_first(value[0], lanes), lane_first(value[1], lanes), lane_first(value[2], lanes))
 
 
 @wp.func
