@@ -51,10 +51,12 @@ SHARED_VERTICES = 1536
 CHUNK_FACES = 32
 
 
-# Thread block clusters (Hopper and later, compute capability 9.0): a world of up to this many blocks, each on its
-# own multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
-# block a cloth"); a cluster's blocks meet at a hardware barrier and write into each other's shared memory.
+# Thread block clusters (compute capability 9.0 and later): a world of up to this many blocks, each on its own
+# multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
+# block a cloth"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
+# the non-portable size Hopper and Blackwell's data-centre parts launch; others stop at the portable 8.
 MAX_CLUSTER_BLOCKS = 16
+PORTABLE_CLUSTER_BLOCKS = 8
 LANE_CHOICES = (1, 2, 4, 8, 16)
 
 
@@ -79,18 +81,30 @@ class BlockLayout:
         return BlockLayout(*(int(part) for part in parts))
 
 
-# The default where clusters serve (measured below, docs/performance.md): PLACEHOLDER
-CLUSTER_LAYOUT = BlockLayout(threads=256, cluster_blocks=4, lanes=4)
+# A cluster's blocks and lanes by default: on an H200, the 757-vertex pants at 8 x 75 with body and self-contact
+# step fastest with 16 blocks of 256 threads, 4 lanes a vertex (a vertex a group), of the 14 layouts timed
+# (docs/performance.md, "One block a cloth"). A larger world takes more threads a block, up to a vertex a group.
+CLUSTER_THREADS = 256
+CLUSTER_LANES = 4
 
 
-def default_layout(world_vertices: int, device: wp.Device, shared: bool) -> BlockLayout:
-    """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA a world in
-    shared memory on a GPU with clusters: CLUSTER_LAYOUT; else one block of a thread a vertex (up to
-    MAX_BLOCK_THREADS)."""
+def default_layout(world_vertices: int, worlds: int, device: wp.Device, shared: bool) -> BlockLayout:
+    """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA, a world in
+    shared memory on a GPU with clusters: a cluster a world, as many blocks as fill the multiprocessors once (a
+    power of two, at most MAX_CLUSTER_BLOCKS, PORTABLE_CLUSTER_BLOCKS but on Hopper and Blackwell's data-centre
+    parts) of CLUSTER_THREADS threads or more, CLUSTER_LANES lanes a vertex; else one block of a thread a vertex
+    (up to MAX_BLOCK_THREADS)."""
     if not device.is_cuda:
         return BlockLayout(threads=1)
     if shared and device.arch >= 90:
-        return CLUSTER_LAYOUT
+        most = MAX_CLUSTER_BLOCKS if device.arch in (90, 100) else PORTABLE_CLUSTER_BLOCKS
+        blocks = 1
+        while 2 * blocks <= most and 2 * blocks * worlds <= device.sm_count:
+            blocks *= 2
+        threads = CLUSTER_THREADS
+        while threads < MAX_BLOCK_THREADS and blocks * threads < world_vertices * CLUSTER_LANES:
+            threads *= 2
+        return BlockLayout(threads, blocks, CLUSTER_LANES)
     return BlockLayout(threads=min(MAX_BLOCK_THREADS, 32 * -(-world_vertices // 32)))
 
 

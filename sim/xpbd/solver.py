@@ -213,7 +213,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         # The sweeps' positions in shared memory (CUDA) where the world fits; on the CPU a block is one thread.
         self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
         if layout is None:
-            layout = block_frame.default_layout(self.world_vertices, self.device, self.block_shared)
+            layout = block_frame.default_layout(self.world_vertices, self.worlds, self.device, self.block_shared)
         self.block_layout = block_frame.checked_layout(layout, self.device, self.block_shared)
         chunks = block_frame.FaceChunks()
         chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)

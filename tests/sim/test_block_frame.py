@@ -183,8 +183,47 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
         SolverSettings(frame_kernel="graph")
 
 
+class FakeGpu:
+    """What default_layout and checked_layout read of a device."""
+    is_cuda = True
+
+    def __init__(self, arch, sm_count=132):
+        self.arch, self.sm_count = arch, sm_count
+
+    def __str__(self):
+        return f"sm_{self.arch}"
+
+
+def test_the_default_layout_fills_the_gpu_once():
+    hopper = FakeGpu(90)
+    assert block_frame.default_layout(757, 1, hopper, True) == BlockLayout(256, 16, 4)   # a vertex a group
+    assert block_frame.default_layout(1536, 1, hopper, True) == BlockLayout(512, 16, 4)
+    assert block_frame.default_layout(757, 3, hopper, True) == BlockLayout(256, 16, 4)   # 48 of 132 SMs
+    assert block_frame.default_layout(757, 9, hopper, True) == BlockLayout(512, 8, 4)
+    assert block_frame.default_layout(757, 64, hopper, True) == BlockLayout(1024, 2, 4)
+    assert block_frame.default_layout(757, 512, hopper, True) == BlockLayout(1024, 1, 4)
+    assert block_frame.default_layout(757, 1, FakeGpu(120, 84), True).cluster_blocks == 8   # portable size
+    assert block_frame.default_layout(757, 1, FakeGpu(80), True) == BlockLayout(768)         # no clusters
+    assert block_frame.default_layout(3661, 1, hopper, False) == BlockLayout(1024)           # not in shared memory
+    for layout in (BlockLayout(256, 16, 4), BlockLayout(1024, 1, 16)):
+        assert block_frame.checked_layout(layout, hopper, True) == layout
+    with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
+        block_frame.checked_layout(BlockLayout(256, 2, 4), FakeGpu(80), True)
+    with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
+        block_frame.checked_layout(BlockLayout(256, 2, 4), hopper, False)
+    with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
+        block_frame.checked_layout(BlockLayout(256, 32, 4), hopper, True)
+    with pytest.raises(ValueError, match="divide the threads"):
+        block_frame.checked_layout(BlockLayout(6, 1, 4), hopper, True)
+    assert BlockLayout.from_text("128x8x4") == BlockLayout(128, 8, 4) and str(BlockLayout(128, 8, 4)) == "128x8x4"
+    assert BlockLayout.from_text("768") == BlockLayout(768)
+    for bad in ("", "x", "128x-1", "1e3", "128x8x4x2", "128 x 8"):
+        with pytest.raises(ValueError, match="THREADS"):
+            BlockLayout.from_text(bad)
+
+
 # ---------------------------------------------------------------------------------------------------------------
-# CUDA: one vertex a thread, several, one thread a block; one world and three
+# CUDA: one vertex a thread, several, one thread a block; clusters of blocks; one world and three
 
 
 def cuda_clusters():
@@ -209,7 +248,7 @@ def test_cuda_block_agrees_with_the_cpu(layout, shared, monkeypatch):
     cpu, _ = contact_scene("cpu", frame_kernel="block")
     cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
     assert solver.frame_kernel == "block" and solver.block_shared == shared
-    assert solver.block_layout == (layout or block_frame.default_layout(solver.world_vertices, solver.device,
+    assert solver.block_layout == (layout or block_frame.default_layout(solver.world_vertices, 1, solver.device,
                                                                         shared))
     close_to(cpu, cuda)
     again, _ = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
