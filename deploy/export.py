@@ -38,7 +38,7 @@ import torch
 from geometry.loop_subdivision import loop_subdivide
 from model.feature_regressor import FeatureRegressor
 from model.features import FrameBatch
-from model.inference import FastRegressor, FastUpsampler, needed_inputs
+from model.inference import FUSED_FORMS, FastRegressor, FastUpsampler, needed_inputs
 from model.mesh_hierarchy import MeshHierarchy
 from deploy.runner import (FORMAT, FUSED_PROGRAM, HIGH_FACES, KERNELS, LOW_FACES, OPERATOR_NAMESPACE, OPERATORS,
                            PROGRAM)
@@ -231,7 +231,6 @@ def _fused_program(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp
 # The fused network's two forms an export times on its GPU, keeping the faster: a launch a step, or the whole plan
 # as one persistent kernel (0.14 against 0.20 ms for RC9 x/4 at 15k vertices on an H200; 4x slower for RC13,
 # whose wide layers lose cuBLAS's products: docs/performance.md).
-FUSED_FORMS = {"separate": {}, "persistent": {"persistent": True}}
 FORM_TIMING_CALLS = 20
 
 

@@ -155,6 +155,13 @@ class FastNetwork(nn.Module):
         return x.float()
 
 
+# The fused network's two forms (FastRegressor's options): a few Triton kernels a level, or one persistent kernel
+# for the whole network. Which is faster depends on the network and the GPU (the persistent one wins for narrow
+# networks, whose separate kernels are bound by their dependent launches): whoever times what a user deploys times
+# both and keeps the faster (deploy.export, pipeline.tasks.timing).
+FUSED_FORMS = {"separate": {}, "persistent": {"persistent": True}}
+
+
 class FastRegressor(nn.Module):
     """`FeatureRegressor.forward` in the fast form: a `FrameBatch` (S x_low etc., caller's vertex order) ->
     the displacement (B, V, 3) in the dataset's frame and the caller's order."""

@@ -16,7 +16,7 @@ import torch
 
 from model.features import FrameStore
 from model.cuda_graph import CapturedCall
-from model.inference import FastRegressor, captured_frames
+from model.inference import FUSED_FORMS, FastRegressor, captured_frames
 from model.tasks import VectorStore
 from pipeline.artifacts.evaluation import FusedTiming
 
@@ -91,7 +91,8 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor, fused: boo
     of `ids` after warm-up runs, synchronised on CUDA: on the deployment path (model.inference.FastRegressor,
     fp32, replayed as one CUDA graph on CUDA, under inference_mode with the configured threads on the CPU) and,
     on the same frames, eager PyTorch; on CUDA (with Triton), where `fused`, also the fused bf16 network
-    (`FusedTiming`), replayed the same way."""
+    (`FusedTiming`), replayed the same way: the faster of its FUSED_FORMS, as an export keeps (the other's median
+    in its path)."""
     eager_ms, expected = _per_frame(lambda frame: model(frame, mesh), store, ids, torch.no_grad)
     deployed, path = _deployed(FastRegressor(model, mesh).to(ids.device), store, ids,
                                "model.inference fast path, fp32")
@@ -104,19 +105,46 @@ def time_inference(model, mesh, store: FrameStore, ids: torch.Tensor, fused: boo
     elif ids.is_cuda and importlib.util.find_spec("triton") is not None:    # PyTorch's CUDA builds bring Triton
         # An extra figure beside the fp32 path's: a network the fused kernels cannot run (or a Triton that cannot
         # compile them) leaves it out with its reason rather than failing the stage that asked for the times.
-        try:
-            with _bf16_sums_in_fp32():
-                regressor = FastRegressor(model, mesh, torch.bfloat16, fused=True).to(ids.device)
-                features = ("input features in PyTorch (model.features)" if regressor.fused_features is None
-                            else "input features in one kernel (model.fused_features)")
-                fused, fused_path = _deployed(regressor, store, ids, f"{FUSED_PATH}, {features}")
-                fused_ms, fused_out = _per_frame(fused, store, ids, torch.inference_mode)
-            times.fused = FusedTiming(fused_ms, _relative(fused_out, got), fused_path)
-        except Exception as err:     # noqa: BLE001 -- Triton's compile errors derive from no common base
-            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-            times.path += f"; the fused bf16 network not timed ({reason})"
-            warnings.warn(f"the fused bf16 network was not timed: {reason}", RuntimeWarning, stacklevel=2)
+        forms, failures = {}, []
+        for name, options in FUSED_FORMS.items():
+            try:
+                forms[name] = _time_fused(model, mesh, store, ids, got, name, options)
+            except Exception as err:     # noqa: BLE001 -- Triton's compile errors derive from no common base
+                reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+                failures.append(f"{name}: {reason}")
+        times.fused = fastest_fused(forms, failures)
+        if times.fused is None:
+            times.path += f"; the fused bf16 network not timed ({'; '.join(failures)})"
+            warnings.warn(f"the fused bf16 network was not timed: {'; '.join(failures)}", RuntimeWarning,
+                          stacklevel=2)
     return times
+
+
+def fastest_fused(forms: dict[str, FusedTiming], failures: list[str]) -> FusedTiming | None:
+    """The timing of the form with the least median ms, its path naming the others' medians and the forms that
+    failed ("form: reason"); None where none was timed."""
+    if not forms:
+        return None
+    fastest = min(forms, key=lambda name: np.median(forms[name].ms))
+    others = [f"{name} {np.median(timing.ms):.3f} ms" for name, timing in forms.items() if name != fastest]
+    others += [f"{failure} (not timed)" for failure in failures]
+    chosen = forms[fastest]
+    return dataclasses.replace(chosen, path=chosen.path + (
+        f"; the faster form (median), beside {', '.join(others)}" if others else ""))
+
+
+def _time_fused(model, mesh, store: FrameStore, ids: torch.Tensor, fp32_out: torch.Tensor, form: str,
+                options: dict) -> FusedTiming:
+    """The fused bf16 network in one of FUSED_FORMS, timed as time_inference times the fp32 path, and its error
+    against that path's outputs."""
+    with _bf16_sums_in_fp32():
+        regressor = FastRegressor(model, mesh, torch.bfloat16, fused=True, **options).to(ids.device)
+        features = ("input features in PyTorch (model.features)" if regressor.fused_features is None
+                    else "input features in one kernel (model.fused_features)")
+        kernels = "one persistent kernel for the network" if options.get("persistent") else "kernels by level"
+        fused, fused_path = _deployed(regressor, store, ids, f"{FUSED_PATH} ({form}: {kernels}), {features}")
+        fused_ms, fused_out = _per_frame(fused, store, ids, torch.inference_mode)
+    return FusedTiming(fused_ms, _relative(fused_out, fp32_out), fused_path)
 
 
 def time_decoder(model, mesh, store: VectorStore, ids: torch.Tensor) -> InferenceTimes:

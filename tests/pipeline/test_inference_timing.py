@@ -20,7 +20,7 @@ from model.networks import NetworkSpec, build_network
 from model.tasks import VectorRegressor, VectorSpec, VectorStore
 from pipeline.artifacts.evaluation import Evaluation, FusedTiming, read_network_timing, write_evaluation
 from pipeline.core.errors import PipelineError
-from pipeline.tasks.timing import time_decoder, time_inference
+from pipeline.tasks.timing import fastest_fused, time_decoder, time_inference
 
 # bf16 hidden layers against fp32: 0.3-1 % of the largest displacement (model/inference.py; bench/infer.py's
 # error column), twice that allowed.
@@ -83,6 +83,17 @@ def test_fused_times_round_trip_through_eval_h5_and_bad_ones_are_refused(tmp_pat
         read_network_timing(tmp_path / "eval.h5")
 
 
+def test_the_faster_fused_form_is_reported_with_the_others():
+    separate = FusedTiming(np.array([0.20, 0.22, 0.21]), 2e-3, "separate")
+    persistent = FusedTiming(np.array([0.15, 0.30, 0.14]), 3e-3, "persistent")   # the lower median, not mean
+    chosen = fastest_fused({"separate": separate, "persistent": persistent}, [])
+    assert chosen.error == 3e-3 and chosen.path == "persistent; the faster form (median), beside separate 0.210 ms"
+    chosen = fastest_fused({"separate": separate}, ["persistent: out of shared memory"])
+    assert chosen.path == "separate; the faster form (median), beside persistent: out of shared memory (not timed)"
+    assert fastest_fused({"separate": separate}, []) == separate
+    assert fastest_fused({}, ["separate: no Triton"]) is None
+
+
 @pytest.mark.skipif(not torch.cuda.is_available() or importlib.util.find_spec("triton") is None,
                     reason="the fused network runs on CUDA with Triton")
 def test_on_cuda_the_fused_network_is_timed_on_the_same_frames_within_bf16_of_fp32():
@@ -92,7 +103,7 @@ def test_on_cuda_the_fused_network_is_timed_on_the_same_frames_within_bf16_of_fp
           f"{times.fused.error:.1e}; {times.fused.path}")
     assert times.fused.ms.shape == times.shape and np.all(np.isfinite(times.fused.ms) & (times.fused.ms > 0))
     assert 0 < times.fused.error < FUSED_TOLERANCE
-    assert "CUDA graph" in times.fused.path
+    assert "CUDA graph" in times.fused.path and "the faster form (median), beside" in times.fused.path
     alone = time_inference(model, mesh, frames, ids, fused=False)     # what the grids' evaluations ask for
     assert alone.fused is None and alone.path.endswith("the fused bf16 network not timed (not asked for)")
 
