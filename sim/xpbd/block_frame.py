@@ -406,10 +406,10 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 xi = sweep.x_in[i]
                 x_new = xi
                 if collide:
-                    x_new = swept_vertex(i, lane, lanes, sub, constraints, sweep, sc, capsules)
+                    x_new = swept_vertex(i, world, lane, lanes, sub, constraints, sweep, sc, capsules)
                 else:
-                    x_new = xi + lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes),
-                                               lanes)
+                    dx = distance_correction(i, world, xi, sub, constraints, sweep, lane, lanes)
+                    x_new = xi + lane_sum_vec3(dx, lanes)
                 # lane 0's result (the body's push is its alone) to every lane, which share the sends
                 send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barriers[phase % 2],
                               lane, lanes)

@@ -11,7 +11,7 @@ import warp as wp
 # Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
 wp.set_module_options({"fast_math": True})
 
-from sim.xpbd.body_contact import Capsules, first_capsule, push_out_of_body
+from sim.xpbd.body_contact import Capsules, push_out_of_body
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, Substep, distance_correction, lane_count, lane_of,
                               lane_sum_vec3)
 from sim.xpbd.self_contact import SelfContacts, contact_multiplier, contact_triangle
@@ -24,22 +24,23 @@ def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep:
     lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane writes the
     result."""
     i, lane = lane_of(wp.tid(), lanes)
-    x_new = swept_vertex(i, lane, lanes, sub, constraints, sweep, sc, capsules)
+    x_new = swept_vertex(i, i // sub.world_vertices, lane, lanes, sub, constraints, sweep, sc, capsules)
     if lane == 0:
         sweep.x_out[i] = x_new
 
 
 @wp.func
-def swept_vertex(i: int, lane: int, lanes: int, sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep,
-                 sc: SelfContacts, capsules: Capsules) -> wp.vec3:
+def swept_vertex(i: int, world: int, lane: int, lanes: int, sub: Substep, constraints: DistanceConstraints,
+                 sweep: JacobiSweep, sc: SelfContacts, capsules: Capsules) -> wp.vec3:
     """Vertex i after one Jacobi sweep: distance constraints (distance_correction) and self-contacts gathered from
     x_in, then projection out of the capsules. Empty contact lists and no watched capsule leave exactly x_in +
     distance correction, as solve_distance_constraints computes it. This lane's share of the sums; the capsules
-    (which add to the vertex's push) in lane 0 alone, whose result is the one to store."""
+    (which add to the vertex's push) in lane 0 alone, whose result is the one to store. `world` is i's (i //
+    world_vertices)."""
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
     xi = x_in[i]
-    dx = distance_correction(i, xi, sub, constraints, sweep, lane, lanes)
+    dx = distance_correction(i, world, xi, sub, constraints, sweep, lane, lanes)
     # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
     # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
     contact = wp.vec3(0.0)
@@ -79,5 +80,5 @@ def swept_vertex(i: int, lane: int, lanes: int, sub: Substep, constraints: Dista
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
     if lane == 0:
-        return push_out_of_body(i, first_capsule(i, sub, capsules), xi, xi + dx, capsules, sub.f1)
+        return push_out_of_body(i, world * capsules.per_world, xi, xi + dx, capsules, sub.f1)
     return xi + dx

@@ -183,7 +183,7 @@ def predict_positions(sub: Substep, pins: PinDrive):
 
 
 @wp.func
-def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: DistanceConstraints,
+def distance_correction(i: int, world: int, xi: wp.vec3, sub: Substep, constraints: DistanceConstraints,
                         sweep: JacobiSweep, lane: int, lanes: int) -> wp.vec3:
     """One Jacobi XPBD iteration over distance constraints rest_min <= |x_i - x_j| <= rest_max (XPBD eq. 18):
     the correction of vertex i (at xi = x_in[i]).
@@ -202,10 +202,10 @@ def distance_correction(i: int, xi: wp.vec3, sub: Substep, constraints: Distance
     two copies stay equal bit for bit and no thread reads what another wrote (the block frame's clusters, where
     another block's global writes are seen only after a cluster barrier).
     This lane's share: entries lane, lane + lanes, ... of the vertex's list (lane_sum adds the shares up).
+    `world` is vertex i's, i // world_vertices: the caller's, who knows it or shares the division (~35
+    instructions on a GPU, on every sweep's critical path) with other uses.
     """
-    n = sub.world_vertices
-    world = i // n
-    first = world * n                         # world's first vertex
+    first = world * sub.world_vertices        # world's first vertex
     per_entry = sweep.lambda_per_entry != 0
     multipliers = world * constraints.params.shape[0]
     if per_entry:
@@ -245,7 +245,8 @@ def solve_distance_constraints(sub: Substep, constraints: DistanceConstraints, s
     launched over n * lanes threads: vertex tid // lanes, lane tid % lanes."""
     i, lane = lane_of(wp.tid(), lanes)
     xi = sweep.x_in[i]
-    dx = lane_sum_vec3(distance_correction(i, xi, sub, constraints, sweep, lane, lanes), lanes)
+    dx = lane_sum_vec3(distance_correction(i, i // sub.world_vertices, xi, sub, constraints, sweep, lane, lanes),
+                       lanes)
     if lane == 0:
         sweep.x_out[i] = xi + dx
 
