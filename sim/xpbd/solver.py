@@ -113,6 +113,13 @@ def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
     return "sweeps"
 
 
+def per_entry_multipliers(frame_kernel: str, layout: block_frame.BlockLayout | None) -> bool:
+    """Whether the sweeps keep a multiplier per entry of the vertices' lists (kernels.distance_correction): in a
+    cluster of blocks, where no thread may read what another block wrote in the same sweep. Elsewhere one per
+    constraint (half the multipliers' memory traffic, which a batched sweep is bound by)."""
+    return frame_kernel == "block" and layout.cluster_blocks > 1
+
+
 # How far beyond the thickness (in mean rest edge lengths) contacts are prepared at the prediction, for the motion
 # of the iterations: a vertex watches the capsules within one edge (the constraints may pull it that far: a
 # watched capsule is swept, so a vertex pulled across a thin limb stays on its side), and self-contact pairs
@@ -160,6 +167,12 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.frame_kernel = frame_kernel_of(model, self.device)
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
+        if self.frame_kernel == "block":
+            self._choose_block_layout(block_layout)
+        elif block_layout is not None:
+            raise ValueError("block_layout applies to a frame stepped in one launch (frame_kernel 'block') only")
+        else:
+            self.block_layout, self.block_shared = None, False
         s = model.settings
         h = s.dt / s.substeps
         mass = s.density * lumped_mass(rest_vertices, faces)
@@ -182,8 +195,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.pins = self._pin_drive(pinned, x0, n)
         self.n_pins = len(pinned)
         self.constraints, self.n_constraints = self._distance_constraints(rest_vertices, faces, h, n, inv_mass)
-        # The block frame keeps a multiplier per entry of the vertices' lists (kernels.distance_correction).
-        per_entry = self.frame_kernel == "block"
+        per_entry = per_entry_multipliers(self.frame_kernel, self.block_layout)
         total = worlds * (self.constraints.entries.shape[0] if per_entry else self.n_constraints)
         lambdas = (self._zeros(total, float), self._zeros(total, float))
         self._sweeps = self._jacobi_sweeps((self.state.positions, x_work), lambdas, per_entry)
@@ -197,24 +209,25 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.contacts = self._self_contacts(faces, s.self_thickness + SELF_MARGIN * mean_edge, n,
                                             WORLD_SPACING * max(diagonal, mean_edge), contact_capacity)
         if self.frame_kernel == "block":
-            self._block_frame_arrays(block_layout)
-        elif block_layout is not None:
-            raise ValueError("block_layout applies to a frame stepped in one launch (frame_kernel 'block') only")
+            self._block_frame_arrays()
         self.frames_stepped_again = 0      # frames whose self-contact lists overflowed (the log says how many)
         # What a frame that overflows the contact lists restarts from (copied at the start of every frame).
         self._frame_start = None if not s.self_collision else ClothState(
             arr(x0, wp.vec3), self._zeros(worlds * n, wp.vec3), worlds)
         self._graph = None
 
-    def _block_frame_arrays(self, layout: block_frame.BlockLayout | None) -> None:
-        """The threads of a world, the boxes of its search's chunks of triangles, and the structs of every substep
-        and sweep as device arrays (the block kernel reads them in turn, the same structs the sweep kernels are
-        launched with)."""
-        # The sweeps' positions in shared memory (CUDA) where the world fits; on the CPU a block is one thread.
+    def _choose_block_layout(self, layout: block_frame.BlockLayout | None) -> None:
+        """The threads of a world in the block frame (`layout`, or the default) and whether its sweeps' positions
+        live in shared memory (CUDA, where the world fits; on the CPU a block is one thread)."""
         self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
         if layout is None:
             layout = block_frame.default_layout(self.world_vertices, self.worlds, self.device, self.block_shared)
         self.block_layout = block_frame.checked_layout(layout, self.device, self.block_shared)
+
+    def _block_frame_arrays(self) -> None:
+        """The boxes of the block frame's search's chunks of triangles, and the structs of every substep and sweep
+        as device arrays (the block kernel reads them in turn, the same structs the sweep kernels are launched
+        with)."""
         chunks = block_frame.FaceChunks()
         chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
         rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1

@@ -17,6 +17,7 @@ from scenes.grid import first_row_pins, grid_cloth
 from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation,
                       harmonic_constraint)
 from sim.xpbd import block_frame
+from sim.xpbd import solver as solver_module
 from sim.xpbd.block_frame import BlockLayout
 from tests.sim.cloth_checks import coarse_pants_drives, contact_scene, run_worlds
 
@@ -111,6 +112,17 @@ def hanging_run(hanging_cloth, frame_kernel, bending=True, **solver):
 def test_a_hanging_cloth_without_contacts_steps_as_the_sweeps(hanging_cloth, bending):
     np.testing.assert_array_equal(hanging_run(hanging_cloth, "block", bending),
                                   hanging_run(hanging_cloth, "sweeps", bending))
+
+
+def test_multipliers_kept_per_entry_step_as_one_per_constraint(monkeypatch, pants_drives):
+    """A cluster's sweeps keep a multiplier per entry of the vertices' lists (both endpoints their own copy, as
+    no thread may read another block's write in the same sweep): on the CPU, forced for the block frame, the pants
+    (body, self-contact, compliant bending) step as the sweeps with one multiplier per constraint, bit for bit."""
+    monkeypatch.setattr(solver_module, "per_entry_multipliers", lambda frame_kernel, layout: frame_kernel == "block")
+    block, solver = pants_run(pants_drives, "block")
+    assert solver._sweeps[0].lambda_per_entry == 1 and solver.model.settings.bending_compliance > 0
+    assert solver._sweeps[0].lambda_in.shape[0] == len(MOTIONS) * solver.constraints.entries.shape[0]
+    np.testing.assert_array_equal(block, pants_run(pants_drives, "sweeps")[0])
 
 
 def test_full_lists_grow_and_the_frame_is_stepped_again():
