@@ -33,14 +33,17 @@ class SolverSettings:
                                          # 0: friction and clearance after the last projection only
     frame_end_rounds: int = 0            # more such rounds after a frame's last substep only, where the frame is
                                          # stored (the alternation converges linearly; a round is 4 launches)
-    frame_kernel: str = "sweeps"         # "sweeps": a kernel per sweep. "auto": on CUDA a cloth that fits one
-                                         # thread block (no harmonic constraint, at most
-                                         # block_frame.MAX_BLOCK_VERTICES vertices) steps a frame in one launch, a
-                                         # block per world (sim.xpbd.block_frame); else, and on the CPU, the
-                                         # sweeps. "block": the one launch wherever the cloth fits, the CPU too.
-                                         # The sweeps are the default: on an H100 the block frame measured 2.3x
-                                         # slower for one 757-vertex cloth and 0.78x the cloth-frames/s of 256
-                                         # batched 3.7k-vertex ones (docs/performance.md, "One block a cloth")
+    frame_kernel: str = "sweeps"         # "sweeps": a kernel per sweep. "auto": on a GPU with thread block
+                                         # clusters (compute capability 9.0) a cloth whose world fits a
+                                         # cluster's shared memory (no harmonic constraint, at most
+                                         # block_frame.SHARED_VERTICES vertices) steps a frame in one launch, a
+                                         # cluster of blocks per world (sim.xpbd.block_frame); else, and on the
+                                         # CPU, the sweeps. "block": the one launch wherever the cloth fits
+                                         # (block_frame.MAX_BLOCK_VERTICES), the CPU too. The sweeps stay the
+                                         # default: on an H200 the clusters step the 757-vertex pants with body
+                                         # and self-contact 1.15x faster at 8 x 75 but 0.89x at 1 x 20, and a
+                                         # block a world was slower everywhere (docs/performance.md, "One block
+                                         # a cloth")
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)

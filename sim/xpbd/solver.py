@@ -102,13 +102,17 @@ def cuda_sweep_lanes(vertices: int) -> int:
 
 
 def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
-    """"block" where the model's frame is stepped in one launch (settings.frame_kernel "block", or "auto" on
-    CUDA, and the cloth fits a block: no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices),
-    else "sweeps". The CPU keeps the sweep kernels by default: its launches cost little next to the exhaustive
-    self-contact search of a block."""
+    """"block" where the model's frame is stepped in one launch, else "sweeps": settings.frame_kernel "block"
+    where the cloth fits a block (no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices), "auto"
+    where it was measured faster than the sweeps: on a GPU with thread block clusters (compute capability 9.0),
+    a world in a cluster's shared memory (block_frame.SHARED_VERTICES). One block a world, or a world in global
+    memory, was slower than the sweeps wherever measured, and the CPU's launches cost little next to a block's
+    exhaustive self-contact search (docs/performance.md, "One block a cloth")."""
     wanted = model.settings.frame_kernel
     fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
-    if fits and (wanted == "block" or (wanted == "auto" and device.is_cuda)):
+    clusters = (device.is_cuda and device.arch >= 90
+                and len(model.rest_vertices) <= block_frame.SHARED_VERTICES)
+    if fits and (wanted == "block" or (wanted == "auto" and clusters)):
         return "block"
     return "sweeps"
 

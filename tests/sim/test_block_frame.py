@@ -18,6 +18,7 @@ from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, Unst
                       harmonic_constraint)
 from sim.xpbd import block_frame
 from sim.xpbd import solver as solver_module
+from sim.xpbd.solver import frame_kernel_of
 from sim.xpbd.block_frame import BlockLayout
 from tests.sim.cloth_checks import coarse_pants_drives, contact_scene, run_worlds
 
@@ -181,6 +182,12 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
     monkeypatch.setattr(block_frame, "MAX_BLOCK_VERTICES", len(rest) - 1)
     assert kernel("block") == "sweeps"            # too large for a block
     monkeypatch.undo()
+    auto = ClothModel(rest, faces, SolverSettings(frame_kernel="auto"), pins)
+    assert frame_kernel_of(auto, FakeGpu(90)) == "block"       # a world in a cluster's shared memory
+    assert frame_kernel_of(auto, FakeGpu(80)) == "sweeps"      # no clusters: one block was slower
+    monkeypatch.setattr(block_frame, "SHARED_VERTICES", len(rest) - 1)
+    assert frame_kernel_of(auto, FakeGpu(90)) == "sweeps"      # in global memory: slower
+    monkeypatch.undo()
     with pytest.raises(ValueError, match="threads must be 1 to 1024"):
         kernel("block", block_layout=BlockLayout(0))
     with pytest.raises(ValueError, match="must be integers"):
@@ -298,6 +305,6 @@ def test_cuda_full_lists_grow_and_the_frame_is_stepped_again():
 
 
 @CUDA
-def test_cuda_chooses_the_block_by_default():
+def test_auto_chooses_the_block_frame_where_clusters_serve():
     _, solver = contact_scene("cuda:0")
-    assert solver.frame_kernel == "block"
+    assert solver.frame_kernel == ("block" if cuda_clusters() else "sweeps")
