@@ -1,5 +1,6 @@
-"""A whole frame of the XPBD cloth solver in one kernel launch: world w is thread block w, whose threads share the
-world's vertices (and triangles) and meet at a block barrier between the steps that read what others wrote.
+"""A whole frame of the XPBD cloth solver in one kernel launch: world w is a thread block, or a cluster of blocks
+(BlockLayout), whose threads share the world's vertices (and triangles) and meet at barriers between the steps
+that read what others wrote.
 
 A small cloth is launch-bound in the sweep kernels (`sim.xpbd.solver`: ~600 graph nodes a frame at 8 x 75, ~2 µs
 each on an H100, whatever the mesh size); here a sweep costs one barrier. Each step is the sweep path's per-vertex
@@ -8,13 +9,18 @@ each on an H100, whatever the mesh size); here a sweep costs one barrier. Each s
 world's triangles whose boxes overlap the vertex's box: the candidates the BVH query finds, listed in the same
 sorted order, `self_contact.sort_face_list`; the triangles are tested a chunk of CHUNK_FACES consecutive ids at
 a time, a chunk's box first), the Jacobi sweeps (`contact_sweep.swept_vertex`,
-`kernels.distance_correction`) and the substep's end (`body_contact.finish_vertex`, `kernels.store_state`). So with
-one lane a vertex the arithmetic is the sweep path's (bit for bit on the CPU, where a block is one thread).
+`kernels.distance_correction`, `lanes` threads a vertex as in the sweep kernels) and the substep's end
+(`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's
+(bit for bit on the CPU, where a block is one thread).
 The sweeps' positions live in shared memory where the world fits (SHARED_VERTICES; a sweep's gather is a chain of
 dependent loads, each ~30 cycles there against several hundred from L2, where the last sweep's writes went); a
 larger world's stay in global memory (a block's writes before a barrier are visible to the block after it). The
 functions are unchanged either way: they index the Jacobi sweep's x_in and x_out, which then view shared memory.
-The harmonic projection (a reduction over the world) is not done here: a high-res run keeps the sweep kernels.
+One multiprocessor has too few lanes for a sweep with contacts, so on a GPU with thread block clusters (compute
+capability 9.0) a world in shared memory spans a cluster of blocks, each on its own multiprocessor with its own
+copy of the positions: a sweep's results are written into every copy (distributed shared memory), the steps
+between sweeps meet at cluster barriers and the sweeps at transaction barriers (see sweep_barrier). The harmonic
+projection (a reduction over the world) is not done here: a high-res run keeps the sweep kernels.
 """
 from __future__ import annotations
 
@@ -83,7 +89,7 @@ class BlockLayout:
 
 # A cluster's blocks and lanes by default: on an H200, the 757-vertex pants at 8 x 75 with body and self-contact
 # step fastest with 16 blocks of 256 threads, 4 lanes a vertex (a vertex a group), of the 14 layouts timed
-# (docs/performance.md, "One block a cloth"). A larger world takes more threads a block, up to a vertex a group.
+# (docs/performance.md, "One launch a frame"). A larger world takes more threads a block, up to a vertex a group.
 CLUSTER_THREADS = 256
 CLUSTER_LANES = 4
 

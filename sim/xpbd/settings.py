@@ -42,8 +42,8 @@ class SolverSettings:
                                          # (block_frame.MAX_BLOCK_VERTICES), the CPU too. The sweeps stay the
                                          # default: on an H200 the clusters step the 757-vertex pants with body
                                          # and self-contact 1.15x faster at 8 x 75 but 0.89x at 1 x 20, and a
-                                         # block a world was slower everywhere (docs/performance.md, "One block
-                                         # a cloth")
+                                         # block a world was slower everywhere (docs/performance.md, "One
+                                         # launch a frame")
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)

@@ -107,7 +107,7 @@ def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
     where it was measured faster than the sweeps: on a GPU with thread block clusters (compute capability 9.0),
     a world in a cluster's shared memory (block_frame.SHARED_VERTICES). One block a world, or a world in global
     memory, was slower than the sweeps wherever measured, and the CPU's launches cost little next to a block's
-    exhaustive self-contact search (docs/performance.md, "One block a cloth")."""
+    exhaustive self-contact search (docs/performance.md, "One launch a frame")."""
     wanted = model.settings.frame_kernel
     fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
     clusters = (device.is_cuda and device.arch >= 90
