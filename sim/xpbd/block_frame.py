@@ -59,7 +59,7 @@ CHUNK_FACES = 32
 
 # Thread block clusters (compute capability 9.0 and later): a world of up to this many blocks, each on its own
 # multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
-# block a cloth"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
+# launch a frame"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
 # the non-portable size Hopper and Blackwell's data-centre parts launch; others stop at the portable 8.
 MAX_CLUSTER_BLOCKS = 16
 PORTABLE_CLUSTER_BLOCKS = 8
