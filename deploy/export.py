@@ -228,9 +228,9 @@ def _fused_program(model: FeatureRegressor, mesh: MeshHierarchy, subdivision: sp
                                 "for the GPU it runs on); the difference as export_check's"}
 
 
-# The fused network's two forms an export times on its GPU, keeping the faster: a launch a step, or the whole plan
-# as one persistent kernel (0.14 against 0.20 ms for RC9 x/4 at 15k vertices on an H200; 4x slower for RC13,
-# whose wide layers lose cuBLAS's products: docs/performance.md).
+# An export times the fused network's two forms (model.inference.FUSED_FORMS: a launch a step, or the whole plan as
+# one persistent kernel) on its GPU, this many replays each, and keeps the faster (0.14 against 0.20 ms for RC9 x/4
+# at 15k vertices on an H200; 4x slower for RC13, whose wide layers lose cuBLAS's products: docs/performance.md).
 FORM_TIMING_CALLS = 20
 
 
