@@ -241,6 +241,27 @@ def test_the_default_layout_fills_the_gpu_once():
             BlockLayout.from_text(bad)
 
 
+def nvrtc_compiles_for_hopper() -> bool:
+    wp.init()
+    from warp._src.context import runtime   # the archs Warp's bundled NVRTC targets (no public accessor)
+    return 90 in (runtime.nvrtc_supported_archs or ())
+
+
+@pytest.mark.skipif(not nvrtc_compiles_for_hopper(), reason="this Warp build has no NVRTC for sm_90")
+def test_the_cluster_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path):
+    """Warp's NVRTC compiles CUDA without a GPU: the cluster's inline PTX (remote stores counted on transaction
+    barriers, cluster barriers) assembles for sm_90 (a cubin: ptxas ran), and the PTX asks for the layout's
+    cluster and block size (what the launch relies on)."""
+    kernel = block_frame.frame_kernel(BlockLayout(256, 16, 4), FakeGpu(90))
+    cubin = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "cubin", use_ptx=False)
+    assert len(cubin) == 1 and cubin[0].suffix == ".cubin" and cubin[0].stat().st_size > 0
+    (ptx,) = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "ptx", use_ptx=True)
+    text = ptx.read_text()
+    assert ".reqnctapercluster 16, 1, 1" in text and ".maxntid 256, 1, 1" in text
+    assert text.count("st.async.shared::cluster.mbarrier::complete_tx::bytes.b32") == 3   # a vertex's x, y, z
+    assert "mbarrier.try_wait.parity" in text and "barrier.cluster.arrive.release" in text
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # CUDA: one vertex a thread, several, one thread a block; clusters of blocks; one world and three
 
