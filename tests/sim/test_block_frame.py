@@ -1,11 +1,12 @@
-"""A frame stepped in one launch, a thread block per world (sim.xpbd.block_frame), against the sweep kernels: the
-same per-vertex functions in the same order, so on the CPU (a block is one thread) every position agrees bit for
-bit, contacts, pins, friction, several worlds and the overflow's second stepping included. On CUDA a block's
-threads share its vertices (one a thread, or many with few threads) and the sums round as the sweep kernels' do
-with one lane, but FMA contraction may differ between the two kernels, and contact decisions amplify the last
-bit: the CUDA tests hold the block to the CPU as test_collision.test_cuda_graph_agrees_with_cpu holds the sweeps
-(1e-5 of the cloth's size over the first 5 frames, 3 for the dancing pants, the mean within 2 % throughout) and
-to itself exactly."""
+"""A frame stepped in one launch, a thread block (or a cluster of blocks) per world (sim.xpbd.block_frame), against
+the sweep kernels: the same per-vertex functions in the same order, so on the CPU (a block is one thread) every
+position agrees bit for bit, contacts, pins, friction, several worlds, the overflow's second stepping and a
+cluster's per-entry multipliers included. On CUDA a block's threads share its vertices (one a thread, or many with
+few threads; in a cluster, several lanes a vertex) and the sums round as the sweep kernels' do, but FMA
+contraction may differ between the two kernels, and contact decisions amplify the last bit: the CUDA tests hold
+the block to the CPU as test_collision.test_cuda_graph_agrees_with_cpu holds the sweeps (1e-5 of the cloth's size
+over the first 5 frames, 3 for the dancing pants, the mean within 2 % throughout) and to itself exactly. Without
+a GPU, the layouts' choice and checks run on a described GPU, and the cluster kernel is compiled for sm_90."""
 import warnings
 
 import numpy as np
