@@ -94,7 +94,13 @@ CLUSTER_THREADS = 256
 CLUSTER_LANES = 4
 
 
-def default_layout(world_vertices: int, worlds: int, device: wp.Device, shared: bool) -> BlockLayout:
+def clusters_serve(device: wp.Device, world_vertices: int) -> bool:
+    """Whether a world may span a thread block cluster: a GPU with clusters (compute capability 9.0 and later) and
+    the world's positions in shared memory (at most SHARED_VERTICES)."""
+    return device.is_cuda and device.arch >= 90 and world_vertices <= SHARED_VERTICES
+
+
+def default_layout(world_vertices: int, worlds: int, device: wp.Device) -> BlockLayout:
     """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA, a world in
     shared memory on a GPU with clusters: a cluster a world, as many blocks as fill the multiprocessors once (a
     power of two, at most MAX_CLUSTER_BLOCKS, PORTABLE_CLUSTER_BLOCKS but on Hopper and Blackwell's data-centre
@@ -102,7 +108,7 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device, shared: 
     (up to MAX_BLOCK_THREADS)."""
     if not device.is_cuda:
         return BlockLayout(threads=1)
-    if shared and device.arch >= 90:
+    if clusters_serve(device, world_vertices):
         most = MAX_CLUSTER_BLOCKS if device.arch in (90, 100) else PORTABLE_CLUSTER_BLOCKS
         blocks = 1
         while 2 * blocks <= most and 2 * blocks * worlds <= device.sm_count:
@@ -114,9 +120,8 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device, shared: 
     return BlockLayout(threads=min(MAX_BLOCK_THREADS, 32 * -(-world_vertices // 32)))
 
 
-def checked_layout(layout: BlockLayout, device: wp.Device, shared: bool) -> BlockLayout:
-    """`layout`, or a ValueError that says what it may be on `device` (a world's positions in shared memory or
-    not: `shared`)."""
+def checked_layout(layout: BlockLayout, device: wp.Device, world_vertices: int) -> BlockLayout:
+    """`layout`, or a ValueError that says what it may be on `device` for a world of `world_vertices`."""
     if not isinstance(layout, BlockLayout):
         raise ValueError(f"block_layout must be a BlockLayout, got {type(layout).__name__}")
     values = (layout.threads, layout.cluster_blocks, layout.lanes)
@@ -128,7 +133,7 @@ def checked_layout(layout: BlockLayout, device: wp.Device, shared: bool) -> Bloc
     if layout.lanes not in lanes or layout.threads % layout.lanes:
         raise ValueError(f"block_layout.lanes must be one of {lanes} on {device} and divide the threads, got "
                          f"{layout.lanes} lanes of {layout.threads} threads")
-    clusters = device.is_cuda and device.arch >= 90 and shared
+    clusters = clusters_serve(device, world_vertices)
     if layout.cluster_blocks != 1 and not (clusters and 1 <= layout.cluster_blocks <= MAX_CLUSTER_BLOCKS):
         raise ValueError(f"block_layout.cluster_blocks must be 1 here, or up to {MAX_CLUSTER_BLOCKS} on a GPU with "
                          f"thread block clusters (compute capability 9.0) for a world of at most {SHARED_VERTICES} "
@@ -279,26 +284,18 @@ def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cl
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
-    if (cluster_blocks > 1) {
-        if (threadIdx.x == 0)
-            asm volatile("{ .reg .b64 state; mbarrier.arrive.expect_tx.shared::cta.b64 state, [%0], %1; }"
-                         :: "r"(barrier), "r"(bytes) : "memory");
-        unsigned int done = 0;
-        while (!done)
-            asm volatile("{ .reg .pred p; mbarrier.try_wait.parity.shared::cta.b64 p, [%1], %2; selp.u32 %0, 1, 0, p; }"
-                         : "=r"(done) : "r"(barrier), "r"(parity) : "memory");
-        return;
-    }
-#endif
-#if defined(__CUDA_ARCH__)
-    __syncthreads();
-#else
-    WP_TILE_SYNC();
+    if (threadIdx.x == 0)
+        asm volatile("{ .reg .b64 state; mbarrier.arrive.expect_tx.shared::cta.b64 state, [%0], %1; }"
+                     :: "r"(barrier), "r"(bytes) : "memory");
+    unsigned int done = 0;
+    while (!done)
+        asm volatile("{ .reg .pred p; mbarrier.try_wait.parity.shared::cta.b64 p, [%1], %2; selp.u32 %0, 1, 0, p; }"
+                     : "=r"(done) : "r"(barrier), "r"(parity) : "memory");
 #endif
 """)
-def end_sweep(cluster_blocks: int, barrier: int, parity: int, bytes: int):
-    """The end of a sweep: in a cluster, wait until `bytes` (every vertex's position) have arrived on this block's
-    `barrier` in its phase of this `parity`; else the block barrier."""
+def wait_for_sweep(barrier: int, parity: int, bytes: int):
+    """A cluster's end of a sweep: wait until `bytes` (every vertex's position) have arrived on this block's
+    `barrier` in its phase of this `parity`."""
     ...
 
 
@@ -419,8 +416,12 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 # lane 0's result (the body's push is its alone) to every lane, which share the sends
                 send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barriers[phase % 2],
                               lane, lanes)
-            end_sweep(cluster_blocks, barriers[phase % 2], (phase // 2) % 2, n * 12)
-        world_barrier(cluster_blocks)   # the last sweep's push on the capsules, read by other blocks below
+            if cluster_blocks > 1:
+                wait_for_sweep(barriers[phase % 2], (phase // 2) % 2, n * 12)
+            else:
+                world_barrier(cluster_blocks)
+        if cluster_blocks > 1:
+            world_barrier(cluster_blocks)   # the last sweep's push on the capsules, read by other blocks below
         # A vertex's end of the substep and next prediction read and write its own entries only (the prediction
         # writes vertex i into every block's copy, but the others read only their own vertices there until the next
         # barrier).

@@ -110,9 +110,8 @@ def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
     exhaustive self-contact search (docs/performance.md, "One launch a frame")."""
     wanted = model.settings.frame_kernel
     fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
-    clusters = (device.is_cuda and device.arch >= 90
-                and len(model.rest_vertices) <= block_frame.SHARED_VERTICES)
-    if fits and (wanted == "block" or (wanted == "auto" and clusters)):
+    if fits and (wanted == "block" or (wanted == "auto" and block_frame.clusters_serve(device,
+                                                                                   len(model.rest_vertices)))):
         return "block"
     return "sweeps"
 
@@ -225,8 +224,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         live in shared memory (CUDA, where the world fits; on the CPU a block is one thread)."""
         self.block_shared = self.device.is_cuda and self.world_vertices <= block_frame.SHARED_VERTICES
         if layout is None:
-            layout = block_frame.default_layout(self.world_vertices, self.worlds, self.device, self.block_shared)
-        self.block_layout = block_frame.checked_layout(layout, self.device, self.block_shared)
+            layout = block_frame.default_layout(self.world_vertices, self.worlds, self.device)
+        self.block_layout = block_frame.checked_layout(layout, self.device, self.world_vertices)
 
     def _block_frame_arrays(self) -> None:
         """The boxes of the block frame's search's chunks of triangles, and the structs of every substep and sweep

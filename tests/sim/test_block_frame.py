@@ -216,25 +216,25 @@ class FakeGpu:
 
 def test_the_default_layout_fills_the_gpu_once():
     hopper = FakeGpu(90)
-    assert block_frame.default_layout(757, 1, hopper, True) == BlockLayout(256, 16, 4)   # a vertex a group
-    assert block_frame.default_layout(1536, 1, hopper, True) == BlockLayout(512, 16, 4)
-    assert block_frame.default_layout(757, 3, hopper, True) == BlockLayout(256, 16, 4)   # 48 of 132 SMs
-    assert block_frame.default_layout(757, 9, hopper, True) == BlockLayout(512, 8, 4)
-    assert block_frame.default_layout(757, 64, hopper, True) == BlockLayout(1024, 2, 4)
-    assert block_frame.default_layout(757, 512, hopper, True) == BlockLayout(1024, 1, 4)
-    assert block_frame.default_layout(757, 1, FakeGpu(120, 84), True).cluster_blocks == 8   # portable size
-    assert block_frame.default_layout(757, 1, FakeGpu(80), True) == BlockLayout(768)         # no clusters
-    assert block_frame.default_layout(3661, 1, hopper, False) == BlockLayout(1024)           # not in shared memory
+    assert block_frame.default_layout(757, 1, hopper) == BlockLayout(256, 16, 4)   # a vertex a group
+    assert block_frame.default_layout(1536, 1, hopper) == BlockLayout(512, 16, 4)
+    assert block_frame.default_layout(757, 3, hopper) == BlockLayout(256, 16, 4)   # 48 of 132 SMs
+    assert block_frame.default_layout(757, 9, hopper) == BlockLayout(512, 8, 4)
+    assert block_frame.default_layout(757, 64, hopper) == BlockLayout(1024, 2, 4)
+    assert block_frame.default_layout(757, 512, hopper) == BlockLayout(1024, 1, 4)
+    assert block_frame.default_layout(757, 1, FakeGpu(120, 84)).cluster_blocks == 8   # portable size
+    assert block_frame.default_layout(757, 1, FakeGpu(80)) == BlockLayout(768)         # no clusters
+    assert block_frame.default_layout(3661, 1, hopper) == BlockLayout(1024)           # not in shared memory
     for layout in (BlockLayout(256, 16, 4), BlockLayout(1024, 1, 16)):
-        assert block_frame.checked_layout(layout, hopper, True) == layout
+        assert block_frame.checked_layout(layout, hopper, 757) == layout
     with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
-        block_frame.checked_layout(BlockLayout(256, 2, 4), FakeGpu(80), True)
+        block_frame.checked_layout(BlockLayout(256, 2, 4), FakeGpu(80), 757)
     with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
-        block_frame.checked_layout(BlockLayout(256, 2, 4), hopper, False)
+        block_frame.checked_layout(BlockLayout(256, 2, 4), hopper, 3661)
     with pytest.raises(ValueError, match="cluster_blocks must be 1 here"):
-        block_frame.checked_layout(BlockLayout(256, 32, 4), hopper, True)
+        block_frame.checked_layout(BlockLayout(256, 32, 4), hopper, 757)
     with pytest.raises(ValueError, match="divide the threads"):
-        block_frame.checked_layout(BlockLayout(6, 1, 4), hopper, True)
+        block_frame.checked_layout(BlockLayout(6, 1, 4), hopper, 757)
     assert BlockLayout.from_text("128x8x4") == BlockLayout(128, 8, 4) and str(BlockLayout(128, 8, 4)) == "128x8x4"
     assert BlockLayout.from_text("768") == BlockLayout(768)
     for bad in ("", "x", "128x-1", "1e3", "128x8x4x2", "128 x 8"):
@@ -289,8 +289,7 @@ def test_cuda_block_agrees_with_the_cpu(layout, shared, monkeypatch):
     cpu, _ = contact_scene("cpu", frame_kernel="block")
     cuda, solver = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
     assert solver.frame_kernel == "block" and solver.block_shared == shared
-    assert solver.block_layout == (layout or block_frame.default_layout(solver.world_vertices, 1, solver.device,
-                                                                        shared))
+    assert solver.block_layout == (layout or block_frame.default_layout(solver.world_vertices, 1, solver.device))
     close_to(cpu, cuda)
     again, _ = contact_scene("cuda:0", frame_kernel="block", block_layout=layout)
     np.testing.assert_array_equal(again, cuda)   # deterministic: integer atomics only, lists sorted
