@@ -5,10 +5,10 @@ that read what others wrote.
 A small cloth is launch-bound in the sweep kernels (`sim.xpbd.solver`: ~600 graph nodes a frame at 8 x 75, ~2 µs
 each on an H100, whatever the mesh size); here a sweep costs one barrier. Each step is the sweep path's per-vertex
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
-`body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, an exhaustive search of the
-world's triangles whose boxes overlap the vertex's box: the candidates the BVH query finds, listed in the same
-sorted order, `self_contact.sort_face_list`; the triangles are tested a chunk of CHUNK_FACES consecutive ids at
-a time, a chunk's box first), the Jacobi sweeps (`contact_sweep.swept_vertex`,
+`body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, then an exhaustive search of
+the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (vertex, chunk of
+triangles) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
+order), the Jacobi sweeps (`contact_sweep.swept_vertex`,
 `kernels.distance_correction`, `lanes` threads a vertex as in the sweep kernels) and the substep's end
 (`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's
 (bit for bit on the CPU, where a block is one thread).
@@ -37,8 +37,9 @@ from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
 from sim.xpbd.contact_sweep import swept_vertex
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
-from sim.xpbd.self_contact import (SelfContacts, end_search, face_bounds, list_candidate, search_box,
-                                   sort_face_list, start_search)
+from sim.xpbd.self_contact import SelfContacts, face_bounds
+from sim.xpbd.world_search import (WorldSearch, chunk_bounds, end_face_list, end_vertex_list, search_pair,
+                                   start_vertex_list)
 
 # The most threads a block (one world) runs: the kernel is compiled for it (__launch_bounds__, which caps its
 # registers at 64 a thread), and a block of fewer threads takes several vertices a thread.
@@ -49,14 +50,6 @@ MAX_BLOCK_VERTICES = 4096
 # The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of
 # vec3, 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
 SHARED_VERTICES = 1536
-# The search tests the box of this many consecutive triangles before testing theirs: a mesh's ids are close in
-# space, so a vertex's box meets few chunks (the 3.7k-vertex pants hanging: 225 chunks of its 7,176 triangles, a
-# vertex's box meeting ~10 and at most 26, so ~540 boxes tested instead of 7,176; the paper's 757-vertex pants: ~6
-# of 46). A chunk's box holds its triangles' boxes (min and max are exact), so every triangle whose box meets the
-# vertex's is still tested: the candidates are the same.
-CHUNK_FACES = 32
-
-
 # Thread block clusters (compute capability 9.0 and later): a world of up to this many blocks, each on its own
 # multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
 # launch a frame"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
@@ -70,7 +63,7 @@ LANE_CHOICES = (1, 2, 4, 8, 16)
 class BlockLayout:
     """How a world's frame is spread over threads: `threads` a block, `cluster_blocks` blocks a world (a thread
     block cluster on CUDA, each block keeping a copy of the world's positions in its shared memory), `lanes`
-    threads a vertex in the Jacobi sweeps (kernels.lane_sum; the other steps take a vertex or triangle a thread)."""
+    threads a vertex in the Jacobi sweeps (kernels.lane_sum_vec3; the other steps take a vertex or triangle a thread)."""
     threads: int
     cluster_blocks: int = 1
     lanes: int = 1
@@ -139,15 +132,6 @@ def checked_layout(layout: BlockLayout, device: wp.Device, world_vertices: int) 
                          f"thread block clusters (compute capability 9.0) for a world of at most {SHARED_VERTICES} "
                          f"vertices; got {layout.cluster_blocks} on {device}")
     return layout
-
-
-@wp.struct
-class FaceChunks:
-    """The box of each chunk of CHUNK_FACES consecutive triangles of a world (the last may hold fewer), world after
-    world: world w's chunks are rows w C .. w C + C - 1."""
-    lower: wp.array(dtype=wp.vec3)
-    upper: wp.array(dtype=wp.vec3)
-    per_world: int                    # C
 
 
 @wp.func_native("""
@@ -314,47 +298,8 @@ def in_buffers(sweep: JacobiSweep, k: int, even: wp.array(dtype=wp.vec3),
     return moved
 
 
-@wp.func
-def boxes_overlap(lower: wp.vec3, upper: wp.vec3, box_lower: wp.vec3, box_upper: wp.vec3) -> bool:
-    """The BVH query's box test (Warp's intersect_aabb_aabb: closed boxes), so the search finds its hits."""
-    return not (lower[0] > box_upper[0] or lower[1] > box_upper[1] or lower[2] > box_upper[2]
-                or upper[0] < box_lower[0] or upper[1] < box_lower[1] or upper[2] < box_lower[2])
-
-
-@wp.func
-def chunk_bounds(c: int, world: int, sc: SelfContacts, chunks: FaceChunks):
-    """The box of chunk c (a row of `chunks`) of `world`, from its triangles' face_bounds boxes."""
-    start = world * sc.world_faces + (c - world * chunks.per_world) * CHUNK_FACES
-    end = wp.min(start + CHUNK_FACES, (world + 1) * sc.world_faces)
-    lower = sc.face_lower[start]
-    upper = sc.face_upper[start]
-    for t in range(start + 1, end):
-        lower = wp.min(lower, sc.face_lower[t])
-        upper = wp.max(upper, sc.face_upper[t])
-    chunks.lower[c] = lower
-    chunks.upper[c] = upper
-
-
-@wp.func
-def search_own_world(i: int, sub: Substep, sc: SelfContacts, chunks: FaceChunks, overflow_flag: int):
-    """find_self_contacts of vertex i, every triangle of its world whose box meets the vertex's listed (the BVH
-    path's candidates are those same triangles: contact_side rejects other worlds'), the chunks' boxes tested
-    first."""
-    search = start_search(i, sub, sc)
-    if sub.inv_mass[i] > 0.0:
-        lower, upper = search_box(i, sub, sc)
-        world = i // sc.world_vertices
-        for c in range(world * chunks.per_world, (world + 1) * chunks.per_world):
-            if boxes_overlap(lower, upper, chunks.lower[c], chunks.upper[c]):
-                start = world * sc.world_faces + (c - world * chunks.per_world) * CHUNK_FACES
-                for t in range(start, wp.min(start + CHUNK_FACES, search.own_faces[1])):
-                    if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
-                        search = list_candidate(i, t, search, sub, sc, overflow_flag)
-    end_search(i, search, sc)
-
-
 def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
-                sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, chunks: FaceChunks, capsules: Capsules,
+                sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, search: WorldSearch, capsules: Capsules,
                 body_collision: int, self_collision: int, in_shared: int, cluster_blocks: int, lanes: int):
     """Every substep of a frame for one world (launch_tiled over the worlds' blocks): the launches of
     ClothSolver._launch_frame without harmonic projection, each a loop of the world's threads over its vertices or
@@ -362,7 +307,7 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     kernels are launched with, one per substep and per iteration; with in_shared their positions ping-pong in
     shared memory instead of the state's positions and the work array. A world is `cluster_blocks` consecutive
     blocks (a thread block cluster on CUDA, each block with a copy of the positions in shared memory); in its
-    sweeps `lanes` threads share a vertex (kernels.lane_sum), as in the sweep kernels."""
+    sweeps `lanes` threads share a vertex (kernels.lane_sum_vec3), as in the sweep kernels."""
     block, block_thread = wp.tid()
     world = block // cluster_blocks
     thread = (block - world * cluster_blocks) * wp.block_dim() + block_thread   # within the world
@@ -376,8 +321,8 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     iterations = sweeps.shape[0]
     even = shared_positions(sweeps[0].x_in, 0, first, in_shared)
     odd = shared_positions(sweeps[0].x_out, 1, first, in_shared)
-    barriers = wp.vec2i(sweep_barrier(0), sweep_barrier(1))
-    init_sweep_barriers(cluster_blocks, barriers[0], barriers[1])
+    even_barrier, odd_barrier = sweep_barrier(0), sweep_barrier(1)
+    init_sweep_barriers(cluster_blocks, even_barrier, odd_barrier)
     world_barrier(cluster_blocks)   # a cluster's blocks have all started before one writes to another's memory
     for s in range(substeps.shape[0]):
         sub = substeps[s]
@@ -387,24 +332,32 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
             else:
                 sub.x[i] = predict_vertex(i, sub, pins)
             store_position(even, i, sub.x[i], cluster_blocks)   # the first sweep's input
+            if self_collision != 0:
+                start_vertex_list(i, sub, sc, search)
         world_barrier(cluster_blocks)
         if self_collision != 0:
             faces = sc.world_faces
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 face_bounds(t, sub.x, sub.x_prev, sc)
             world_barrier(cluster_blocks)
-            for c in range(world * chunks.per_world + thread, (world + 1) * chunks.per_world, threads):
-                chunk_bounds(c, world, sc, chunks)
+            for c in range(world * search.per_world + thread, (world + 1) * search.per_world, threads):
+                chunk_bounds(c, world, sc, search)
+            world_barrier(cluster_blocks)
+            for p in range(thread, n * search.per_world, threads):
+                search_pair(p, world, sub, sc, search)
             world_barrier(cluster_blocks)
             for i in range(first + thread, last, threads):
-                search_own_world(i, sub, sc, chunks, overflow_flag)
-            world_barrier(cluster_blocks)
+                end_vertex_list(i, world, sub, sc, overflow_flag)
             for t in range(world * faces + thread, (world + 1) * faces, threads):
-                sort_face_list(t, sc)
+                end_face_list(t, world, sub, sc, overflow_flag)
             world_barrier(cluster_blocks)
         for k in range(iterations):
             sweep = in_buffers(sweeps[k], k, even, odd)
             phase = s * iterations + k   # the sweep's number in the frame: its barrier and, per barrier, its parity
+            # (chosen, not indexed: a vector indexed at run time lives in local memory, a load on every sweep)
+            barrier = even_barrier
+            if phase % 2 == 1:
+                barrier = odd_barrier
             for i in range(first + item, last, items):   # a vertex's lanes take the same turns
                 xi = sweep.x_in[i]
                 x_new = xi
@@ -414,10 +367,10 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                     dx = distance_correction(i, world, xi, sub, constraints, sweep, lane, lanes)
                     x_new = xi + lane_sum_vec3(dx, lanes)
                 # lane 0's result (the body's push is its alone) to every lane, which share the sends
-                send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barriers[phase % 2],
+                send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barrier,
                               lane, lanes)
             if cluster_blocks > 1:
-                wait_for_sweep(barriers[phase % 2], (phase // 2) % 2, n * 12)
+                wait_for_sweep(barrier, (phase // 2) % 2, n * 12)
             else:
                 world_barrier(cluster_blocks)
         if cluster_blocks > 1:

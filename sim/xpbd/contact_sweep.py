@@ -20,13 +20,24 @@ from sim.xpbd.self_contact import SelfContacts, contact_multiplier, contact_tria
 @wp.kernel
 def solve_with_collisions(sub: Substep, constraints: DistanceConstraints, sweep: JacobiSweep, sc: SelfContacts,
                           capsules: Capsules, lanes: int):
-    """One Jacobi sweep (swept_vertex), launched over n * lanes threads (kernels.lane_sum): a lane takes every
+    """One Jacobi sweep (swept_vertex), launched over n * lanes threads (kernels.lane_sum_vec3): a lane takes every
     lanes-th constraint, contact of the vertex's list and triangle around it, and the first lane writes the
     result."""
     i, lane = lane_of(wp.tid(), lanes)
     x_new = swept_vertex(i, i // sub.world_vertices, lane, lanes, sub, constraints, sweep, sc, capsules)
     if lane == 0:
         sweep.x_out[i] = x_new
+
+
+@wp.func
+def corner_weight(bary: wp.vec3, corner: int) -> float:
+    """bary[corner], chosen rather than indexed: a vector indexed at run time lives in local memory (on a GPU, a
+    store and a load on the sweep's path)."""
+    if corner == 0:
+        return bary[0]
+    if corner == 1:
+        return bary[1]
+    return bary[2]
 
 
 @wp.func
@@ -71,7 +82,7 @@ def swept_vertex(i: int, world: int, lane: int, lanes: int, sub: Substep, constr
                         dl, bary, on = contact_multiplier(x_in[j], inv_mass[j], xa, xb, xc, w, n, wp.sign(code),
                                                           sc.thickness)
                         if on:
-                            contact = contact - (wi * bary[corner] * dl * float(wp.sign(code))) * n
+                            contact = contact - (wi * corner_weight(bary, corner) * dl * float(wp.sign(code))) * n
                             active += 1
     dx = lane_sum_vec3(dx, lanes)
     contact = lane_sum_vec3(contact, lanes)

@@ -119,26 +119,33 @@ _LANE_SUM = """
 #endif
     return value;
 """
-_LANE_FIRST = """
+# A vector's components in one butterfly (one network of shuffles a step): the three shuffles of a step are
+# independent, so they overlap where three sums one after the other would wait on each (each sum's arithmetic is
+# the scalar's, so the bits are the same).
+_LANE_SUM_VEC3 = """
 #if defined(__CUDA_ARCH__)""" + _LANE_GROUP + """
-    return __shfl_sync(group, value, first, 32);
+    for (int m = 1; m < lanes; m <<= 1) {
+        const float x = __shfl_xor_sync(group, value[0], m);
+        const float y = __shfl_xor_sync(group, value[1], m);
+        const float z = __shfl_xor_sync(group, value[2], m);
+        value[0] += x;
+        value[1] += y;
+        value[2] += z;
+    }
+#endif
+    return value;
+"""
+_LANE_FIRST_VEC3 = """
+#if defined(__CUDA_ARCH__)""" + _LANE_GROUP + """
+    return wp::vec3(__shfl_sync(group, value[0], first, 32), __shfl_sync(group, value[1], first, 32),
+                    __shfl_sync(group, value[2], first, 32));
 #endif
     return value;
 """
 
 
 @wp.func_native(_LANE_SUM)
-def lane_sum(value: float, lanes: int) -> float: ...
-
-
-@wp.func_native(_LANE_SUM)
 def lane_count(value: int, lanes: int) -> int: ...
-
-
-@wp.func_native(_LANE_FIRST)
-def lane_first(value: float, lanes: int) -> float:
-    """The value of the group's first lane, in every lane."""
-    ...
 
 
 @wp.func
@@ -148,14 +155,14 @@ def lane_of(tid: int, lanes: int):
     return item, tid - item * lanes
 
 
-@wp.func
-def lane_sum_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
-    return wp.vec3(lane_sum(value[0], lanes), lane_sum(value[1], lanes), lane_sum(value[2], lanes))
+@wp.func_native(_LANE_SUM_VEC3)
+def lane_sum_vec3(value: wp.vec3, lanes: int) -> wp.vec3: ...
 
 
-@wp.func
+@wp.func_native(_LANE_FIRST_VEC3)
 def lane_first_vec3(value: wp.vec3, lanes: int) -> wp.vec3:
-    return wp.vec3(lane_first(value[0], lanes), lane_first(value[1], lanes), lane_first(value[2], lanes))
+    """The vector of the group's first lane, in every lane."""
+    ...
 
 
 @wp.func
@@ -201,7 +208,7 @@ def distance_correction(i: int, world: int, xi: wp.vec3, sub: Substep, constrain
     the same update from the same inputs (|x_i - x_j| = |x_j - x_i| and w_i + w_j = w_j + w_i exactly), so the
     two copies stay equal bit for bit and no thread reads what another wrote (the block frame's clusters, where
     another block's global writes are seen only after a cluster barrier).
-    This lane's share: entries lane, lane + lanes, ... of the vertex's list (lane_sum adds the shares up).
+    This lane's share: entries lane, lane + lanes, ... of the vertex's list (lane_sum_vec3 adds the shares up).
     `world` is vertex i's, i // world_vertices: the caller's, who knows it or shares the division (~35
     instructions on a GPU, on every sweep's critical path) with other uses.
     """
@@ -288,7 +295,7 @@ def harmonic_partial_sums(x: wp.array(dtype=wp.vec3), hp: HarmonicProjection):
 @wp.kernel
 def harmonic_residual(hp: HarmonicProjection, target_fraction: float, lanes: int):
     """r_k = (B^T M x)_k - (B^T M S x_low)_k of world w, the low-res side interpolated linearly within the frame.
-    Launched over B K lanes threads: `lanes` threads share a mode's chunks (lane_sum)."""
+    Launched over B K lanes threads: `lanes` threads share a mode's chunks (lane_sum_vec3)."""
     q, lane = lane_of(wp.tid(), lanes)
     n_modes = hp.residual.shape[1]
     w = q // n_modes

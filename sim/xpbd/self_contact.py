@@ -261,17 +261,34 @@ class Search:
 
 @wp.func
 def start_search(i: int, sub: Substep, sc: SelfContacts) -> Search:
-    """Vertex i's search, started: its previous list kept in `previous` (a pair already in contact in the previous
-    substep keeps its side, so a vertex that the iterations left a little on the wrong side of the plane is pushed
-    back rather than through), its neighbours and world read, its corner count zeroed (sort_face_list counts the
-    lists of i's triangles, after every vertex's search). Pinned vertices list nothing: they take no correction
-    and move no triangle."""
-    search = Search()
+    """Vertex i's search, started: its previous list kept (keep_previous_list), its neighbours and world read
+    (vertex_search)."""
+    return vertex_search(i, keep_previous_list(i, sub, sc), sub, sc)
+
+
+@wp.func
+def keep_previous_list(i: int, sub: Substep, sc: SelfContacts) -> int:
+    """Vertex i's list of the previous substep copied into `previous`, and its length (a pair already in contact
+    in the previous substep keeps its side, so a vertex that the iterations left a little on the wrong side of the
+    plane is pushed back rather than through); its corner count zeroed (sort_face_list counts the lists of i's
+    triangles, after every vertex's search). Pinned vertices list nothing: they take no correction and move no
+    triangle, so theirs is not kept."""
     sc.corner_count[i] = 0
+    n_old = int(0)
     if sub.inv_mass[i] > 0.0:
-        search.n_old = sc.vertex_count[i]
-        for a in range(search.n_old):
+        n_old = sc.vertex_count[i]
+        for a in range(n_old):
             sc.previous[i, a] = sc.vertex_contacts[i, a]
+    return n_old
+
+
+@wp.func
+def vertex_search(i: int, n_old: int, sub: Substep, sc: SelfContacts) -> Search:
+    """Vertex i's search, its previous list of n_old entries in `previous`: its neighbours and the range of its
+    world's triangles (read for a vertex that is not pinned), nothing listed yet."""
+    search = Search()
+    search.n_old = n_old
+    if sub.inv_mass[i] > 0.0:
         first = sc.edge_offsets[i]
         search.n_neighbors = sc.edge_offsets[i + 1] - first
         for a in range(search.n_neighbors):
@@ -290,16 +307,25 @@ def search_box(i: int, sub: Substep, sc: SelfContacts):
 
 
 @wp.func
-def list_candidate(i: int, t: int, search: Search, sub: Substep, sc: SelfContacts, overflow_flag: int) -> Search:
-    """Triangle t, whose box overlaps vertex i's: if contact_side makes the pair a candidate, vertex i lists it and
-    adds itself to t's list (a slot taken with an integer atomic; sort_face_list then restores a fixed order). A
-    full list drops the rest and raises the world's flags[w, overflow_flag] to the room the fullest list needed
-    (the solver then grows the lists to that at once and steps the frame again)."""
+def candidate_side(i: int, t: int, search: Search, sub: Substep, sc: SelfContacts) -> int:
+    """contact_side of vertex i and triangle t (whose boxes overlap), or the side the pair had in i's previous
+    list where it was there."""
     side = contact_side(i, search.neighbors, search.n_neighbors, search.own_faces, t, sub.x, sub.x_prev, sc)
     if side != 0:
         for a in range(search.n_old):
             if wp.abs(sc.previous[i, a]) == t + 1:
                 side = wp.sign(sc.previous[i, a])
+    return side
+
+
+@wp.func
+def list_candidate(i: int, t: int, search: Search, sub: Substep, sc: SelfContacts, overflow_flag: int) -> Search:
+    """Triangle t, whose box overlaps vertex i's: if the pair is a candidate (candidate_side), vertex i lists it
+    and adds itself to t's list (a slot taken with an integer atomic; sort_face_list then restores a fixed order).
+    A full list drops the rest and raises the world's flags[w, overflow_flag] to the room the fullest list needed
+    (the solver then grows the lists to that at once and steps the frame again)."""
+    side = candidate_side(i, t, search, sub, sc)
+    if side != 0:
         search.wanted += 1
         slot = sc.face_contacts.shape[1]
         need = search.wanted       # the vertex's list full: the room it would have needed

@@ -27,7 +27,7 @@ import warp as wp
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
 from sim.solver import Solver, UnstableSimulation
-from sim.xpbd import block_frame, body_contact, contact_sweep, kernels, self_contact
+from sim.xpbd import block_frame, body_contact, contact_sweep, kernels, self_contact, world_search
 from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
 from sim.xpbd.model import ClothModel
 
@@ -83,7 +83,7 @@ WORLD_SPACING = 8.0
 CONTACT_CAPACITY = 32
 MAX_CONTACT_CAPACITY = 512
 
-# Threads per vertex in a CUDA Jacobi sweep (kernels.lane_sum): a sweep of few vertices is latency-bound, and lanes
+# Threads per vertex in a CUDA Jacobi sweep (kernels.lane_sum_vec3): a sweep of few vertices is latency-bound, and lanes
 # shorten each thread's walk; a sweep of many is bound by throughput, which lanes only spend on index arithmetic.
 # On an H100 (docs/performance.md): one 3.7k-vertex cloth is fastest with 8 lanes, one 14.5k-vertex cloth with 4,
 # 128 worlds of 3.7k (0.47 M vertices) with 1. So: about SWEEP_THREADS threads a sweep, 1 to 8 lanes. The CPU runs
@@ -228,14 +228,16 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self.block_layout = block_frame.checked_layout(layout, self.device, self.world_vertices)
 
     def _block_frame_arrays(self) -> None:
-        """The boxes of the block frame's search's chunks of triangles, and the structs of every substep and sweep
-        as device arrays (the block kernel reads them in turn, the same structs the sweep kernels are launched
-        with)."""
-        chunks = block_frame.FaceChunks()
-        chunks.per_world = math.ceil(len(self.model.faces) / block_frame.CHUNK_FACES)
-        rows = self.worlds * chunks.per_world if self.model.settings.self_collision else 1
-        chunks.lower, chunks.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
-        self._face_chunks = chunks
+        """The block frame's search arrays (world_search.WorldSearch: its chunks' boxes, its vertices' previous list
+        lengths), and the structs of every substep and sweep as device arrays (the block kernel reads them in turn,
+        the same structs the sweep kernels are launched with)."""
+        search = world_search.WorldSearch()
+        search.per_world = math.ceil(len(self.model.faces) / world_search.CHUNK_FACES)
+        collide = self.model.settings.self_collision
+        rows = self.worlds * search.per_world if collide else 1
+        search.lower, search.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
+        search.previous_count = self._zeros(self.worlds * self.world_vertices if collide else 1, int)
+        self._world_search = search
         self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
         self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
 
@@ -536,7 +538,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             wp.launch_tiled(block_frame.frame_kernel(layout, self.device), dim=[self.worlds * layout.cluster_blocks],
                             block_dim=layout.threads, device=self.device,
                             inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
-                                    self.contacts, self._face_chunks, self.capsules, int(s.body_collision),
+                                    self.contacts, self._world_search, self.capsules, int(s.body_collision),
                                     int(s.self_collision), int(self.block_shared), layout.cluster_blocks,
                                     layout.lanes])
             return

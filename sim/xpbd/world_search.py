@@ -1,0 +1,122 @@
+"""The block frame's self-contact search (sim.xpbd.block_frame): every triangle of a world whose box overlaps a
+vertex's box is a candidate, found without a tree and spread over the world's threads.
+
+The work is split into (vertex, chunk) pairs, a chunk being CHUNK_FACES consecutive triangles: a pair tests the
+chunk's box, and where it meets the vertex's, its triangles' boxes and the candidates among them (as the sweep
+path's find_self_contacts tests the BVH's hits). A vertex searched by one thread took as long as its longest
+search (on an H200 the 757-vertex pants waited ~175 µs a substep for its slowest vertex, a quarter of the frame);
+spread, a thread takes ~V C / threads pairs, most rejected by the chunk's box. A pair lists its candidates with
+integer atomics in both lists, so the lists hold the same entries as the tree's search but in any order: each is
+then sorted (self_contact.sort_list), which makes them identical. A full list keeps counting: the room it needed
+raises the world's overflow flag, and the solver steps the frame again with longer lists (each list's entries are
+real candidates whatever the order, so the frame that overflowed steps safely before it is discarded).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+# Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
+wp.set_module_options({"fast_math": True, "enable_backward": False})
+
+from sim.xpbd.kernels import Substep
+from sim.xpbd.self_contact import (SelfContacts, candidate_side, keep_previous_list, search_box, sort_face_list,
+                                   sort_list, vertex_search)
+
+# A mesh's triangle ids are close in space, so a vertex's box meets few chunks (the 3.7k-vertex pants hanging: a
+# vertex's box meets ~10 of its 225 chunks, at most 26; the paper's 757-vertex pants ~6 of 46). A chunk's box
+# holds its triangles' boxes (min and max are exact), so every triangle whose box meets the vertex's is tested.
+CHUNK_FACES = 32
+
+
+@wp.struct
+class WorldSearch:
+    """The search's own arrays: the box of each chunk of CHUNK_FACES consecutive triangles of a world (the last
+    may hold fewer), world after world (world w's chunks are rows w C .. w C + C - 1), and the length of each
+    vertex's list of the previous substep (kept in SelfContacts.previous while the pairs fill the new one)."""
+    lower: wp.array(dtype=wp.vec3)
+    upper: wp.array(dtype=wp.vec3)
+    per_world: int                    # C
+    previous_count: wp.array(dtype=int)
+
+
+@wp.func
+def boxes_overlap(lower: wp.vec3, upper: wp.vec3, box_lower: wp.vec3, box_upper: wp.vec3) -> bool:
+    """The BVH query's box test (Warp's intersect_aabb_aabb: closed boxes), so the search finds its hits."""
+    return not (lower[0] > box_upper[0] or lower[1] > box_upper[1] or lower[2] > box_upper[2]
+                or upper[0] < box_lower[0] or upper[1] < box_lower[1] or upper[2] < box_lower[2])
+
+
+@wp.func
+def start_vertex_list(i: int, sub: Substep, sc: SelfContacts, search: WorldSearch):
+    """Vertex i's list of the previous substep kept (self_contact.keep_previous_list) and its new list emptied,
+    before the pairs fill it."""
+    search.previous_count[i] = keep_previous_list(i, sub, sc)
+    sc.vertex_count[i] = 0
+
+
+@wp.func
+def chunk_bounds(c: int, world: int, sc: SelfContacts, search: WorldSearch):
+    """The box of chunk c (a row of search.lower/upper) of `world`, from its triangles' face_bounds boxes."""
+    start = world * sc.world_faces + (c - world * search.per_world) * CHUNK_FACES
+    end = wp.min(start + CHUNK_FACES, (world + 1) * sc.world_faces)
+    lower = sc.face_lower[start]
+    upper = sc.face_upper[start]
+    for t in range(start + 1, end):
+        lower = wp.min(lower, sc.face_lower[t])
+        upper = wp.max(upper, sc.face_upper[t])
+    search.lower[c] = lower
+    search.upper[c] = upper
+
+
+@wp.func
+def search_pair(p: int, world: int, sub: Substep, sc: SelfContacts, search: WorldSearch):
+    """Pair p of `world` (its vertex p // C, its chunk p % C: a warp's threads test one vertex against
+    consecutive chunks): the chunk's triangles whose boxes overlap the vertex's and that candidate_side accepts,
+    listed in both lists (list_pair_candidate)."""
+    own = p // search.per_world
+    i = world * sc.world_vertices + own
+    c = world * search.per_world + p - own * search.per_world
+    if sub.inv_mass[i] > 0.0:
+        lower, upper = search_box(i, sub, sc)
+        if boxes_overlap(lower, upper, search.lower[c], search.upper[c]):
+            vertex = vertex_search(i, search.previous_count[i], sub, sc)
+            start = world * sc.world_faces + (c - world * search.per_world) * CHUNK_FACES
+            for t in range(start, wp.min(start + CHUNK_FACES, vertex.own_faces[1])):
+                if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
+                    side = candidate_side(i, t, vertex, sub, sc)
+                    if side != 0:
+                        list_pair_candidate(i, t, side, sc)
+
+
+@wp.func
+def list_pair_candidate(i: int, t: int, side: int, sc: SelfContacts):
+    """Vertex i lists triangle t and t lists i, each in a slot taken with an integer atomic, written where the list
+    has room: a count past the room is the room it needed (end_vertex_list, end_face_list)."""
+    slot = wp.atomic_add(sc.vertex_count, i, 1)
+    if slot < sc.vertex_contacts.shape[1]:
+        sc.vertex_contacts[i, slot] = side * (t + 1)
+    slot = wp.atomic_add(sc.face_count, t, 1)
+    if slot < sc.face_contacts.shape[1]:
+        sc.face_contacts[t, slot] = side * (i + 1)
+
+
+@wp.func
+def end_vertex_list(i: int, world: int, sub: Substep, sc: SelfContacts, overflow_flag: int):
+    """Vertex i's list, filled by the pairs, sorted by triangle (self_contact.end_search's order) and cut to its
+    room; a count past the room raises the world's overflow flag to it."""
+    n = sc.vertex_count[i]
+    room = sc.vertex_contacts.shape[1]
+    if n > room:
+        wp.atomic_max(sub.flags, world, overflow_flag, n)
+        n = room
+    sort_list(sc.vertex_contacts, i, n)
+    sc.vertex_count[i] = n
+
+
+@wp.func
+def end_face_list(t: int, world: int, sub: Substep, sc: SelfContacts, overflow_flag: int):
+    """Triangle t's list sorted and its corners counted (self_contact.sort_face_list); a count past the room
+    raises the world's overflow flag to it."""
+    if sc.face_count[t] > sc.face_contacts.shape[1]:
+        wp.atomic_max(sub.flags, world, overflow_flag, sc.face_count[t])
+    sort_face_list(t, sc)
