@@ -6,8 +6,8 @@ A small cloth is launch-bound in the sweep kernels (`sim.xpbd.solver`: ~600 grap
 each on an H100, whatever the mesh size); here a sweep costs one barrier. Each step is the sweep path's per-vertex
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
 `body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, then an exhaustive search of
-the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (vertex, chunk of
-triangles) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
+the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (chunk of
+triangles, vertex) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
 order), the Jacobi sweeps (`contact_sweep.swept_vertex`,
 `kernels.distance_correction`, `lanes` threads a vertex as in the sweep kernels) and the substep's end
 (`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's

@@ -1,7 +1,7 @@
 """The block frame's self-contact search (sim.xpbd.block_frame): every triangle of a world whose box overlaps a
 vertex's box is a candidate, found without a tree and spread over the world's threads.
 
-The work is split into (vertex, chunk) pairs, a chunk being CHUNK_FACES consecutive triangles: a pair tests the
+The work is split into (chunk, vertex) pairs, a chunk being CHUNK_FACES consecutive triangles: a pair tests the
 chunk's box, and where it meets the vertex's, its triangles' boxes and the candidates among them (as the sweep
 path's find_self_contacts tests the BVH's hits). A vertex searched by one thread took as long as its longest
 search (on an H200 the 757-vertex pants waited ~175 µs a substep for its slowest vertex, a quarter of the frame);
@@ -70,22 +70,29 @@ def chunk_bounds(c: int, world: int, sc: SelfContacts, search: WorldSearch):
 
 @wp.func
 def search_pair(p: int, world: int, sub: Substep, sc: SelfContacts, search: WorldSearch):
-    """Pair p of `world` (its vertex p // C, its chunk p % C: a warp's threads test one vertex against
-    consecutive chunks): the chunk's triangles whose boxes overlap the vertex's and that candidate_side accepts,
-    listed in both lists (list_pair_candidate)."""
-    own = p // search.per_world
-    i = world * sc.world_vertices + own
-    c = world * search.per_world + p - own * search.per_world
+    """Pair p of `world` (its chunk p // V, its vertex p % V: a warp's threads test consecutive vertices, which
+    meet the same chunks, against one chunk, so the warp runs the chunk's triangles only where one of them meets
+    it, and reads each triangle's box once for all): the chunk's triangles whose boxes overlap the vertex's and
+    that candidate_side accepts, listed in both lists (list_pair_candidate)."""
+    chunk = p // sc.world_vertices
+    i = world * sc.world_vertices + p - chunk * sc.world_vertices
+    c = world * search.per_world + chunk
     if sub.inv_mass[i] > 0.0:
         lower, upper = search_box(i, sub, sc)
         if boxes_overlap(lower, upper, search.lower[c], search.upper[c]):
-            vertex = vertex_search(i, search.previous_count[i], sub, sc)
-            start = world * sc.world_faces + (c - world * search.per_world) * CHUNK_FACES
-            for t in range(start, wp.min(start + CHUNK_FACES, vertex.own_faces[1])):
-                if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
-                    side = candidate_side(i, t, vertex, sub, sc)
-                    if side != 0:
-                        list_pair_candidate(i, t, side, sc)
+            start = world * sc.world_faces + chunk * CHUNK_FACES
+            # The boxes first, a bit a triangle, in a loop without calls (its loads overlap), then the candidates.
+            hits = int(0)
+            for k in range(wp.min(CHUNK_FACES, (world + 1) * sc.world_faces - start)):
+                if boxes_overlap(lower, upper, sc.face_lower[start + k], sc.face_upper[start + k]):
+                    hits = hits | (1 << k)
+            if hits != 0:
+                vertex = vertex_search(i, search.previous_count[i], sub, sc)
+                for k in range(CHUNK_FACES):
+                    if (hits >> k) & 1 != 0:
+                        side = candidate_side(i, start + k, vertex, sub, sc)
+                        if side != 0:
+                            list_pair_candidate(i, start + k, side, sc)
 
 
 @wp.func
