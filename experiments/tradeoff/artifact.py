@@ -14,18 +14,19 @@ from pipeline.core.h5 import ColumnTable, atomic_h5, open_artifact
 
 STAGE = "tradeoff"
 # Columns (each a dataset of one value per row) and their units.
-STRING_COLUMNS = ("method", "network", "harmonic_every")
+STRING_COLUMNS = ("method", "network", "harmonic_every", "sim_low_kernel")
 # The learned path with the fused bf16 network (model.fused_network, CUDA) in place of the fp32 one: its ms, its
 # error against the fp32 network (largest |difference| over the largest fp32 displacement), the row's total and
 # speedup with it.
 FUSED_COLUMNS = ("ms_net_fused", "fused_error", "ms_total_fused", "speedup_fused")
 INT_COLUMNS = ("substeps", "iterations", "trained_substeps", "trained_iterations", "params")
-FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_subdiv", "ms_net",
-                 "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup", *FUSED_COLUMNS)
+FLOAT_COLUMNS = ("l1_test", "l2_test", "l1_heldout", "l2_heldout", "ms_sim_low", "ms_sim_low_other", "ms_subdiv",
+                 "ms_net", "ms_sim_high_run", "ms_total", "ms_sim_high", "speedup", *FUSED_COLUMNS)
 COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
-# NaN: the scene has no held-out motion (l1_heldout, l2_heldout); no fused network timed (the fused columns: a
-# CPU timing, where the fused network does not run, or a row without a network)
-NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout", *FUSED_COLUMNS)
+# NaN: the scene has no held-out motion (l1_heldout, l2_heldout); one frame kernel timed (ms_sim_low_other: the
+# two step the cloth alike on the device, or a row without a low-res solve); no fused network timed (the fused
+# columns: a CPU timing, where the fused network does not run, or a row without a network)
+NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout", "ms_sim_low_other", *FUSED_COLUMNS)
 TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
 # `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
 # alone, or a high-res run of another budget or harmonic schedule than the scene's.

@@ -187,12 +187,23 @@ def _fastest_beating_loop(table: Tradeoff, split: str, error: np.ndarray) -> lis
             f"reference high-res run."]
 
 
+def _sim_low_cell(table: Tradeoff, i: int) -> str:
+    """Row i's low-res ms and, where both frame kernels were timed, the faster's name and the other's ms."""
+    c = table.columns
+    ms = f"{c['ms_sim_low'][i]:.3g}"
+    if not np.isfinite(c["ms_sim_low_other"][i]):
+        return ms
+    other = "block" if c["sim_low_kernel"][i] == "sweeps" else "sweeps"
+    return f"{ms} ({c['sim_low_kernel'][i]}; {other} {c['ms_sim_low_other'][i]:.3g})"
+
+
 def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
                  load: tuple[float, float, float]) -> None:
     c, ref = table.columns, table.reference
     _, error = _main_error(table)
     front = pareto_front(c["ms_total"], error)
     fused = bool(np.any(np.isfinite(c["ms_net_fused"])))     # timed on CUDA: its columns shown
+    kernels = bool(np.any(np.isfinite(c["ms_sim_low_other"])))   # both frame kernels timed: which won, said
     header = ("| method | solver budget | network | trained on | params | test L1 | test L2 | held-out L1 | "
               "held-out L2 | low-res sim | Loop subdiv. | network | high-res sim | total | reference high-res sim | "
               "speedup |" + (" network, fused bf16 | vs fp32 | total, fused | speedup, fused |" if fused else ""))
@@ -214,6 +225,9 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
              "the paper's reference, what the learned path replaces). The low-res solves, Loop subdivision, the "
              "networks and the reference are timed in this one job, one after another on the device, the solvers "
              "over one sequence stepped alone. speedup = reference high-res sim / total."
+             + (" Low-res sim: where the sweeps and the cluster frame (solver.frame_kernel auto) step the cloth "
+                "differently on this device, each was timed and the faster kept; its kernel and the other's ms "
+                "are in brackets." if kernels else "")
              + (" Fused: the same learned path with the fused bf16 network (model.fused_network, and its input "
                 "features in one kernel where model.fused_features computes them: what a user deploys on CUDA) in "
                 "place of the fp32 one, timed beside it on the same frames; vs fp32: its "
@@ -235,8 +249,8 @@ def write_report(path: Path, plot: Path, scene_report: Path, table: Tradeoff,
                  trained, f"{c['params'][i]:,}",
                  *[f"{c[k][i] / PAPER_UNIT:.3f}" if np.isfinite(c[k][i]) else "-"
                    for k in ("l1_test", "l2_test", "l1_heldout", "l2_heldout")],
-                 *[f"{c[k][i]:.3g}" for k in ("ms_sim_low", "ms_subdiv", "ms_net", "ms_sim_high_run", "ms_total",
-                                               "ms_sim_high")],
+                 _sim_low_cell(table, i),
+                 *[f"{c[k][i]:.3g}" for k in ("ms_subdiv", "ms_net", "ms_sim_high_run", "ms_total", "ms_sim_high")],
                  f"{c['speedup'][i]:.1f}x"]
         if fused:
             cells += ["-" if not np.isfinite(c["ms_net_fused"][i]) else value for value in (

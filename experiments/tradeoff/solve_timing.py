@@ -3,21 +3,28 @@ speedup's two sides share the device, the process and its load: each low-res bud
 free high-res run of it (pipeline.solvers.xpbd's `free` level: the scene's physics, body and self collision where
 it has them, not held to the low-res run: the paper's reference), each a solver world alone, stepped over every
 frame of the sequence as the simulate stage steps it (the step and the read-back of the positions, synchronised),
-the positions not kept."""
+the positions not kept. Where the scene's two frame kernels step the low-res cloth differently on the device (the
+sweeps and, on a GPU with thread block clusters, the cluster frame), a budget is timed with each and the faster
+kept: which one wins depends on the budget (docs/performance.md, "One launch a frame")."""
 from __future__ import annotations
 
 import dataclasses
 import time
 
 import numpy as np
+import warp as wp
 
 from experiments.tradeoff.grid import point_simulation
+from pipeline.artifacts.scene import read_rest_mesh
 from pipeline.artifacts.simulation import read_last_frame
 from pipeline.core.config import simulation_settings
 from pipeline.core.errors import PipelineError
 from pipeline.core.h5 import check_same_mesh
 from pipeline.solvers.registry import solver_level
+from pipeline.solvers.xpbd import solver_settings
 from sim.solver import UnstableSimulation
+from sim.xpbd.settings import SolverSettings
+from sim.xpbd.solver import frame_kernel_for
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,12 +64,40 @@ def _settled(run: str, scene: str) -> np.ndarray:
     return read_last_frame(run)
 
 
-def low_res_ms(settings: dict, budget: tuple[int, int], sequence: TimedSequence, device: str) -> float:
+@dataclasses.dataclass(frozen=True)
+class LowResMs:
+    """A low-res budget's median ms a frame, the frame kernel that stepped it ("sweeps" or "block":
+    sim.xpbd.solver.frame_kernel_for) and the other kernel's median where both were timed (NaN otherwise)."""
+    ms: float
+    frame_kernel: str
+    other_ms: float = np.nan
+
+
+def kernels_to_time(solver: SolverSettings, device: wp.Device, vertices: int, harmonic: bool) -> tuple[str, ...]:
+    """The frame kernels to time a cloth of `vertices` (with the harmonic constraint or not) with on `device`: both
+    where "sweeps" and "auto" step it differently (the faster is kept), else the one the scene's
+    `solver.frame_kernel` steps it with, once."""
+    both = tuple(frame_kernel_for(wanted, vertices, harmonic, device) for wanted in ("sweeps", "auto"))
+    return both if both[0] != both[1] else (frame_kernel_for(solver.frame_kernel, vertices, harmonic, device),)
+
+
+def faster_kernel(medians: dict[str, float]) -> LowResMs:
+    """The kernel of the least median ms (kernel -> median of one or two kernels), beside the other's."""
+    fastest = min(medians, key=medians.get)
+    others = [ms for kernel, ms in medians.items() if kernel != fastest]
+    return LowResMs(medians[fastest], fastest, others[0] if others else np.nan)
+
+
+def low_res_ms(settings: dict, budget: tuple[int, int], sequence: TimedSequence, device: str) -> LowResMs:
     """Median ms a frame of the sequence's low-res run at `budget` (substeps, iterations; the scene's settings
-    else)."""
+    else), with each of kernels_to_time: a kernel's name as `frame_kernel` steps with that kernel."""
     substeps, iterations = budget
-    return float(np.median(solve_ms(point_simulation(settings, f"{substeps}x{iterations}"), "low",
-                                    (sequence.scene,), device, sequence.settled_low)))
+    simulation = point_simulation(settings, f"{substeps}x{iterations}")
+    kernels = kernels_to_time(solver_settings(simulation), wp.get_device(device),
+                              len(read_rest_mesh(sequence.scene)[0]), harmonic=False)   # a low-res run has none
+    return faster_kernel({kernel: float(np.median(solve_ms(
+        {**simulation, "solver": {**simulation["solver"], "frame_kernel": kernel}}, "low", (sequence.scene,),
+        device, sequence.settled_low))) for kernel in kernels})
 
 
 def free_high_res_ms(settings: dict, subdiv: str, sequence: TimedSequence, device: str) -> float:

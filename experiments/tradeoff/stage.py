@@ -31,7 +31,8 @@ after another on the device: the reference, the high-res solver at the scene's b
 collision, free (not held to a low-res run: the paper's reference, what the learned path replaces), and each
 budget's low-res solve, each the median over every frame of the --solve-timing sequence stepped alone (SCENE.h5
 and its low-res run at the scene's budget, where the high-res run starts; --settled: the scene's settle runs a
-motion library's window starts from; experiments.tradeoff.solve_timing); Loop subdivision (the deployment's
+motion library's window starts from; experiments.tradeoff.solve_timing; a low-res solve with each frame kernel
+where the sweeps and `auto` differ on the device, the faster kept and named beside the other's ms); Loop subdivision (the deployment's
 gather and weighted sum, after warm-up, a replayed CUDA graph on a GPU); the network (each MODEL.pt once, one
 after another, on the deployment path as the evaluate stage times it, on test frames of --dataset: fp32 and, on
 CUDA, the fused bf16 network with its error against fp32; the evaluations ran side by side with whatever shared
@@ -57,7 +58,7 @@ import torch
 from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, NO_NETWORK, Reference, Tradeoff,
                                           write_tradeoff)
 from experiments.tradeoff.report import pareto_plot, write_report
-from experiments.tradeoff.solve_timing import TimedSequence, free_high_res_ms, low_res_ms
+from experiments.tradeoff.solve_timing import LowResMs, TimedSequence, free_high_res_ms, low_res_ms
 from geometry.rigid import apply_rigid_inverse
 from model.cuda_graph import CapturedCall
 from model.inference import padded_stencil, stencil_product
@@ -262,31 +263,34 @@ class NetworkMs:
 
 
 NOT_TIMED = NetworkMs(0.0)      # a row without a network: nothing to time, no fused network
+NO_LOW_RES = LowResMs(0.0, "")  # a row without a low-res solve (high_res)
 
 
 def make_row(method: str, network: str, substeps: int, iterations: int, trained: tuple[int, int], params: int,
-             errors: dict[str, dict[str, float]], ms_sim_low: float, ms_subdiv: float, ms_net: NetworkMs,
+             errors: dict[str, dict[str, float]], sim_low: LowResMs, ms_subdiv: float, ms_net: NetworkMs,
              ms_sim_high: float, harmonic_every: str = "", ms_sim_high_run: float = 0.0) -> dict[str, Any]:
-    """One row of tradeoff.h5 (COLUMNS) from a method's errors (split -> l1, l2; no held_out: NaN) and times (a
-    high-res row's own solve in ms_sim_high_run, the reference's in ms_sim_high; `trained`: the (substeps,
-    iterations) of the network's training inputs, (0, 0) without a network): ms_total is the sum of the
-    row's parts, speedup the reference high-res ms over it; the same with the fused bf16 network in place of the
-    fp32 one (NaN where it was not timed)."""
-    total = ms_sim_low + ms_subdiv + ms_net.fp32 + ms_sim_high_run
-    total_fused = ms_sim_low + ms_subdiv + ms_net.fused + ms_sim_high_run
+    """One row of tradeoff.h5 (COLUMNS) from a method's errors (split -> l1, l2; no held_out: NaN) and times (the
+    low-res solve's with its frame kernel in sim_low, a high-res row's own solve in ms_sim_high_run, the
+    reference's in ms_sim_high; `trained`: the (substeps, iterations) of the network's training inputs, (0, 0)
+    without a network): ms_total is the sum of the row's parts, speedup the reference high-res ms over it; the
+    same with the fused bf16 network in place of the fp32 one (NaN where it was not timed)."""
+    total = sim_low.ms + ms_subdiv + ms_net.fp32 + ms_sim_high_run
+    total_fused = sim_low.ms + ms_subdiv + ms_net.fused + ms_sim_high_run
     held_out = errors.get("held_out", {})
-    return {"method": method, "network": network, "harmonic_every": harmonic_every, "substeps": substeps,
+    return {"method": method, "network": network, "harmonic_every": harmonic_every,
+            "sim_low_kernel": sim_low.frame_kernel, "substeps": substeps,
             "iterations": iterations, "trained_substeps": trained[0], "trained_iterations": trained[1],
             "params": params,
             "l1_test": errors["test"]["l1"], "l2_test": errors["test"]["l2"],
             "l1_heldout": held_out.get("l1", np.nan), "l2_heldout": held_out.get("l2", np.nan),
-            "ms_sim_low": ms_sim_low, "ms_subdiv": ms_subdiv, "ms_net": ms_net.fp32, "ms_sim_high_run": ms_sim_high_run,
+            "ms_sim_low": sim_low.ms, "ms_sim_low_other": sim_low.other_ms, "ms_subdiv": ms_subdiv,
+            "ms_net": ms_net.fp32, "ms_sim_high_run": ms_sim_high_run,
             "ms_total": total, "ms_sim_high": ms_sim_high, "speedup": ms_sim_high / total,
             "ms_net_fused": ms_net.fused, "fused_error": ms_net.fused_error, "ms_total_fused": total_fused,
             "speedup_fused": ms_sim_high / total_fused}
 
 
-def budget_rows(budget: Budget, reference: Reference, ms_sim_low: float, ms_subdiv: float, ms_sim_high: float,
+def budget_rows(budget: Budget, reference: Reference, sim_low: LowResMs, ms_subdiv: float, ms_sim_high: float,
                 ms_net: Mapping[str, NetworkMs]) -> list[dict[str, Any]]:
     """The rows of a budget: each network fed its inputs (the scene-trained ones, then the matched ones; `ms_net`
     by model path), then Loop subdivision alone (the predictor of the budget's dataset)."""
@@ -296,10 +300,10 @@ def budget_rows(budget: Budget, reference: Reference, ms_sim_low: float, ms_subd
     for network, inputs in trained:
         evaluated = read_network_timing(network.eval)
         rows.append(make_row(LEARNED, evaluated.name, budget.substeps, budget.iterations, inputs, evaluated.params,
-                             read_errors(network.eval)["network"], ms_sim_low, ms_subdiv, ms_net[network.model],
+                             read_errors(network.eval)["network"], sim_low, ms_subdiv, ms_net[network.model],
                              ms_sim_high))
     rows.append(make_row(LOOP, NO_NETWORK, budget.substeps, budget.iterations, (0, 0), 0,
-                         read_errors(budget.evals[0].eval)["predictor"], ms_sim_low, ms_subdiv, NOT_TIMED,
+                         read_errors(budget.evals[0].eval)["predictor"], sim_low, ms_subdiv, NOT_TIMED,
                          ms_sim_high))
     return rows
 
@@ -334,7 +338,7 @@ def high_res_row(run: HighResRun, origins: FrameOrigins, reference_runs: Sequenc
     """A cheaper high-res run as a row: its errors against the reference runs, its solve as the whole time."""
     ms, _ = per_sequence_ms(run.timed)
     return make_row(HIGH_RES, NO_NETWORK, run.substeps, run.iterations, (0, 0), 0,
-                    high_res_errors(origins, reference_runs, run.runs), 0.0, 0.0, NOT_TIMED, ms_sim_high,
+                    high_res_errors(origins, reference_runs, run.runs), NO_LOW_RES, 0.0, NOT_TIMED, ms_sim_high,
                     run.harmonic_every,
                     ms_sim_high_run=ms)
 
@@ -421,13 +425,13 @@ def main(argv: Sequence[str] | None = None) -> None:
                            args.timing_frames)
     rows = []
     for budget in grid:
-        ms_low = low_res_ms(settings, (budget.substeps, budget.iterations), timed, args.device)
+        sim_low = low_res_ms(settings, (budget.substeps, budget.iterations), timed, args.device)
         low = read_trajectory(budget.low_runs[0]).positions
         if low.shape[1] != S.shape[1]:
             raise PipelineError(f"{budget.low_runs[0]}: {low.shape[1]} vertices, but S of {args.subdiv} takes "
                                 f"{S.shape[1]}")
         ms_subdiv = float(np.median(time_subdivision(S, low[1:], device, args.timing_frames)))
-        rows += budget_rows(budget, reference, ms_low, ms_subdiv, ms_high, ms_net)
+        rows += budget_rows(budget, reference, sim_low, ms_subdiv, ms_high, ms_net)
     if high_res:
         origins = read_frame_origins(args.dataset)
         rows += [high_res_row(run, origins, args.sim_high, ms_high) for run in high_res]

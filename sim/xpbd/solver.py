@@ -102,16 +102,22 @@ def cuda_sweep_lanes(vertices: int) -> int:
 
 
 def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
-    """"block" where the model's frame is stepped in one launch, else "sweeps": settings.frame_kernel "block"
-    where the cloth fits a block (no harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices), "auto"
-    where it was measured faster than the sweeps: on a GPU with thread block clusters (compute capability 9.0),
-    a world in a cluster's shared memory (block_frame.SHARED_VERTICES). One block a world, or a world in global
-    memory, was slower than the sweeps wherever measured, and the CPU's launches cost little next to a block's
-    exhaustive self-contact search (docs/performance.md, "One launch a frame")."""
-    wanted = model.settings.frame_kernel
-    fits = model.harmonic is None and len(model.rest_vertices) <= block_frame.MAX_BLOCK_VERTICES
-    if fits and (wanted == "block" or (wanted == "auto" and block_frame.clusters_serve(device,
-                                                                                   len(model.rest_vertices)))):
+    """"block" where the model's frame is stepped in one launch, else "sweeps" (frame_kernel_for)."""
+    return frame_kernel_for(model.settings.frame_kernel, len(model.rest_vertices), model.harmonic is not None,
+                            device)
+
+
+def frame_kernel_for(wanted: str, vertices: int, harmonic: bool, device: wp.Device) -> str:
+    """"block" where settings.frame_kernel `wanted` steps a frame of a cloth of `vertices` (with the harmonic
+    constraint or not) on `device` in one launch, else "sweeps": "block" where the cloth fits a block (no harmonic
+    constraint, at most block_frame.MAX_BLOCK_VERTICES vertices), "auto" where it was measured faster than the
+    sweeps: on a GPU with thread block clusters (compute capability 9.0), a world in a cluster's shared memory
+    (block_frame.SHARED_VERTICES). One block a world, or a world in global memory, was slower than the sweeps
+    wherever measured, and the CPU's launches cost little next to a block's exhaustive self-contact search
+    (docs/performance.md, "One launch a frame"). A function of these alone, so that a caller may ask it without
+    building the model (the trade-off stage: which kernels to time)."""
+    fits = not harmonic and vertices <= block_frame.MAX_BLOCK_VERTICES
+    if fits and (wanted == "block" or (wanted == "auto" and block_frame.clusters_serve(device, vertices))):
         return "block"
     return "sweeps"
 

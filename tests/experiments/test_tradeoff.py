@@ -13,9 +13,10 @@ from scipy.spatial.transform import Rotation
 from experiments.tradeoff.artifact import (COLUMNS, HIGH_RES, LEARNED, LOOP, Reference, Tradeoff, read_tradeoff,
                                           write_tradeoff)
 from experiments.tradeoff.report import findings, labels, pareto_front
-from experiments.tradeoff.stage import (NOT_TIMED, Budget, Network, NetworkMs, budget_rows, high_res_errors, main,
-                                        make_row, parse_grid, parse_high_res, per_sequence_ms, table_of,
-                                        time_subdivision)
+from experiments.tradeoff.solve_timing import LowResMs
+from experiments.tradeoff.stage import (NO_LOW_RES, NOT_TIMED, Budget, Network, NetworkMs, budget_rows,
+                                        high_res_errors, main, make_row, parse_grid, parse_high_res, per_sequence_ms,
+                                        table_of, time_subdivision)
 from model.losses import l1_loss, l2_loss
 from pipeline.artifacts.dataset import SEQUENCE, SEQUENCE_FRAME, SEQUENCE_NAMES, SPLIT_HELD_OUT, SPLIT_TEST
 from pipeline.artifacts.dataset import read_frame_origins
@@ -25,6 +26,11 @@ from pipeline.artifacts.simulation import SimulationRun, write_simulation
 from pipeline.core.errors import PipelineError
 
 REFERENCE = Reference(4, 30, "substep")
+
+
+def sweeps(ms):
+    """A low-res solve of `ms` timed with one frame kernel, the sweeps."""
+    return LowResMs(ms, "sweeps")
 
 
 def brute_force_front(ms, error):
@@ -98,7 +104,7 @@ def test_a_budgets_rows_are_its_networks_then_the_matched_ones_then_loop_alone_w
                                250, width=0.125)
     budget = Budget(1, 30, ["low.h5"], [Network(scene, "s.pt"), Network(small, "w.pt")],
                     [Network(matched, "m.pt"), Network(matched_small, "mw.pt")])
-    rows = budget_rows(budget, Reference(4, 30, "substep"), ms_sim_low=10.0, ms_subdiv=0.5, ms_sim_high=200.0,
+    rows = budget_rows(budget, Reference(4, 30, "substep"), sim_low=sweeps(10.0), ms_subdiv=0.5, ms_sim_high=200.0,
                        ms_net={"s.pt": NetworkMs(4.0), "w.pt": NetworkMs(1.0), "m.pt": NetworkMs(4.0),
                                "mw.pt": NetworkMs(0.5)})
     assert [(r["method"], r["network"], r["trained_substeps"], r["trained_iterations"], r["params"])
@@ -126,12 +132,14 @@ def test_an_evaluation_without_its_network_spec_or_timed_frames_is_refused(tmp_p
 
 
 def test_a_row_without_a_held_out_split_has_nan_there_and_its_speedup_is_the_reference_over_its_total():
-    row = make_row(HIGH_RES, "none", 2, 15, (0, 0), 0, {"test": {"l1": 0.1, "l2": 0.2}}, 0.0, 0.0, NOT_TIMED, 20.0,
+    row = make_row(HIGH_RES, "none", 2, 15, (0, 0), 0, {"test": {"l1": 0.1, "l2": 0.2}}, NO_LOW_RES, 0.0, NOT_TIMED,
+                   20.0,
                    "substep",
                    ms_sim_high_run=5.0)
     assert np.isnan(row["l1_heldout"]) and np.isnan(row["l2_heldout"])
     assert (row["ms_total"], row["speedup"], row["harmonic_every"]) == (5.0, 4.0, "substep")
-    assert make_row(LEARNED, "n", 1, 10, (4, 10), 9, {"test": {"l1": 1, "l2": 1}}, 1.0, 2.0, NetworkMs(4.0),
+    assert make_row(LEARNED, "n", 1, 10, (4, 10), 9, {"test": {"l1": 1, "l2": 1}}, sweeps(1.0), 2.0,
+                    NetworkMs(4.0),
                     70.0)["speedup"] == 10.0
     assert list(row) == list(COLUMNS)
 
@@ -232,13 +240,14 @@ def learned(n, trained, l1, total, network="RC9 x0.25", iterations=30):
     """A learned row at n substeps x `iterations`, its network trained on `trained` substeps (at the scene's 30
     iterations if that is the scene's 4 substeps, else at the row's own iterations: a matched network)."""
     inputs = (trained, 30 if trained == REFERENCE.substeps else iterations)
-    return make_row(LEARNED, network, n, iterations, inputs, 100, {"test": {"l1": l1, "l2": l1}}, total, 0.0,
+    return make_row(LEARNED, network, n, iterations, inputs, 100, {"test": {"l1": l1, "l2": l1}}, sweeps(total), 0.0,
                     NOT_TIMED, 100.0)
 
 
 def test_findings_say_what_the_input_shift_costs_and_how_much_matched_training_removes():
     rows = [learned(1, 4, 3e-3, 10.0), learned(1, 1, 2e-3, 10.0), learned(4, 4, 1e-3, 40.0),
-            make_row(HIGH_RES, "none", 1, 10, (0, 0), 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, 0.0, 0.0, NOT_TIMED, 100.0,
+            make_row(HIGH_RES, "none", 1, 10, (0, 0), 0, {"test": {"l1": 5e-4, "l2": 6e-4}}, NO_LOW_RES, 0.0, NOT_TIMED,
+                     100.0,
                      "substep", ms_sim_high_run=25.0)]
     lines = findings(table(rows))
     assert ("Input shift: RC9 x0.25 trained on 4-substep inputs has test L1 3.000 fed 1-substep runs against 1.000 "
@@ -257,8 +266,8 @@ def test_a_budget_of_fewer_iterations_is_its_own_budget_in_the_findings_and_labe
     """1 x 10 (the scene: 4 x 30): the scene-trained network fed it, the matched one trained on it, its Loop row;
     the 1 x 30 budget beside it is another budget (its Loop row is not 1 x 10's)."""
     def loop(n, iterations, l1, ms):
-        return make_row(LOOP, "none", n, iterations, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED,
-                        100.0)
+        return make_row(LOOP, "none", n, iterations, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, sweeps(ms), 0.0,
+                        NOT_TIMED, 100.0)
     rows = [learned(1, 4, 3e-3, 6.0, iterations=10), learned(1, 1, 2e-3, 5.0, iterations=10),
             loop(1, 10, 3.1e-3, 2.0), learned(1, 4, 2.5e-3, 12.0), loop(1, 30, 1.9e-3, 8.0),
             learned(4, 4, 1e-3, 40.0)]
@@ -280,10 +289,11 @@ def test_findings_name_the_fastest_learned_path_clearly_below_loop_subdivision_f
     input shift's networks land there), so the matched one (2.0, 12 ms, fused 6 ms) is named though slower; budget
     4's network (1.0) is slower still (40 ms)."""
     def loop(n, l1, ms):
-        return make_row(LOOP, "none", n, 30, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, ms, 0.0, NOT_TIMED, 100.0)
+        return make_row(LOOP, "none", n, 30, (0, 0), 0, {"test": {"l1": l1, "l2": l1}}, sweeps(ms), 0.0, NOT_TIMED,
+                        100.0)
     rows = [learned(1, 4, 2.9e-3, 5.0), make_row(LEARNED, "RC9 x0.125", 1, 30, (1, 30), 50,
                                                  {"test": {"l1": 2e-3, "l2": 2e-3}},
-                                                 4.0, 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
+                                                 sweeps(4.0), 0.0, NetworkMs(8.0, 2.0, 1e-2), 100.0),
             loop(1, 3e-3, 4.0), learned(4, 4, 1e-3, 40.0), loop(4, 1.5e-3, 39.0)]
     lines = findings(table(rows))
     assert ("Fastest learned path at least 5% below Loop subdivision alone's test L1 at its budget: 1 sub, RC9 x0.125 "
@@ -294,7 +304,8 @@ def test_findings_name_the_fastest_learned_path_clearly_below_loop_subdivision_f
 def test_tradeoff_h5_round_trips_and_refuses_ragged_columns_nan_and_unknown_methods(tmp_path):
     rows = [learned(1, 4, 1e-3, 10.0),
             make_row(LOOP, "none", 1, 30, (0, 0), 0,
-                     {"test": {"l1": 2e-3, "l2": 3e-3}, "held_out": {"l1": 4e-3, "l2": 5e-3}}, 10.0, 0.5, NOT_TIMED,
+                     {"test": {"l1": 2e-3, "l2": 3e-3}, "held_out": {"l1": 4e-3, "l2": 5e-3}}, sweeps(10.0), 0.5,
+                     NOT_TIMED,
                      100.0)]
     written = table(rows)
     write_tradeoff(tmp_path / "t.h5", {}, written)

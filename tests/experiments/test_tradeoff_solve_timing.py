@@ -46,7 +46,8 @@ def test_each_solver_the_stage_times_gives_a_finite_ms_per_frame_after_the_first
     times = solve_ms(simulation_settings(settings), "free",
                      (sequence.scene, str(patch / "subdiv.h5"), sequence.sim_low), "cpu", None)
     assert times.shape == (n_frames - 2,) and np.all(np.isfinite(times) & (times > 0))
-    for ms in (low_res_ms(settings, (1, 3), sequence, "cpu"), free_high_res_ms(settings, str(patch / "subdiv.h5"),
-                                                                         sequence, "cpu")):
+    low = low_res_ms(settings, (1, 3), sequence, "cpu")
+    assert low.frame_kernel == "sweeps" and np.isnan(low.other_ms)        # the CPU: the scene's kernel, once
+    for ms in (low.ms, free_high_res_ms(settings, str(patch / "subdiv.h5"), sequence, "cpu")):
         assert np.isfinite(ms) and ms > 0
 

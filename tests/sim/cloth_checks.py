@@ -12,6 +12,18 @@ from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
 
 
+class FakeGpu:
+    """What the frame kernel's choice (frame_kernel_for, default_layout, checked_layout) reads of a device: a GPU
+    of compute capability arch / 10 without one."""
+    is_cuda = True
+
+    def __init__(self, arch, sm_count=132):
+        self.arch, self.sm_count = arch, sm_count
+
+    def __str__(self):
+        return f"sm_{self.arch}"
+
+
 def edge_ratios(x, rest, faces):
     """Each edge's length at positions x over its rest length."""
     e = unique_edges(faces)

@@ -21,7 +21,7 @@ from sim.xpbd import block_frame
 from sim.xpbd import solver as solver_module
 from sim.xpbd.solver import frame_kernel_of
 from sim.xpbd.block_frame import BlockLayout
-from tests.sim.cloth_checks import coarse_pants_drives, contact_scene, run_worlds
+from tests.sim.cloth_checks import FakeGpu, coarse_pants_drives, contact_scene, run_worlds
 
 CUDA = pytest.mark.skipif(not wp.get_cuda_device_count(), reason="no CUDA device")
 FRAMES = 8
@@ -201,17 +201,6 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
         kernel("sweeps", block_layout=BlockLayout(1))
     with pytest.raises(ValueError, match="frame_kernel"):
         SolverSettings(frame_kernel="graph")
-
-
-class FakeGpu:
-    """What default_layout and checked_layout read of a device."""
-    is_cuda = True
-
-    def __init__(self, arch, sm_count=132):
-        self.arch, self.sm_count = arch, sm_count
-
-    def __str__(self):
-        return f"sm_{self.arch}"
 
 
 def test_the_default_layout_fills_the_gpu_once():
