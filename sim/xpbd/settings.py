@@ -41,7 +41,8 @@ class SolverSettings:
                                          # CPU, the sweeps. "block": the one launch wherever the cloth fits
                                          # (block_frame.MAX_BLOCK_VERTICES), the CPU too. The sweeps stay the
                                          # default: on an H200 the clusters step the 757-vertex pants with body
-                                         # and self-contact 1.10-1.15x faster at 8 x 75, 0.89x at 1 x 20, and a
+                                         # and self-contact 1.18x faster at 8 x 75, 1.03x at 1 x 20, but
+                                         # batches of such worlds (smaller clusters) are not measured, and a
                                          # block a world was slower everywhere (docs/performance.md, "One
                                          # launch a frame")
 
