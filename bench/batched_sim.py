@@ -1,7 +1,7 @@
 """Batched simulation throughput: cloth-frames per second against the number of worlds B stepped together.
 
-Pants worn by the mannequin, low-res (~3.7k vertices) and one Loop level finer (~14.5k), body + self collision,
-the paper's 8 substeps x 75 iterations; world w plays motion kind w mod 4 (dance, karate, random, walk) with seed
+Pants worn by the mannequin, low-res (~3.7k vertices; `--max-edge 0.08`: the paper profile's 757) and one Loop level
+finer (~14.5k), body + self collision, the paper's 8 substeps x 75 iterations; world w plays motion kind w mod 4 (dance, karate, random, walk) with seed
 w, fading in from the rest pose over 10 frames (each world its own body motion and pins, all starting where the
 garment was made, as a sequence of the stage does); the high-res rows hold every world to its own low-res run
 (stepped first) by the harmonic constraint (V/40 modes), as the simulate stage does.
@@ -22,7 +22,7 @@ solver's). Usage:
   python bench/batched_sim.py [--device cuda:0] [--levels low,high] [--batches 1,2,4,...] [--frames 10]
       [--warmup 3] [--substeps 8] [--iterations 75] [--harmonic-every substep|iteration] [--profile]
       [--contacts] [--peer newton] [--lanes 1,4] [--frame-kernels sweeps,block]
-      [--block-layouts 1024,128x8x4] [--out table.md]
+      [--block-layouts 1024,128x8x4] [--max-edge 0.08] [--out table.md]
 """
 from __future__ import annotations
 
@@ -56,11 +56,11 @@ MAX_EDGE = 0.035  # pants: ~3.7k vertices low-res, ~14.5k after one level of Loo
 KINDS = ("dance", "karate", "random", "walk")
 
 
-def pants(n_frames: int, worlds: int):
+def pants(n_frames: int, worlds: int, max_edge: float = MAX_EDGE):
     """Both levels of the pants, the attachment pins and, per world and frame, their targets (W, F, P, 3) and the
     capsules (W, F, N, 2, 3) of the world's motion."""
     skel = default_skeleton()
-    garment = make_garment("pants", skel, max_edge=MAX_EDGE)
+    garment = make_garment("pants", skel, max_edge=max_edge)
     S, high_faces = loop_subdivide(garment.vertices, garment.faces, levels=1)
     ids = garment.attachment  # the coarse vertices keep their ids after Loop subdivision
     targets, capsules = [], []
@@ -204,11 +204,13 @@ def main():
                         help="ways to launch a frame, e.g. sweeps,block,auto")
     parser.add_argument("--block-layouts", default="",
                         help="the block frame's layouts, THREADSxCLUSTER_BLOCKSxLANES, e.g. 1024,128x8x4")
+    parser.add_argument("--max-edge", type=float, default=MAX_EDGE,
+                        help="the pants' longest low-res edge: 0.08 is the paper profile's (757 vertices)")
     parser.add_argument("--out")
     args = parser.parse_args()
     batches = [int(b) for b in args.batches.split(",")]
     n_frames = args.warmup + args.frames + 2
-    levels, pins, targets, capsules, radii = pants(n_frames, max(batches))
+    levels, pins, targets, capsules, radii = pants(n_frames, max(batches), args.max_edge)
     S, _ = loop_subdivide(*levels["low"], levels=1)
     settings = SolverSettings(substeps=args.substeps, iterations=args.iterations, body_collision=True,
                               self_collision=True, harmonic_every=args.harmonic_every)
