@@ -101,23 +101,27 @@ def cuda_sweep_lanes(vertices: int) -> int:
     return lanes
 
 
-def frame_kernel_of(model: ClothModel, device: wp.Device) -> str:
+def frame_kernel_of(model: ClothModel, device: wp.Device, worlds: int = 1) -> str:
     """"block" where the model's frame is stepped in one launch, else "sweeps" (frame_kernel_for)."""
     return frame_kernel_for(model.settings.frame_kernel, len(model.rest_vertices), model.harmonic is not None,
-                            device)
+                            device, worlds)
 
 
-def frame_kernel_for(wanted: str, vertices: int, harmonic: bool, device: wp.Device) -> str:
-    """"block" where settings.frame_kernel `wanted` steps a frame of a cloth of `vertices` (with the harmonic
-    constraint or not) on `device` in one launch, else "sweeps": "block" where the cloth fits a block (no harmonic
-    constraint, at most block_frame.MAX_BLOCK_VERTICES vertices), "auto" where it was measured faster than the
-    sweeps: on a GPU with thread block clusters (compute capability 9.0), a world in a cluster's shared memory
-    (block_frame.SHARED_VERTICES). One block a world, or a world in global memory, was slower than the sweeps
-    wherever measured, and the CPU's launches cost little next to a block's exhaustive self-contact search
-    (docs/performance.md, "One launch a frame"). A function of these alone, so that a caller may ask it without
-    building the model (the trade-off stage: which kernels to time)."""
+def frame_kernel_for(wanted: str, vertices: int, harmonic: bool, device: wp.Device, worlds: int = 1) -> str:
+    """"block" where settings.frame_kernel `wanted` steps a frame of `worlds` cloths of `vertices` (with the
+    harmonic constraint or not) on `device` in one launch, else "sweeps": "block" where the cloth fits a block (no
+    harmonic constraint, at most block_frame.MAX_BLOCK_VERTICES vertices), "auto" where it was measured faster than
+    the sweeps: on a GPU with thread block clusters (compute capability 9.0), worlds in a cluster's shared memory
+    (block_frame.SHARED_VERTICES) few enough that each takes a whole cluster of MAX_CLUSTER_BLOCKS blocks at once
+    (its default layout). One block a world, a world in global memory, or many worlds in smaller clusters were
+    slower than the sweeps wherever measured (an H200: 1.16x the sweeps for one paper pants, 1.02x for 8, 0.60-0.87x
+    for 32 to 256 in clusters of 4 to 1 blocks), and the CPU's launches cost little next to a block's exhaustive
+    self-contact search (docs/performance.md, "One launch a frame"). A function of these alone, so that a caller may
+    ask it without building the model (the trade-off stage: which kernels to time)."""
     fits = not harmonic and vertices <= block_frame.MAX_BLOCK_VERTICES
-    if fits and (wanted == "block" or (wanted == "auto" and block_frame.clusters_serve(device, vertices))):
+    whole_clusters = (block_frame.clusters_serve(device, vertices) and block_frame.default_layout(
+        vertices, worlds, device).cluster_blocks == block_frame.MAX_CLUSTER_BLOCKS)
+    if fits and (wanted == "block" or (wanted == "auto" and whole_clusters)):
         return "block"
     return "sweeps"
 
@@ -173,7 +177,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             raise ValueError(f"sweep_lanes must be 1, 2, 4, 8 or 16 on CUDA (threads of a warp per vertex) and 1 on "
                              f"the CPU, got {sweep_lanes!r}")
         self.sweep_lanes = sweep_lanes
-        self.frame_kernel = frame_kernel_of(model, self.device)
+        self.frame_kernel = frame_kernel_of(model, self.device, worlds)
         self.worlds = worlds
         self.world_vertices = n = len(rest_vertices)
         if self.frame_kernel == "block":

@@ -185,6 +185,10 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
     monkeypatch.undo()
     auto = ClothModel(rest, faces, SolverSettings(frame_kernel="auto"), pins)
     assert frame_kernel_of(auto, FakeGpu(90)) == "block"       # a world in a cluster's shared memory
+    assert frame_kernel_of(auto, FakeGpu(90), worlds=8) == "block"     # 8 clusters of 16 blocks on 132 SMs
+    assert frame_kernel_of(auto, FakeGpu(90), worlds=9) == "sweeps"    # clusters of 8: slower
+    assert frame_kernel_of(auto, FakeGpu(90, sm_count=16), worlds=2) == "sweeps"
+    assert frame_kernel_of(auto, FakeGpu(120)) == "sweeps"     # clusters of 8 at most there: not measured faster
     assert frame_kernel_of(auto, FakeGpu(80)) == "sweeps"      # no clusters: one block was slower
     monkeypatch.setattr(block_frame, "SHARED_VERTICES", len(rest) - 1)
     assert frame_kernel_of(auto, FakeGpu(90)) == "sweeps"      # in global memory: slower
