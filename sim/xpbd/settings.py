@@ -34,17 +34,18 @@ class SolverSettings:
     frame_end_rounds: int = 0            # more such rounds after a frame's last substep only, where the frame is
                                          # stored (the alternation converges linearly; a round is 4 launches)
     frame_kernel: str = "sweeps"         # "sweeps": a kernel per sweep. "auto": on a GPU with thread block
-                                         # clusters (compute capability 9.0) a cloth whose world fits a
+                                         # clusters (compute capability 9.0) cloths whose worlds fit a
                                          # cluster's shared memory (no harmonic constraint, at most
-                                         # block_frame.SHARED_VERTICES vertices) steps a frame in one launch, a
-                                         # cluster of blocks per world (sim.xpbd.block_frame); else, and on the
-                                         # CPU, the sweeps. "block": the one launch wherever the cloth fits
+                                         # block_frame.SHARED_VERTICES vertices), few enough that each gets a
+                                         # whole cluster of 16 blocks, step a frame in one launch (a cluster of
+                                         # blocks per world, sim.xpbd.block_frame); else, and on the CPU, the
+                                         # sweeps. "block": the one launch wherever the cloth fits
                                          # (block_frame.MAX_BLOCK_VERTICES), the CPU too. The sweeps stay the
-                                         # default: on an H200 the clusters step the 757-vertex pants with body
-                                         # and self-contact 1.18x faster at 8 x 75, 1.03x at 1 x 20, but
-                                         # batches of such worlds (smaller clusters) are not measured, and a
-                                         # block a world was slower everywhere (docs/performance.md, "One
-                                         # launch a frame")
+                                         # default: on an H200 the clusters step one 757-vertex pants with body
+                                         # and self-contact 1.18x faster at 8 x 75, 1.03x at 1 x 20, but the
+                                         # simulate stage's batches are faster with the sweeps, and the key's
+                                         # absence in settings written before it existed means sweeps
+                                         # (docs/performance.md, "One launch a frame")
 
     def __post_init__(self):
         # NaN fails every range check below, but inf passes the open-ended ones (dt > 0, damping >= 0, ...)
