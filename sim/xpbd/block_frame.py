@@ -47,9 +47,13 @@ MAX_BLOCK_THREADS = 1024
 # The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
-# The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of
-# vec3, 36 KB (within the 48 KB a block may declare statically, beside Warp's own 1 KB).
-SHARED_VERTICES = 1536
+# The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of a
+# 16-byte slot a vertex (a vec3 and 4 bytes of padding), 44 KB (within the 48 KB a block may declare statically,
+# beside Warp's own ~2 KB). 16 bytes, not 12: a cluster sends a vertex to another block as one 16-byte store, where
+# three 4-byte stores cost ~1.3 µs more a sweep (757-vertex pants, stretch only, H200: a sweep's remote stores are
+# counted transactions, each block receiving all V of them).
+SHARED_VERTICES = 1408
+SLOT_BYTES = wp.constant(16)
 # Thread block clusters (compute capability 9.0 and later): a world of up to this many blocks, each on its own
 # multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
 # launch a frame"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
@@ -159,19 +163,21 @@ def world_barrier(cluster_blocks: int):
 
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
-    __shared__ wp::vec3 buffer[2 * {SHARED_VERTICES}];
+    __shared__ alignas(16) wp::vec4 buffer[2 * {SHARED_VERTICES}];
     if (in_shared) {
         wp::array_t<wp::vec3> view = fallback;
-        view.data = buffer + half * {SHARED_VERTICES} - first;
+        view.data = reinterpret_cast<wp::vec3*>(buffer + half * {SHARED_VERTICES} - first);
+        view.strides[0] = {SLOT_BYTES};
         return view;
     }
 #endif
     return fallback;
-""".replace("{SHARED_VERTICES}", str(SHARED_VERTICES)))
+""".replace("{SHARED_VERTICES}", str(SHARED_VERTICES)).replace("{SLOT_BYTES}", str(SLOT_BYTES)))
 def shared_positions(fallback: wp.array(dtype=wp.vec3), half: int, first: int,
                      in_shared: int) -> wp.array(dtype=wp.vec3):
     """With in_shared (CUDA), a view of half `half` (0 or 1) of the block's shared buffer indexed by the world's
-    vertex ids (`first`, the world's first, is its first entry); else `fallback`, the global buffer."""
+    vertex ids (`first`, the world's first, is its first entry), a vertex every SLOT_BYTES (the array's stride, so
+    the functions that index it need not know); else `fallback`, the global buffer."""
     ...
 
 
@@ -201,7 +207,7 @@ def store_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, c
 # A cluster's sweeps meet at no barrier. Each block's shared memory holds two transaction barriers (mbarriers), one
 # for even sweeps and one for odd ones: a sweep's result goes to every block's copy by asynchronous remote stores
 # (st.async) that count their bytes on the receiving block's barrier of that sweep, and a block starts the next sweep
-# once all V positions have arrived (V * 12 bytes). A cluster barrier (barrier.cluster) would do too, but with a
+# once all V positions have arrived (V * SLOT_BYTES bytes). A cluster barrier (barrier.cluster) would do too, but with a
 # GPU-wide memory fence and a flush of the L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an
 # H200, stretch only). Two barriers suffice: a block sends sweep k + 1 only after receiving everyone's sweep k, so
 # no block is two sweeps ahead of another; and everyone's sweep k arrived means every block is done reading the
@@ -246,12 +252,10 @@ def init_sweep_barriers(cluster_blocks: int, even_barrier: int, odd_barrier: int
             unsigned int place, arrivals;
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(place) : "r"(own), "r"(rank));
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(arrivals) : "r"(barrier), "r"(rank));
-            asm volatile("st.async.shared::cluster.mbarrier::complete_tx::bytes.b32 [%0], %1, [%2];"
-                         :: "r"(place), "r"(__float_as_uint(value[0])), "r"(arrivals) : "memory");
-            asm volatile("st.async.shared::cluster.mbarrier::complete_tx::bytes.b32 [%0+4], %1, [%2];"
-                         :: "r"(place), "r"(__float_as_uint(value[1])), "r"(arrivals) : "memory");
-            asm volatile("st.async.shared::cluster.mbarrier::complete_tx::bytes.b32 [%0+8], %1, [%2];"
-                         :: "r"(place), "r"(__float_as_uint(value[2])), "r"(arrivals) : "memory");
+            // the vertex's whole 16-byte slot in one store (its padding zero)
+            asm volatile("st.async.shared::cluster.mbarrier::complete_tx::bytes.v4.b32 [%0], {%1, %2, %3, %4}, [%5];"
+                         :: "r"(place), "r"(__float_as_uint(value[0])), "r"(__float_as_uint(value[1])),
+                            "r"(__float_as_uint(value[2])), "r"(0u), "r"(arrivals) : "memory");
         }
         return;
     }
@@ -370,7 +374,7 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barrier,
                               lane, lanes)
             if cluster_blocks > 1:
-                wait_for_sweep(barrier, (phase // 2) % 2, n * 12)
+                wait_for_sweep(barrier, (phase // 2) % 2, n * SLOT_BYTES)
             else:
                 world_barrier(cluster_blocks)
         if cluster_blocks > 1:

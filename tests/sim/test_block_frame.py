@@ -210,7 +210,7 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
 def test_the_default_layout_fills_the_gpu_once():
     hopper = FakeGpu(90)
     assert block_frame.default_layout(757, 1, hopper) == BlockLayout(256, 16, 4)   # a vertex a group
-    assert block_frame.default_layout(1536, 1, hopper) == BlockLayout(512, 16, 4)
+    assert block_frame.default_layout(block_frame.SHARED_VERTICES, 1, hopper) == BlockLayout(512, 16, 4)
     assert block_frame.default_layout(757, 3, hopper) == BlockLayout(256, 16, 4)   # 48 of 132 SMs
     assert block_frame.default_layout(757, 9, hopper) == BlockLayout(512, 8, 4)
     assert block_frame.default_layout(757, 64, hopper) == BlockLayout(1024, 2, 4)
@@ -252,7 +252,7 @@ def test_the_cluster_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path):
     (ptx,) = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "ptx", use_ptx=True)
     text = ptx.read_text()
     assert ".reqnctapercluster 16, 1, 1" in text and ".maxntid 256, 1, 1" in text
-    assert text.count("st.async.shared::cluster.mbarrier::complete_tx::bytes.b32") == 3   # a vertex's x, y, z
+    assert text.count("st.async.shared::cluster.mbarrier::complete_tx::bytes.v4.b32") == 1   # a vertex's slot
     assert "mbarrier.try_wait.parity" in text and "barrier.cluster.arrive.release" in text
 
 
