@@ -106,12 +106,13 @@ def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, own_faces: 
     if t < own_faces[0] or t >= own_faces[1]:
         return 0
     tri = sc.faces[t]
-    for k in range(3):
-        if tri[k] == i:
+    if tri[0] == i or tri[1] == i or tri[2] == i:
+        return 0
+    # A constant bound, so the loop unrolls and the neighbours stay in registers (indexed at run time, a vector
+    # lives in local memory: a load for each of the ~18 comparisons of every box hit).
+    for a in range(MAX_VALENCE):
+        if a < n_neighbors and (neighbors[a] == tri[0] or neighbors[a] == tri[1] or neighbors[a] == tri[2]):
             return 0
-        for a in range(n_neighbors):
-            if neighbors[a] == tri[k]:
-                return 0
     xa = x[tri[0]]
     n, ok = triangle_normal(xa, x[tri[1]], x[tri[2]])
     if not ok:
@@ -291,8 +292,9 @@ def vertex_search(i: int, n_old: int, sub: Substep, sc: SelfContacts) -> Search:
     if sub.inv_mass[i] > 0.0:
         first = sc.edge_offsets[i]
         search.n_neighbors = sc.edge_offsets[i + 1] - first
-        for a in range(search.n_neighbors):
-            search.neighbors[a] = sc.vertex_neighbors[first + a]
+        for a in range(MAX_VALENCE):   # unrolled, as contact_side reads them
+            if a < search.n_neighbors:
+                search.neighbors[a] = sc.vertex_neighbors[first + a]
         world = i // sc.world_vertices
         search.own_faces = wp.vec2i(world * sc.world_faces, (world + 1) * sc.world_faces)
     return search
