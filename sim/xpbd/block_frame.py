@@ -33,7 +33,7 @@ import warp as wp
 # adjoint: nothing differentiates a frame, and the kernel's backward pass would double its compile time.
 wp.set_module_options({"fast_math": True, "enable_backward": False})
 
-from sim.xpbd.body_contact import Capsules, finish_vertex, predict_near_body
+from sim.xpbd.body_contact import Capsules, capsule_shape_at, finish_vertex, predict_near_body
 from sim.xpbd.contact_sweep import swept_vertex
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
@@ -330,6 +330,8 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     world_barrier(cluster_blocks)   # a cluster's blocks have all started before one writes to another's memory
     for s in range(substeps.shape[0]):
         sub = substeps[s]
+        for c in range(world * capsules.per_world + thread, (world + 1) * capsules.per_world, threads):
+            capsules.shapes[c] = capsule_shape_at(capsules, c, sub.f1)   # read by the sweeps, past the barrier
         for i in range(first + thread, last, threads):
             if body_collision != 0:
                 predict_near_body(i, sub, pins, capsules)

@@ -26,6 +26,21 @@ WATCHED = 3                 # capsules a vertex may watch in the iterations (a b
 
 
 @wp.struct
+class CapsuleShape:
+    """A tapered capsule at one moment and what its distance function derives from its end points and radii
+    (capsule_shape): built once where the capsule is met many times (a sweep's watched capsules, a continuous
+    test's trace), not at every distance."""
+    a: wp.vec3
+    b: wp.vec3
+    ra: float
+    rb: float
+    e: wp.vec3                        # unit axis, a to b
+    length: float                     # |b - a|
+    sin_phi: float                    # (ra - rb) / length: the taper
+    cos_phi: float
+
+
+@wp.struct
 class Capsules:
     """The body as tapered capsules at the start and end of the frame, and per-vertex body-contact state of the
     substep. World w's capsules are rows w P .. w P + P - 1 (P = per_world; 0 without body collision)."""
@@ -39,6 +54,8 @@ class Capsules:
     near: wp.array(dtype=int)         # (B V,) capsules watched in this substep: c + 1 in each byte (c counted within
                                       # the vertex's world), 0 ends the list
     push: wp.array(dtype=float)       # (B V,) total outward correction by the body in this substep
+    shapes: wp.array(dtype=CapsuleShape)  # (B P,) each capsule at the substep's end (capsule_shapes), which the
+                                      # sweeps' push_out_of_body reads: derived once a substep, not every sweep
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -54,36 +71,55 @@ def any_perpendicular(e: wp.vec3) -> wp.vec3:
 
 
 @wp.func
-def capsule_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float):
+def capsule_shape(a: wp.vec3, b: wp.vec3, ra: float, rb: float) -> CapsuleShape:
+    """The capsule with end points a, b and radii ra, rb, ready for shape_distance."""
+    shape = CapsuleShape()
+    shape.a = a
+    shape.b = b
+    shape.ra = ra
+    shape.rb = rb
+    axis = b - a
+    shape.length = wp.length(axis)
+    shape.e = axis / shape.length
+    shape.sin_phi = (ra - rb) / shape.length
+    shape.cos_phi = wp.sqrt(1.0 - shape.sin_phi * shape.sin_phi)
+    return shape
+
+
+@wp.func
+def shape_distance(p: wp.vec3, shape: CapsuleShape):
     """Signed distance from p to the tapered capsule (convex hull of the spheres (a, ra) and (b, rb)) and the
     outward unit normal there (the distance's gradient): the formula of scenes.capsules.capsule_signed_distance."""
-    axis = b - a
-    length = wp.length(axis)
-    e = axis / length
-    rel = p - a
+    e = shape.e
+    rel = p - shape.a
     s = wp.dot(rel, e)
     radial = rel - s * e
     q = wp.length(radial)
-    sin_phi = (ra - rb) / length
-    cos_phi = wp.sqrt(1.0 - sin_phi * sin_phi)
-    along = s * cos_phi - q * sin_phi
+    along = s * shape.cos_phi - q * shape.sin_phi
     if along <= 0.0:
         to_a = wp.length(rel)
         n_a = -e
         if to_a > 0.0:
             n_a = rel / to_a
-        return to_a - ra, n_a
-    if along >= length * cos_phi:
-        rel_b = p - b
+        return to_a - shape.ra, n_a
+    if along >= shape.length * shape.cos_phi:
+        rel_b = p - shape.b
         to_b = wp.length(rel_b)
         n_b = e
         if to_b > 0.0:
             n_b = rel_b / to_b
-        return to_b - rb, n_b
+        return to_b - shape.rb, n_b
     r_hat = any_perpendicular(e)  # on the axis every direction away from it is as good
-    if q > 1.0e-9 * length:
+    if q > 1.0e-9 * shape.length:
         r_hat = radial / q
-    return s * sin_phi + q * cos_phi - ra, sin_phi * e + cos_phi * r_hat
+    return s * shape.sin_phi + q * shape.cos_phi - shape.ra, shape.sin_phi * e + shape.cos_phi * r_hat
+
+
+@wp.func
+def capsule_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float):
+    """shape_distance from p to the capsule (a, ra)-(b, rb), for a capsule met once."""
+    d, n = shape_distance(p, capsule_shape(a, b, ra, rb))
+    return d, n
 
 
 @wp.func
@@ -107,6 +143,13 @@ def capsule_at(capsules: Capsules, c: int, fraction: float):
 
 
 @wp.func
+def capsule_shape_at(capsules: Capsules, c: int, fraction: float) -> CapsuleShape:
+    """Capsule c's shape at `fraction` of the frame."""
+    a, b = capsule_at(capsules, c, fraction)
+    return capsule_shape(a, b, capsules.radius[c, 0], capsules.radius[c, 1])
+
+
+@wp.func
 def carry(p: wp.vec3, a0: wp.vec3, b0: wp.vec3, a1: wp.vec3, b1: wp.vec3) -> wp.vec3:
     """Where p ends up if glued to the capsule while it moves from (a0, b0) to (a1, b1): the nearest axis point
     moves with the end points and the offset from it turns by the smallest rotation taking the old axis direction
@@ -125,7 +168,7 @@ def carry(p: wp.vec3, a0: wp.vec3, b0: wp.vec3, a1: wp.vec3, b1: wp.vec3) -> wp.
 
 
 @wp.func
-def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, level: float) -> wp.vec3:
+def sweep_out(start: wp.vec3, end: wp.vec3, shape: CapsuleShape, level: float) -> wp.vec3:
     """If the segment start -> end (start outside the level set {distance = level}) enters it, move `end` onto
     the tangent plane where it first does; otherwise return `end` unchanged. The entry is found by sphere tracing,
     which never steps past it because the distance is 1-Lipschitz."""
@@ -133,13 +176,13 @@ def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, r
     span = wp.length(delta)
     if span <= 1.0e-9:
         return end
-    d_mid, n_mid = capsule_distance(start + 0.5 * delta, a, b, ra, rb)
+    d_mid, n_mid = shape_distance(start + 0.5 * delta, shape)
     if d_mid - level > 0.5 * span:  # the whole segment lies in a ball that clears the level set
         return end
     t = float(0.0)
     p = start
     for _ in range(SWEEP_STEPS):
-        d, n = capsule_distance(p, a, b, ra, rb)
+        d, n = shape_distance(p, shape)
         gap = d - level
         if gap <= SWEEP_TOLERANCE * level:
             break
@@ -148,7 +191,7 @@ def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, r
             return end
         p = start + t * delta
     # Touching at p (or, after a long grazing trace, close to it): keep `end` on the outer side of the plane.
-    d_hit, n_hit = capsule_distance(p, a, b, ra, rb)
+    d_hit, n_hit = shape_distance(p, shape)
     depth = wp.dot(n_hit, end - p)
     if depth >= 0.0:
         return end
@@ -156,21 +199,21 @@ def sweep_out(start: wp.vec3, end: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, r
 
 
 @wp.func
-def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float, rb: float, thickness: float):
+def keep_outside(x_from: wp.vec3, x: wp.vec3, shape: CapsuleShape, thickness: float):
     """Move x, reached from x_from (relative to the capsule), to `thickness` outside the capsule, and return it
     with the distance moved. If x_from was clearly outside (more than a quarter of the thickness) the way in is
     swept first, so x stays on the side it came from even where it crossed the capsule's axis; then the nearest
     point projection settles it on the offset surface."""
-    d, n = capsule_distance(x, a, b, ra, rb)
-    if d >= thickness and wp.length(x - x_from) < wp.min(ra, rb):
+    d, n = shape_distance(x, shape)
+    if d >= thickness and wp.length(x - x_from) < wp.min(shape.ra, shape.rb):
         return x, 0.0  # outside, and too short a way to have passed through (the common case)
     moved = float(0.0)
-    d_from, n_from = capsule_distance(x_from, a, b, ra, rb)
+    d_from, n_from = shape_distance(x_from, shape)
     if d_from > 0.25 * thickness:
-        swept = sweep_out(x_from, x, a, b, ra, rb, wp.min(thickness, d_from))
+        swept = sweep_out(x_from, x, shape, wp.min(thickness, d_from))
         moved = wp.length(swept - x)
         x = swept
-        d, n = capsule_distance(x, a, b, ra, rb)
+        d, n = shape_distance(x, shape)
     if d < thickness:
         x = x + (thickness - d) * n
         moved = moved + (thickness - d)
@@ -178,17 +221,15 @@ def keep_outside(x_from: wp.vec3, x: wp.vec3, a: wp.vec3, b: wp.vec3, ra: float,
 
 
 @wp.func
-def push_out_of_body(i: int, first: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules,
-                     fraction: float) -> wp.vec3:
+def push_out_of_body(i: int, first: int, x_from: wp.vec3, x: wp.vec3, capsules: Capsules) -> wp.vec3:
     """keep_outside for every capsule watched by vertex i (whose world's capsules start at row `first`), one after
-    the other, at `fraction` of the frame; the distances moved add to the vertex's push (the normal impulse that
-    friction is limited by)."""
+    the other, at the substep's end (capsules.shapes); the distances moved add to the vertex's push (the normal
+    impulse that friction is limited by)."""
     near = capsules.near[i]
     while near != 0:
         c = first + (near & 255) - 1
         near = near >> 8
-        a, b = capsule_at(capsules, c, fraction)
-        x, moved = keep_outside(x_from, x, a, b, capsules.radius[c, 0], capsules.radius[c, 1], capsules.thickness)
+        x, moved = keep_outside(x_from, x, capsules.shapes[c], capsules.thickness)
         if moved > 0.0:
             capsules.push[i] = capsules.push[i] + moved
     return x
@@ -239,6 +280,13 @@ def predict_with_body(sub: Substep, pins: PinDrive, capsules: Capsules):
     predict_near_body(wp.tid(), sub, pins, capsules)
 
 
+@wp.kernel
+def capsule_shapes(capsules: Capsules, fraction: float):
+    """Every capsule's shape at `fraction` of the frame (the substep's end), for the sweeps' push_out_of_body."""
+    c = wp.tid()
+    capsules.shapes[c] = capsule_shape_at(capsules, c, fraction)
+
+
 @wp.func
 def predict_near_body(i: int, sub: Substep, pins: PinDrive, capsules: Capsules):
     """predict_with_body of vertex i."""
@@ -261,9 +309,10 @@ def predict_near_body(i: int, sub: Substep, pins: PinDrive, capsules: Capsules):
                            wp.max(wp.length(a1 - center), wp.length(b1 - center)))
             if segment_point_distance(x_start, xi, center) > bound + wp.max(ra, rb) + capsules.reach:
                 continue
-            xi, moved = keep_outside(carry(x_start, a0, b0, a1, b1), xi, a1, b1, ra, rb, capsules.thickness)
+            shape = capsule_shape(a1, b1, ra, rb)
+            xi, moved = keep_outside(carry(x_start, a0, b0, a1, b1), xi, shape, capsules.thickness)
             push = push + moved
-            d, n = capsule_distance(xi, a1, b1, ra, rb)
+            d, n = shape_distance(xi, shape)
             if d < capsules.reach and watched < WATCHED:
                 near = near | ((c - first + 1) << (8 * watched))
                 watched += 1
@@ -325,7 +374,7 @@ def clear_of_capsules(first: int, x: wp.vec3, fraction: float, capsules: Capsule
             rb = capsules.radius[c, 1]
             if wp.length(x - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + capsules.thickness:
                 continue
-            x, moved = keep_outside(x, x, a, b, ra, rb, capsules.thickness)
+            x, moved = keep_outside(x, x, capsule_shape(a, b, ra, rb), capsules.thickness)
             total = total + moved
         if total == 0.0:
             break

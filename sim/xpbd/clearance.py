@@ -10,7 +10,7 @@ import warp as wp
 # Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
 wp.set_module_options({"fast_math": True})
 
-from sim.xpbd.body_contact import FINAL_PASSES, keep_outside
+from sim.xpbd.body_contact import FINAL_PASSES, capsule_shape, keep_outside
 
 
 @wp.func
@@ -27,7 +27,7 @@ def outside_frame_capsules(x: wp.vec3, f: int, ends: wp.array3d(dtype=wp.vec3), 
             rb = radii[c, 1]
             if wp.length(x - 0.5 * (a + b)) > 0.5 * wp.length(b - a) + wp.max(ra, rb) + thickness:
                 continue
-            x, moved = keep_outside(x, x, a, b, ra, rb, thickness)
+            x, moved = keep_outside(x, x, capsule_shape(a, b, ra, rb), thickness)
             total = total + moved
         if total == 0.0:
             break

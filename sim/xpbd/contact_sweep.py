@@ -91,5 +91,5 @@ def swept_vertex(i: int, world: int, lane: int, lanes: int, sub: Substep, constr
         dx = dx + contact / float(active)
     # The body last, from this vertex's previous iterate, which the previous sweep left outside.
     if lane == 0:
-        return push_out_of_body(i, world * capsules.per_world, xi, xi + dx, capsules, sub.f1)
+        return push_out_of_body(i, world * capsules.per_world, xi, xi + dx, capsules)
     return xi + dx

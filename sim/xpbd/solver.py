@@ -399,6 +399,7 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         capsules.start = self._array(ends, wp.vec3)
         capsules.end = self._array(ends, wp.vec3)
         capsules.radius = self._array(radii, float)
+        capsules.shapes = wp.empty(len(radii), dtype=body_contact.CapsuleShape, device=self.device)
         capsules.per_world = len(radii) // self.worlds
         capsules.thickness = s.collision_thickness
         capsules.reach = reach
@@ -557,6 +558,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         collide = s.body_collision or s.self_collision
         for sub in self._substeps:
             if s.body_collision:
+                wp.launch(body_contact.capsule_shapes, dim=self.capsules.shapes.shape[0], device=dev,
+                          inputs=[self.capsules, sub.f1])
                 wp.launch(body_contact.predict_with_body, dim=n, device=dev, inputs=[sub, self.pins, self.capsules])
             else:
                 wp.launch(kernels.predict_positions, dim=n, device=dev, inputs=[sub, self.pins])
