@@ -1,10 +1,11 @@
 """Batched simulation throughput: cloth-frames per second against the number of worlds B stepped together.
 
 Pants worn by the mannequin, low-res (~3.7k vertices; `--max-edge 0.08`: the paper profile's 757) and one Loop level
-finer (~14.5k), body + self collision, the paper's 8 substeps x 75 iterations; world w plays motion kind w mod 4 (dance, karate, random, walk) with seed
-w, fading in from the rest pose over 10 frames (each world its own body motion and pins, all starting where the
-garment was made, as a sequence of the stage does); the high-res rows hold every world to its own low-res run
-(stepped first) by the harmonic constraint (V/40 modes), as the simulate stage does.
+finer (~14.5k), body + self collision, the paper's 8 substeps x 75 iterations; world w plays motion kind w mod 4
+(dance, karate, random, walk) with seed w, fading in from the rest pose over 10 frames (each world its own body
+motion and pins, all starting where the garment was made, as a sequence of the stage does); the high-res rows hold
+every world to its own low-res run (stepped first) by the harmonic constraint (V/40 modes), as the simulate stage
+does.
 Per B: median ms per batch frame over measured frames after warm-up (the first frames compile and capture the
 graph), cloth-frames/s = B * 1000 / ms, and the ratio to B = 1 in the same run. `--profile` adds where one frame's
 time goes, per kernel, at the largest B (CUDA only; launched without the graph, so each kernel is timed on its

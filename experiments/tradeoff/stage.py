@@ -27,19 +27,19 @@ sequence in the dataset's order: the ground truth) and timed against the high-re
   evaluate stage scores a network: L1 (eq. 4), L2 (eq. 5).
 
 Times are ms per frame of one sequence, and both sides of a learned row's speedup are measured in this job, one
-after another on the device: the reference, the high-res solver at the scene's budget with body and self
-collision, free (not held to a low-res run: the paper's reference, what the learned path replaces), and each
-budget's low-res solve, each the median over every frame of the --solve-timing sequence stepped alone (SCENE.h5
-and its low-res run at the scene's budget, where the high-res run starts; --settled: the scene's settle runs a
-motion library's window starts from; experiments.tradeoff.solve_timing; a low-res solve with each frame kernel
-where the sweeps and `auto` differ on the device, the faster kept and named beside the other's ms); Loop subdivision (the deployment's
-gather and weighted sum, after warm-up, a replayed CUDA graph on a GPU); the network (each MODEL.pt once, one
-after another, on the deployment path as the evaluate stage times it, on test frames of --dataset: fp32 and, on
-CUDA, the fused bf16 network with its error against fp32; the evaluations ran side by side with whatever shared
-the device, so their own ms are not compared). A high-res row's own solve is the median of the solve_ms per
-sequence of its runs (--high-res-timing SUBSTEPS ITERATIONS SCHEDULE: one sequence alone, as a sharded scene's
-workflow gives; else the runs themselves, a batch's total divided by its sequences). speedup = ms_sim_high /
-ms_total (paper Table 3's "X" columns); speedup_fused the same with the fused network's ms.
+after another on the device: the reference, the high-res solver at the scene's budget with body and self collision,
+free (not held to a low-res run: the paper's reference, what the learned path replaces), and each budget's low-res
+solve, each the median over every frame of the --solve-timing sequence stepped alone (SCENE.h5 and its low-res run
+at the scene's budget, where the high-res run starts; --settled: the scene's settle runs a motion library's window
+starts from; experiments.tradeoff.solve_timing; a low-res solve with each frame kernel where the sweeps and `auto`
+differ on the device, the faster kept and named beside the other's ms); Loop subdivision (the deployment's gather
+and weighted sum, after warm-up, a replayed CUDA graph on a GPU); the network (each MODEL.pt once, one after
+another, on the deployment path as the evaluate stage times it, on test frames of --dataset: fp32 and, on CUDA, the
+fused bf16 network with its error against fp32; the evaluations ran side by side with whatever shared the device, so
+their own ms are not compared). A high-res row's own solve is the median of the solve_ms per sequence of its runs
+(--high-res-timing SUBSTEPS ITERATIONS SCHEDULE: one sequence alone, as a sharded scene's workflow gives; else the
+runs themselves, a batch's total divided by its sequences). speedup = ms_sim_high / ms_total (paper Table 3's "X"
+columns); speedup_fused the same with the fused network's ms.
 """
 from __future__ import annotations
 

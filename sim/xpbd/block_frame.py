@@ -6,10 +6,10 @@ A small cloth is launch-bound in the sweep kernels (`sim.xpbd.solver`: ~600 grap
 each on an H100, whatever the mesh size); here a sweep costs one barrier. Each step is the sweep path's per-vertex
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
 `body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, then an exhaustive search of
-the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (chunk of
-triangles, vertex) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
-order), the Jacobi sweeps (`contact_sweep.swept_vertex`,
-`kernels.distance_correction`, `lanes` threads a vertex as in the sweep kernels) and the substep's end
+the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (chunk of triangles,
+vertex) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
+order), the Jacobi sweeps (`contact_sweep.swept_vertex`, `kernels.distance_correction`, `lanes` threads a vertex
+as in the sweep kernels) and the substep's end
 (`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's
 (bit for bit on the CPU, where a block is one thread).
 The sweeps' positions live in shared memory where the world fits (SHARED_VERTICES; a sweep's gather is a chain of
@@ -54,6 +54,8 @@ MAX_BLOCK_VERTICES = 4096
 # counted transactions, each block receiving all V of them).
 SHARED_VERTICES = 1408
 SLOT_BYTES = wp.constant(16)
+
+
 # Thread block clusters (compute capability 9.0 and later): a world of up to this many blocks, each on its own
 # multiprocessor. One multiprocessor has too few lanes for a cloth's sweep with contacts (docs/performance.md, "One
 # launch a frame"); a cluster's blocks meet at hardware barriers and write into each other's shared memory. 16 is
@@ -67,7 +69,8 @@ LANE_CHOICES = (1, 2, 4, 8, 16)
 class BlockLayout:
     """How a world's frame is spread over threads: `threads` a block, `cluster_blocks` blocks a world (a thread
     block cluster on CUDA, each block keeping a copy of the world's positions in its shared memory), `lanes`
-    threads a vertex in the Jacobi sweeps (kernels.lane_sum_vec3; the other steps take a vertex or triangle a thread)."""
+    threads a vertex in the Jacobi sweeps (kernels.lane_sum_vec3; the other steps take a vertex or triangle a
+    thread)."""
     threads: int
     cluster_blocks: int = 1
     lanes: int = 1
@@ -207,8 +210,8 @@ def store_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, c
 # A cluster's sweeps meet at no barrier. Each block's shared memory holds two transaction barriers (mbarriers), one
 # for even sweeps and one for odd ones: a sweep's result goes to every block's copy by asynchronous remote stores
 # (st.async) that count their bytes on the receiving block's barrier of that sweep, and a block starts the next sweep
-# once all V positions have arrived (V * SLOT_BYTES bytes). A cluster barrier (barrier.cluster) would do too, but with a
-# GPU-wide memory fence and a flush of the L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an
+# once all V positions have arrived (V * SLOT_BYTES bytes). A cluster barrier (barrier.cluster) would do too, but
+# with a GPU-wide memory fence and a flush of the L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an
 # H200, stretch only). Two barriers suffice: a block sends sweep k + 1 only after receiving everyone's sweep k, so
 # no block is two sweeps ahead of another; and everyone's sweep k arrived means every block is done reading the
 # buffer that sweep k + 1 writes. Only positions cross blocks in a sweep: the multipliers are per entry (each thread
