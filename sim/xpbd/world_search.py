@@ -9,7 +9,9 @@ spread, a thread takes ~V C / threads pairs, most rejected by the chunk's box. A
 integer atomics in both lists, so the lists hold the same entries as the tree's search but in any order: each is
 then sorted (self_contact.sort_list), which makes them identical. A full list keeps counting: the room it needed
 raises the world's overflow flag, and the solver steps the frame again with longer lists (each list's entries are
-real candidates whatever the order, so the frame that overflowed steps safely before it is discarded).
+real candidates whatever the order, so the frame that overflowed steps safely before it is discarded). At the
+lists' largest capacity, where the solver keeps the frame and warns, a pair may be in one of its two lists only
+(the tree's search keeps it in both or neither).
 """
 from __future__ import annotations
 
