@@ -14,7 +14,7 @@ from scenes.motion import body_state, make_motion
 from scenes.skeleton import default_skeleton
 from scenes.skinning import linear_blend_skinning
 from sim.xpbd import ClothModel, ClothSolver, FrameInputs, SolverSettings
-from sim.xpbd import self_contact
+from sim.xpbd import body_contact, self_contact
 from sim.xpbd.kernels import Substep
 from sim.xpbd.self_contact import SelfContacts, contact_side, neighbor_list
 from tests.sim.cloth_checks import contact_scene, stacked_sheets
@@ -402,3 +402,38 @@ def test_the_search_tests_every_hit_of_long_sweeps():
     for i in np.flatnonzero(counts):
         expected = reference[i, :counts[i]]
         np.testing.assert_array_equal(found[i, :counts[i]], expected[np.argsort(np.abs(expected))])
+
+
+@wp.kernel
+def _shape_distances(points: wp.array(dtype=wp.vec3), ends: wp.array2d(dtype=wp.vec3),
+                     radii: wp.array2d(dtype=float), distance: wp.array2d(dtype=float),
+                     normal: wp.array2d(dtype=wp.vec3)):
+    i, c = wp.tid()
+    shape = body_contact.capsule_shape(ends[c, 0], ends[c, 1], radii[c, 0], radii[c, 1])
+    d, n = body_contact.shape_distance(points[i], shape)
+    distance[i, c] = d
+    normal[i, c] = n
+
+
+def test_a_capsule_shape_measures_as_the_reference_distance_and_its_gradient():
+    """body_contact.shape_distance (what the sweeps evaluate, from a CapsuleShape derived once) against
+    scenes.capsules.capsule_signed_distance, and its normal against the reference's central differences: points
+    around tapered capsules, inside and out, beside the cone and beyond either end."""
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(4, 3))
+    b = a + rng.normal(size=(4, 3)) * 0.4 + np.array([0.0, 0.5, 0.0])
+    ra, rb = rng.uniform(0.05, 0.15, 4), rng.uniform(0.03, 0.1, 4)
+    points = np.concatenate([a + rng.normal(size=(4, 3)) * 0.3, b + rng.normal(size=(4, 3)) * 0.3,
+                             0.5 * (a + b) + rng.normal(size=(4, 3)) * 0.2, rng.normal(size=(20, 3))])
+    distance = wp.zeros((len(points), len(a)), dtype=float, device="cpu")
+    normal = wp.zeros((len(points), len(a)), dtype=wp.vec3, device="cpu")
+    wp.launch(_shape_distances, dim=distance.shape, device="cpu",
+              inputs=[wp.array(points, dtype=wp.vec3, device="cpu"),
+                      wp.array(np.stack([a, b], axis=1), dtype=wp.vec3, device="cpu"),
+                      wp.array(np.stack([ra, rb], axis=1), dtype=float, device="cpu"), distance, normal])
+    expected = capsule_signed_distance(points, a, b, ra, rb)
+    np.testing.assert_allclose(distance.numpy(), expected, atol=2e-6)
+    h = 1e-5
+    gradient = np.stack([(capsule_signed_distance(points + h * e, a, b, ra, rb)
+                          - capsule_signed_distance(points - h * e, a, b, ra, rb)) / (2 * h) for e in np.eye(3)], -1)
+    np.testing.assert_allclose(normal.numpy(), gradient, atol=1e-3)
