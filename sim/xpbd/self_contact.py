@@ -93,20 +93,6 @@ def triangle_normal(xa: wp.vec3, xb: wp.vec3, xc: wp.vec3):
 
 
 @wp.func
-def near_in_mesh(i: int, neighbors: neighbor_list, n_neighbors: int, tri: wp.vec3i) -> bool:
-    """Whether triangle `tri` has vertex i or one of its mesh neighbours (the first n_neighbors of `neighbors`) as a
-    corner: within one edge of i, never a contact candidate."""
-    if tri[0] == i or tri[1] == i or tri[2] == i:
-        return True
-    # A constant bound, so the loop unrolls and the neighbours stay in registers (indexed at run time, a vector
-    # lives in local memory: a load for each of the ~18 comparisons of every box hit).
-    for a in range(MAX_VALENCE):
-        if a < n_neighbors and (neighbors[a] == tri[0] or neighbors[a] == tri[1] or neighbors[a] == tri[2]):
-            return True
-    return False
-
-
-@wp.func
 def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, own_faces: wp.vec2i, t: int,
                  x: wp.array(dtype=wp.vec3), x_prev: wp.array(dtype=wp.vec3), sc: SelfContacts) -> int:
     """+1 or -1 (the side of t that vertex i was on at the substep start) if (i, t) is a contact candidate, else 0.
@@ -120,8 +106,13 @@ def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, own_faces: 
     if t < own_faces[0] or t >= own_faces[1]:
         return 0
     tri = sc.faces[t]
-    if near_in_mesh(i, neighbors, n_neighbors, tri):
+    if tri[0] == i or tri[1] == i or tri[2] == i:
         return 0
+    # A constant bound, so the loop unrolls and the neighbours stay in registers (indexed at run time, a vector
+    # lives in local memory: a load for each of the ~18 comparisons of every box hit).
+    for a in range(MAX_VALENCE):
+        if a < n_neighbors and (neighbors[a] == tri[0] or neighbors[a] == tri[1] or neighbors[a] == tri[2]):
+            return 0
     xa = x[tri[0]]
     n, ok = triangle_normal(xa, x[tri[1]], x[tri[2]])
     if not ok:

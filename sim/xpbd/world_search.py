@@ -21,8 +21,8 @@ import warp as wp
 wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.kernels import Substep
-from sim.xpbd.self_contact import (SelfContacts, candidate_side, keep_previous_list, near_in_mesh, search_box,
-                                   sort_face_list, sort_list, vertex_search)
+from sim.xpbd.self_contact import (SelfContacts, candidate_side, keep_previous_list, search_box, sort_face_list,
+                                   sort_list, vertex_search)
 
 # A mesh's triangle ids are close in space, so a vertex's box meets few chunks (the 3.7k-vertex pants hanging: a
 # vertex's box meets ~10 of its 225 chunks, at most 26; the paper's 757-vertex pants ~6 of 46). A chunk's box
@@ -82,24 +82,19 @@ def search_pair(p: int, world: int, sub: Substep, sc: SelfContacts, search: Worl
     if sub.inv_mass[i] > 0.0:
         lower, upper = search_box(i, sub, sc)
         if boxes_overlap(lower, upper, search.lower[c], search.upper[c]):
-            vertex = vertex_search(i, search.previous_count[i], sub, sc)
             start = world * sc.world_faces + chunk * CHUNK_FACES
-            end = (world + 1) * sc.world_faces
-            # First a bit a triangle whose box meets the vertex's and that is not in its mesh neighbourhood (most
-            # box hits are, and rejected one by one in the candidates' loop, a warp's threads waited on each other's
-            # loads; here the loads of a loop without branches to other work overlap), then the candidates.
+            # The boxes first, a bit a triangle, in a loop without calls (its loads overlap), then the candidates.
             hits = int(0)
-            for k in range(CHUNK_FACES):
-                t = start + k
-                if t < end:
-                    if boxes_overlap(lower, upper, sc.face_lower[t], sc.face_upper[t]):
-                        if not near_in_mesh(i, vertex.neighbors, vertex.n_neighbors, sc.faces[t]):
-                            hits = hits | (1 << k)
-            for k in range(CHUNK_FACES):
-                if (hits >> k) & 1 != 0:
-                    side = candidate_side(i, start + k, vertex, sub, sc)
-                    if side != 0:
-                        list_pair_candidate(i, start + k, side, sc)
+            for k in range(wp.min(CHUNK_FACES, (world + 1) * sc.world_faces - start)):
+                if boxes_overlap(lower, upper, sc.face_lower[start + k], sc.face_upper[start + k]):
+                    hits = hits | (1 << k)
+            if hits != 0:
+                vertex = vertex_search(i, search.previous_count[i], sub, sc)
+                for k in range(CHUNK_FACES):
+                    if (hits >> k) & 1 != 0:
+                        side = candidate_side(i, start + k, vertex, sub, sc)
+                        if side != 0:
+                            list_pair_candidate(i, start + k, side, sc)
 
 
 @wp.func
