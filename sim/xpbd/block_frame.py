@@ -334,7 +334,9 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     for s in range(substeps.shape[0]):
         sub = substeps[s]
         for c in range(world * capsules.per_world + thread, (world + 1) * capsules.per_world, threads):
-            capsules.shapes[c] = capsule_shape_at(capsules, c, sub.f1)   # read by the sweeps, past the barrier
+            # Read by the sweeps only, past the barrier: the end of the substep must derive its own, as a thread
+            # that has finished its vertices rewrites these for the next substep with no barrier between.
+            capsules.shapes[c] = capsule_shape_at(capsules, c, sub.f1)
         for i in range(first + thread, last, threads):
             if body_collision != 0:
                 predict_near_body(i, sub, pins, capsules)
