@@ -168,34 +168,37 @@ def carry(p: wp.vec3, a0: wp.vec3, b0: wp.vec3, a1: wp.vec3, b1: wp.vec3) -> wp.
 
 
 @wp.func
-def sweep_out(start: wp.vec3, end: wp.vec3, shape: CapsuleShape, level: float) -> wp.vec3:
+def sweep_out(start: wp.vec3, end: wp.vec3, shape: CapsuleShape, level: float, d_start: float, n_start: wp.vec3):
     """If the segment start -> end (start outside the level set {distance = level}) enters it, move `end` onto
-    the tangent plane where it first does; otherwise return `end` unchanged. The entry is found by sphere tracing,
-    which never steps past it because the distance is 1-Lipschitz."""
+    the tangent plane where it first does and return it with True; otherwise return `end` unchanged and False.
+    The entry is found by sphere tracing, which never steps past it because the distance is 1-Lipschitz. d_start,
+    n_start: shape_distance at `start`, which the caller has (on a GPU each distance is a chain of dependent square
+    roots and divisions, and a vertex resting on a capsule traces from where it starts every sweep)."""
     delta = end - start
     span = wp.length(delta)
     if span <= 1.0e-9:
-        return end
+        return end, False
     d_mid, n_mid = shape_distance(start + 0.5 * delta, shape)
     if d_mid - level > 0.5 * span:  # the whole segment lies in a ball that clears the level set
-        return end
+        return end, False
     t = float(0.0)
     p = start
+    d = d_start   # d, n: the distance and normal at p
+    n = n_start
     for _ in range(SWEEP_STEPS):
-        d, n = shape_distance(p, shape)
         gap = d - level
         if gap <= SWEEP_TOLERANCE * level:
             break
         t = t + gap / span
         if t >= 1.0:
-            return end
+            return end, False
         p = start + t * delta
+        d, n = shape_distance(p, shape)
     # Touching at p (or, after a long grazing trace, close to it): keep `end` on the outer side of the plane.
-    d_hit, n_hit = shape_distance(p, shape)
-    depth = wp.dot(n_hit, end - p)
+    depth = wp.dot(n, end - p)
     if depth >= 0.0:
-        return end
-    return end - depth * n_hit
+        return end, False
+    return end - depth * n, True
 
 
 @wp.func
@@ -210,10 +213,11 @@ def keep_outside(x_from: wp.vec3, x: wp.vec3, shape: CapsuleShape, thickness: fl
     moved = float(0.0)
     d_from, n_from = shape_distance(x_from, shape)
     if d_from > 0.25 * thickness:
-        swept = sweep_out(x_from, x, shape, wp.min(thickness, d_from))
-        moved = wp.length(swept - x)
-        x = swept
-        d, n = shape_distance(x, shape)
+        swept, projected = sweep_out(x_from, x, shape, wp.min(thickness, d_from), d_from, n_from)
+        if projected:   # else x, d and n hold
+            moved = wp.length(swept - x)
+            x = swept
+            d, n = shape_distance(x, shape)
     if d < thickness:
         x = x + (thickness - d) * n
         moved = moved + (thickness - d)
@@ -226,12 +230,19 @@ def push_out_of_body(i: int, first: int, x_from: wp.vec3, x: wp.vec3, capsules: 
     the other, at the substep's end (capsules.shapes); the distances moved add to the vertex's push (the normal
     impulse that friction is limited by)."""
     near = capsules.near[i]
+    if near == 0:
+        return x
+    push = capsules.push[i]   # added to in a register and stored once: no load on the chain of capsules
+    pushed = bool(False)
     while near != 0:
         c = first + (near & 255) - 1
         near = near >> 8
         x, moved = keep_outside(x_from, x, capsules.shapes[c], capsules.thickness)
         if moved > 0.0:
-            capsules.push[i] = capsules.push[i] + moved
+            push = push + moved
+            pushed = True
+    if pushed:
+        capsules.push[i] = push
     return x
 
 

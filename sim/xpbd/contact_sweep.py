@@ -12,6 +12,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True})
 
 from sim.xpbd.body_contact import Capsules, push_out_of_body
+from sim.xpbd.fetch import fetch
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, Substep, distance_correction, lane_count, lane_of,
                               lane_sum_vec3)
 from sim.xpbd.self_contact import SelfContacts, contact_multiplier, contact_triangle
@@ -50,26 +51,26 @@ def swept_vertex(i: int, world: int, lane: int, lanes: int, sub: Substep, constr
     world_vertices)."""
     x_in = sweep.x_in
     inv_mass = sub.inv_mass
-    xi = x_in[i]
+    xi = fetch(x_in, i)
     dx = distance_correction(i, world, xi, sub, constraints, sweep, lane, lanes)
     # Self-contacts, averaged over the active ones (Jacobi mass splitting): as the vertex, then as a corner of the
     # triangles around it (all lists empty with self-collision off; a pinned vertex takes no correction).
     contact = wp.vec3(0.0)
     active = int(0)
-    wi = inv_mass[i]
-    for a in range(lane, sc.vertex_count[i], lanes):
+    wi = fetch(inv_mass, i)
+    for a in range(lane, fetch(sc.vertex_count, i), lanes):
         code = sc.vertex_contacts[i, a]
-        xa, xb, xc, w, n, ok = contact_triangle(sc.faces[wp.abs(code) - 1], x_in, inv_mass)
+        xa, xb, xc, w, n, ok = contact_triangle(fetch(sc.faces, wp.abs(code) - 1), x_in, inv_mass)
         if ok:
             dl, bary, on = contact_multiplier(xi, wi, xa, xb, xc, w, n, wp.sign(code), sc.thickness)
             if on:
                 contact = contact + (wi * dl * float(wp.sign(code))) * n
                 active += 1
-    if wi > 0.0 and sc.corner_count[i] > 0:
-        for f in range(sc.face_offsets[i] + lane, sc.face_offsets[i + 1], lanes):
-            t = sc.vertex_faces[f]
-            if sc.face_count[t] > 0:
-                tri = sc.faces[t]
+    if wi > 0.0 and fetch(sc.corner_count, i) > 0:
+        for f in range(fetch(sc.face_offsets, i) + lane, fetch(sc.face_offsets, i + 1), lanes):
+            t = fetch(sc.vertex_faces, f)
+            if fetch(sc.face_count, t) > 0:
+                tri = fetch(sc.faces, t)
                 xa, xb, xc, w, n, ok = contact_triangle(tri, x_in, inv_mass)
                 if ok:
                     corner = int(0)
@@ -79,8 +80,8 @@ def swept_vertex(i: int, world: int, lane: int, lanes: int, sub: Substep, constr
                     for a in range(sc.face_count[t]):
                         code = sc.face_contacts[t, a]
                         j = wp.abs(code) - 1
-                        dl, bary, on = contact_multiplier(x_in[j], inv_mass[j], xa, xb, xc, w, n, wp.sign(code),
-                                                          sc.thickness)
+                        dl, bary, on = contact_multiplier(fetch(x_in, j), fetch(inv_mass, j), xa, xb, xc, w, n,
+                                                          wp.sign(code), sc.thickness)
                         if on:
                             contact = contact - (wi * corner_weight(bary, corner) * dl * float(wp.sign(code))) * n
                             active += 1

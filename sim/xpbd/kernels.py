@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from sim.xpbd.fetch import fetch
+
 wp.config.quiet = True
 
 # CUDA: approximate division and square root (--use_fast_math: ~2 ulp instead of IEEE rounding, denormals
@@ -70,7 +72,9 @@ class DistanceConstraints:
     batch reads the same small tables, which stay in cache, instead of B copies that streamed from memory). An
     entry's two ids and a constraint's four parameters are packed, so each is one load."""
     offsets: wp.array(dtype=int)     # (V + 1,) vertex i's entries are offsets[i] .. offsets[i + 1] - 1
-    entries: wp.array(dtype=wp.vec2i)  # per entry: the other endpoint (within the world), the constraint id c
+    entries: wp.array(dtype=wp.vec2i)  # per entry: the other endpoint (within the world), and the constraint id
+                                     # c, or -1 - c where it has compliance (a multiplier to read: its load
+                                     # need not wait for the constraint's parameters)
     params: wp.array(dtype=wp.vec4)  # (C,) rest_min, rest_max, alpha_tilde = compliance / h^2, and scale =
                                      # relaxation / max(n_i, n_j) (see distance_correction)
     inv_mass: wp.array(dtype=float)  # (V,) the inverse masses of one world (the same in every world)
@@ -218,32 +222,67 @@ def distance_correction(i: int, world: int, xi: wp.vec3, sub: Substep, constrain
     if per_entry:
         multipliers = world * constraints.entries.shape[0]
     own = i - first
-    wi = constraints.inv_mass[own]
+    wi = fetch(constraints.inv_mass, own)
     dx = wp.vec3(0.0)
-    for a in range(constraints.offsets[own] + lane, constraints.offsets[own + 1], lanes):
-        entry = constraints.entries[a]
-        j = first + entry[0]
-        c = entry[1]
-        p = constraints.params[c]             # rest_min, rest_max, alpha_tilde, scale
-        slot = multipliers + c
-        if per_entry:
-            slot = multipliers + a
-        d = xi - sweep.x_in[j]
-        dist = wp.length(d)
-        err = dist - wp.clamp(dist, p[0], p[1])
-        w_sum = wi + constraints.inv_mass[entry[0]]
-        alpha = p[2]
-        lam = float(0.0)
-        if alpha != 0.0:
-            lam = sweep.lambda_in[slot] * sweep.lambda_carry
-        lam_new = float(0.0)
-        if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
-            d_lambda = p[3] * (-err - alpha * lam) / (w_sum + alpha)
-            dx = dx + (wi * d_lambda / dist) * d
-            lam_new = lam + d_lambda
-        if (i < j or per_entry) and alpha != 0.0:
-            sweep.lambda_out[slot] = lam_new
+    # Two entries a turn, the second read whether or not it exists (an existing entry's, the list's last), so
+    # that their chains of loads overlap: a GPU thread issues in order, and one entry's loads would wait for the
+    # last entry's arithmetic. The terms add in the list's order, as one a turn would.
+    a = fetch(constraints.offsets, own) + lane
+    end = fetch(constraints.offsets, own + 1)
+    while a < end:
+        b = a + lanes
+        term_a, on_a, slot_a, lam_a = entry_correction(a, i, first, wi, xi, multipliers, per_entry, constraints,
+                                                       sweep)
+        term_b, on_b, slot_b, lam_b = entry_correction(wp.min(b, end - 1), i, first, wi, xi, multipliers, per_entry,
+                                                       constraints, sweep)
+        if on_a:
+            dx = dx + term_a
+        if slot_a >= 0:
+            sweep.lambda_out[slot_a] = lam_a
+        if b < end:
+            if on_b:
+                dx = dx + term_b
+            if slot_b >= 0:
+                sweep.lambda_out[slot_b] = lam_b
+        a = b + lanes
     return dx
+
+
+@wp.func
+def entry_correction(a: int, i: int, first: int, wi: float, xi: wp.vec3, multipliers: int, per_entry: bool,
+                     constraints: DistanceConstraints, sweep: JacobiSweep):
+    """Entry a of vertex i's list (distance_correction): the vertex's correction by the entry's constraint, whether
+    it is active, and the constraint's multiplier slot (-1 where this endpoint does not write it) and new value.
+    Nothing is written here, so that a caller's next entry's loads need not wait for a store."""
+    entry = fetch(constraints.entries, a)
+    j = first + entry[0]
+    c = entry[1]
+    compliant = c < 0                         # alpha_tilde != 0
+    if compliant:
+        c = -1 - c
+    slot = multipliers + c
+    if per_entry:
+        slot = multipliers + a
+    lam = float(0.0)
+    if compliant:
+        lam = fetch(sweep.lambda_in, slot) * sweep.lambda_carry
+    p = fetch(constraints.params, c)          # rest_min, rest_max, alpha_tilde, scale
+    d = xi - fetch(sweep.x_in, j)
+    dist = wp.length(d)
+    err = dist - wp.clamp(dist, p[0], p[1])
+    w_sum = wi + fetch(constraints.inv_mass, entry[0])
+    alpha = p[2]
+    lam_new = float(0.0)
+    term = wp.vec3(0.0)
+    active = bool(False)
+    if err != 0.0 and w_sum > 0.0 and dist > 1.0e-12:
+        d_lambda = p[3] * (-err - alpha * lam) / (w_sum + alpha)
+        term = (wi * d_lambda / dist) * d
+        lam_new = lam + d_lambda
+        active = True
+    if not ((i < j or per_entry) and compliant):
+        slot = -1
+    return term, active, slot, lam_new
 
 
 @wp.kernel

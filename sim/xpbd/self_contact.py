@@ -15,6 +15,7 @@ import warp as wp
 # Fast math on CUDA, as in sim.xpbd.kernels (why it is safe there holds here: no transcendental function).
 wp.set_module_options({"fast_math": True})
 
+from sim.xpbd.fetch import fetch
 from sim.xpbd.kernels import Substep
 
 DETECT_SLACK = 0.25         # candidate pairs: barycentric coordinates of the projection down to -DETECT_SLACK
@@ -141,11 +142,11 @@ def contact_side(i: int, neighbors: neighbor_list, n_neighbors: int, own_faces: 
 @wp.func
 def contact_triangle(tri: wp.vec3i, x: wp.array(dtype=wp.vec3), inv_mass: wp.array(dtype=float)):
     """Corners, corner inverse masses, unit normal and whether it has one, of a triangle in a contact."""
-    xa = x[tri[0]]
-    xb = x[tri[1]]
-    xc = x[tri[2]]
+    xa = fetch(x, tri[0])
+    xb = fetch(x, tri[1])
+    xc = fetch(x, tri[2])
     n, ok = triangle_normal(xa, xb, xc)
-    return xa, xb, xc, wp.vec3(inv_mass[tri[0]], inv_mass[tri[1]], inv_mass[tri[2]]), n, ok
+    return xa, xb, xc, wp.vec3(fetch(inv_mass, tri[0]), fetch(inv_mass, tri[1]), fetch(inv_mass, tri[2])), n, ok
 
 
 @wp.func

@@ -332,7 +332,8 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         arr = self._array
         dc = kernels.DistanceConstraints()
         dc.offsets = arr(offsets, int)
-        dc.entries = arr(np.stack([neighbor, constraint], axis=1), wp.vec2i)
+        compliant = con.compliance[constraint] != 0
+        dc.entries = arr(np.stack([neighbor, np.where(compliant, -1 - constraint, constraint)], axis=1), wp.vec2i)
         scale = s.relaxation / np.maximum(count[con.pairs[:, 0]], count[con.pairs[:, 1]])
         dc.params = arr(np.stack([con.rest_min, con.rest_max, con.compliance / (h * h), scale], axis=1), wp.vec4)
         dc.inv_mass = arr(inv_mass, float)
