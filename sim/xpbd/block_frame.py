@@ -48,11 +48,12 @@ MAX_BLOCK_THREADS = 1024
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
 # The most vertices a world may have for its sweeps' positions to live in shared memory on CUDA: two buffers of a
-# 16-byte slot a vertex (a vec3 and 4 bytes of padding), 44 KB (within the 48 KB a block may declare statically,
-# beside Warp's own ~2 KB). 16 bytes, not 12: a cluster sends a vertex to another block as one 16-byte store, where
-# three 4-byte stores cost ~1.3 µs more a sweep (757-vertex pants, stretch only, H200: a sweep's remote stores are
-# counted transactions, each block receiving all V of them).
-SHARED_VERTICES = 1408
+# 16-byte slot a vertex (a vec3 and 4 bytes of padding), 43.75 KB: within the 48 KB a block may declare statically,
+# beside Warp's own 4 KB at 1,024 threads a block (at 1,408 vertices ptxas refused that block). 16 bytes, not 12: a
+# cluster sends a vertex to another block as one 16-byte store, where three 4-byte stores cost ~1.3 µs more a sweep
+# (757-vertex pants, stretch only, H200: a sweep's remote stores are counted transactions, each block receiving all
+# V of them).
+SHARED_VERTICES = 1400
 SLOT_BYTES = wp.constant(16)
 
 
@@ -88,10 +89,13 @@ class BlockLayout:
 
 
 # A cluster's blocks and lanes by default: on an H200, the 757-vertex pants at 8 x 75 with body and self-contact
-# step fastest with 16 blocks of 256 threads, 4 lanes a vertex (a vertex a group), of the 14 layouts timed
-# (docs/performance.md, "One launch a frame"). A larger world takes more threads a block, up to a vertex a group.
+# step fastest with 16 blocks of 512 threads, 8 lanes a vertex (a vertex a group): 3.5 ms a frame against 3.9 with
+# 256 threads and 4 lanes, the best of the 14 layouts timed before the gather took two entries a turn
+# (docs/performance.md, "One launch a frame"). 8 lanes where they fit blocks of CLUSTER_LANES_THREADS threads
+# (a vertex a group), else 4: at 1,024 threads a block a thread may have 64 registers, and the frame spills more.
 CLUSTER_THREADS = 256
-CLUSTER_LANES = 4
+CLUSTER_LANES = (8, 4)
+CLUSTER_LANES_THREADS = 512
 
 
 def clusters_serve(device: wp.Device, world_vertices: int) -> bool:
@@ -104,8 +108,8 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device) -> Block
     """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA, a world in
     shared memory on a GPU with clusters: a cluster a world, as many blocks as fill the multiprocessors once (a
     power of two, at most MAX_CLUSTER_BLOCKS, PORTABLE_CLUSTER_BLOCKS but on Hopper and Blackwell's data-centre
-    parts) of CLUSTER_THREADS threads or more, CLUSTER_LANES lanes a vertex; else one block of a thread a vertex
-    (up to MAX_BLOCK_THREADS)."""
+    parts) of CLUSTER_THREADS threads or more, the first of CLUSTER_LANES lanes a vertex whose groups fit blocks of
+    CLUSTER_LANES_THREADS (the last if none does); else one block of a thread a vertex (up to MAX_BLOCK_THREADS)."""
     if not device.is_cuda:
         return BlockLayout(threads=1)
     if clusters_serve(device, world_vertices):
@@ -113,10 +117,12 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device) -> Block
         blocks = 1
         while 2 * blocks <= most and 2 * blocks * worlds <= device.sm_count:
             blocks *= 2
+        lanes = next((lanes for lanes in CLUSTER_LANES if world_vertices * lanes <= blocks * CLUSTER_LANES_THREADS),
+                     CLUSTER_LANES[-1])
         threads = CLUSTER_THREADS
-        while threads < MAX_BLOCK_THREADS and blocks * threads < world_vertices * CLUSTER_LANES:
+        while threads < MAX_BLOCK_THREADS and blocks * threads < world_vertices * lanes:
             threads *= 2
-        return BlockLayout(threads, blocks, CLUSTER_LANES)
+        return BlockLayout(threads, blocks, lanes)
     return BlockLayout(threads=min(MAX_BLOCK_THREADS, 32 * -(-world_vertices // 32)))
 
 
@@ -399,9 +405,11 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
 
 @functools.cache
 def _frame_kernel(cluster_blocks: int, max_threads: int) -> wp.Kernel:
+    # block_dim in the module's options: Warp sizes its own shared memory by it (what the 48 KB must hold)
     return wp.kernel(_step_frame, name=f"step_frame_{cluster_blocks}x{max_threads}", launch_bounds=max_threads,
                      grid_stride=False, cluster_dim=cluster_blocks if cluster_blocks > 1 else None,
-                     module="unique", module_options={"fast_math": True, "enable_backward": False})
+                     module="unique",
+                     module_options={"fast_math": True, "enable_backward": False, "block_dim": max_threads})
 
 
 def frame_kernel(layout: BlockLayout, device: wp.Device) -> wp.Kernel:

@@ -209,9 +209,11 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
 
 def test_the_default_layout_fills_the_gpu_once():
     hopper = FakeGpu(90)
-    assert block_frame.default_layout(757, 1, hopper) == BlockLayout(256, 16, 4)   # a vertex a group
+    assert block_frame.default_layout(757, 1, hopper) == BlockLayout(512, 16, 8)   # a vertex a group
+    assert block_frame.default_layout(1024, 1, hopper) == BlockLayout(512, 16, 8)
+    assert block_frame.default_layout(1025, 1, hopper) == BlockLayout(512, 16, 4)  # 8 lanes would need 1,024
     assert block_frame.default_layout(block_frame.SHARED_VERTICES, 1, hopper) == BlockLayout(512, 16, 4)
-    assert block_frame.default_layout(757, 3, hopper) == BlockLayout(256, 16, 4)   # 48 of 132 SMs
+    assert block_frame.default_layout(757, 3, hopper) == BlockLayout(512, 16, 8)   # 48 of 132 SMs
     assert block_frame.default_layout(757, 9, hopper) == BlockLayout(512, 8, 4)
     assert block_frame.default_layout(757, 64, hopper) == BlockLayout(1024, 2, 4)
     assert block_frame.default_layout(757, 512, hopper) == BlockLayout(1024, 1, 4)
@@ -242,16 +244,18 @@ def nvrtc_compiles_for_hopper() -> bool:
 
 
 @pytest.mark.skipif(not nvrtc_compiles_for_hopper(), reason="this Warp build has no NVRTC for sm_90")
-def test_the_cluster_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path):
+@pytest.mark.parametrize("threads", [256, 1024])
+def test_the_cluster_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path, threads):
     """Warp's NVRTC compiles CUDA without a GPU: the cluster's inline PTX (remote stores counted on transaction
     barriers, cluster barriers) assembles for sm_90 (a cubin: ptxas ran), and the PTX asks for the layout's
-    cluster and block size (what the launch relies on)."""
-    kernel = block_frame.frame_kernel(BlockLayout(256, 16, 4), FakeGpu(90))
+    cluster and block size (what the launch relies on). At 1,024 threads a block Warp's own shared memory is
+    largest: the positions' two buffers must still fit the 48 KB beside it (ptxas refuses the kernel otherwise)."""
+    kernel = block_frame.frame_kernel(BlockLayout(threads, 16, 4), FakeGpu(90))
     cubin = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "cubin", use_ptx=False)
     assert len(cubin) == 1 and cubin[0].suffix == ".cubin" and cubin[0].stat().st_size > 0
     (ptx,) = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "ptx", use_ptx=True)
     text = ptx.read_text()
-    assert ".reqnctapercluster 16, 1, 1" in text and ".maxntid 256, 1, 1" in text
+    assert ".reqnctapercluster 16, 1, 1" in text and f".maxntid {threads}, 1, 1" in text
     assert text.count("st.async.shared::cluster.mbarrier::complete_tx::bytes.v4.b32") == 1   # a vertex's slot
     assert "mbarrier.try_wait.parity" in text and "barrier.cluster.arrive.release" in text
 
