@@ -437,3 +437,85 @@ def test_a_capsule_shape_measures_as_the_reference_distance_and_its_gradient():
     gradient = np.stack([(capsule_signed_distance(points + h * e, a, b, ra, rb)
                           - capsule_signed_distance(points - h * e, a, b, ra, rb)) / (2 * h) for e in np.eye(3)], -1)
     np.testing.assert_allclose(normal.numpy(), gradient, atol=1e-3)
+
+
+@wp.kernel
+def _kept_outside(x_from: wp.array(dtype=wp.vec3), x: wp.array(dtype=wp.vec3), a: wp.vec3, b: wp.vec3, ra: float,
+                  rb: float, thickness: float, kept: wp.array(dtype=wp.vec3), moved: wp.array(dtype=float)):
+    i = wp.tid()
+    p, m = body_contact.keep_outside(x_from[i], x[i], body_contact.capsule_shape(a, b, ra, rb), thickness)
+    kept[i] = p
+    moved[i] = m
+
+
+def reference_keep_outside(x_from, x, a, b, ra, rb, thickness):
+    """body_contact.keep_outside as its docstrings describe it, in float64 on scenes.capsules' distance (normals by
+    central differences), each distance evaluated where the description evaluates it."""
+    def distance(p):
+        return float(capsule_signed_distance(p[None], a[None], b[None], np.array([ra]), np.array([rb]))[0, 0])
+
+    def normal(p):
+        h = 1e-6
+        g = np.array([distance(p + h * e) - distance(p - h * e) for e in np.eye(3)]) / (2 * h)
+        return g / np.linalg.norm(g)
+
+    def sweep(start, end, level):
+        delta = end - start
+        span = np.linalg.norm(delta)
+        if span <= 1e-9 or distance(start + 0.5 * delta) - level > 0.5 * span:
+            return end
+        t, p = 0.0, start
+        for _ in range(body_contact.SWEEP_STEPS):
+            gap = distance(p) - level
+            if gap <= body_contact.SWEEP_TOLERANCE * level:
+                break
+            t += gap / span
+            if t >= 1.0:
+                return end
+            p = start + t * delta
+        depth = normal(p) @ (end - p)
+        return end if depth >= 0 else end - depth * normal(p)
+
+    d = distance(x)
+    if d >= thickness and np.linalg.norm(x - x_from) < min(ra, rb):
+        return x, 0.0
+    moved = 0.0
+    d_from = distance(x_from)
+    if d_from > 0.25 * thickness:
+        swept = sweep(x_from, x, min(thickness, d_from))
+        moved, x = np.linalg.norm(swept - x), swept
+        d = distance(x)
+    if d < thickness:
+        x, moved = x + (thickness - d) * normal(x), moved + (thickness - d)
+    return x, moved
+
+
+def test_keep_outside_follows_the_described_sphere_trace():
+    """body_contact.keep_outside (the continuous body test of every sweep and prediction) against a float64
+    reimplementation of what its docstrings describe: paths that pass through a tapered capsule (stopped on the side
+    they came from), graze it (long traces), end inside from just outside (a vertex resting on it), or stay clear."""
+    rng = np.random.default_rng(11)
+    a, b, ra, rb, thickness = np.array([0.0, 0.0, 0.0]), np.array([0.1, 0.6, 0.05]), 0.12, 0.07, 0.01
+    axis_point = a + rng.uniform(0, 1, (200, 1)) * (b - a)
+    outward = rng.normal(size=(200, 3))
+    outward -= (outward @ (b - a))[:, None] * (b - a) / ((b - a) @ (b - a))
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
+    start = axis_point + outward * rng.uniform(0.13, 0.35, (200, 1))            # outside, at various distances
+    through = axis_point - outward * rng.uniform(0.0, 0.3, (200, 1))              # across the axis
+    tangent = np.cross(outward, b - a)
+    graze = start + tangent * rng.uniform(0.5, 2.0, (200, 1)) - outward * 0.02    # nearly along the surface
+    resting = start - outward * rng.uniform(0.0, 0.05, (200, 1))                  # a short way in
+    clear = start + rng.normal(size=(200, 3)) * 0.01
+    x_from = np.concatenate([start] * 4)
+    x = np.concatenate([through, graze, resting, clear])
+    kept, moved = wp.zeros(len(x), dtype=wp.vec3, device="cpu"), wp.zeros(len(x), dtype=float, device="cpu")
+    wp.launch(_kept_outside, dim=len(x), device="cpu",
+              inputs=[wp.array(x_from, dtype=wp.vec3, device="cpu"), wp.array(x, dtype=wp.vec3, device="cpu"),
+                      wp.vec3(*a), wp.vec3(*b), ra, rb, thickness, kept, moved])
+    expected = [reference_keep_outside(f, p, a, b, ra, rb, thickness) for f, p in zip(x_from, x)]
+    np.testing.assert_allclose(kept.numpy(), np.array([e[0] for e in expected]), atol=2e-5)
+    np.testing.assert_allclose(moved.numpy(), np.array([e[1] for e in expected]), atol=2e-5)
+    final = capsule_signed_distance(kept.numpy().astype(np.float64), a[None], b[None], np.array([ra]), np.array([rb]))
+    assert final.min() >= thickness - 1e-5                                        # all outside
+    side = np.einsum("ij,ij->i", kept.numpy()[:200] - axis_point, outward)
+    assert np.all(side > 0)                                                       # crossing paths stay in front
