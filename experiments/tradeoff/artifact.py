@@ -28,6 +28,13 @@ COLUMNS = (*STRING_COLUMNS, *INT_COLUMNS, *FLOAT_COLUMNS)
 # columns: a CPU timing, where the fused network does not run, or a row without a network)
 NAN_WHEN_ABSENT = ("l1_heldout", "l2_heldout", "ms_sim_low_other", *FUSED_COLUMNS)
 TABLE = ColumnTable(STRING_COLUMNS, INT_COLUMNS, FLOAT_COLUMNS, NAN_WHEN_ABSENT)
+# Columns that tables written before 2026-11-29 lack (docs/data/tradeoff_pants_paper_h100.h5 among them), and the
+# table such a file holds. Its low-res solves were the sweeps' (the only frame kernel the stage timed then), and the
+# other kernel was not timed.
+FRAME_KERNEL_COLUMNS = ("sim_low_kernel", "ms_sim_low_other")
+TABLE_BEFORE_FRAME_KERNELS = ColumnTable(tuple(c for c in STRING_COLUMNS if c not in FRAME_KERNEL_COLUMNS), INT_COLUMNS,
+                                         tuple(c for c in FLOAT_COLUMNS if c not in FRAME_KERNEL_COLUMNS),
+                                         NAN_WHEN_ABSENT)
 # `method` of a row: the learned path (low-res run, Loop subdivision, network), Loop subdivision of the low-res run
 # alone, or a high-res run of another budget or harmonic schedule than the scene's.
 LEARNED, LOOP, HIGH_RES = "learned", "loop", "high_res"
@@ -74,11 +81,17 @@ def write_tradeoff(path: str | os.PathLike, config: Mapping[str, Any], table: Tr
 
 
 def read_tradeoff(path: str | os.PathLike) -> Tradeoff:
+    """A tradeoff.h5; one written before the frame kernels' columns reads with the values they stand for there (the
+    sweeps for every row with a low-res solve, the other kernel not timed)."""
     with open_artifact(path) as f:
-        columns = TABLE.read(f)
+        before = not any(name in f for name in FRAME_KERNEL_COLUMNS)
+        columns = (TABLE_BEFORE_FRAME_KERNELS if before else TABLE).read(f)
         unknown = sorted(set(columns["method"]) - set(METHODS))
         if unknown:
             raise PipelineError(f"{path}: 'method' holds '{unknown[0]}', not one of {', '.join(METHODS)}")
+        if before:
+            columns["sim_low_kernel"] = np.where(columns["method"] == HIGH_RES, "", "sweeps")
+            columns["ms_sim_low_other"] = np.full(len(columns["method"]), np.nan)
         attrs = f.attrs
         reference = Reference(int(attrs["reference_substeps"]), int(attrs["reference_iterations"]),
                               str(attrs["reference_harmonic_every"]))

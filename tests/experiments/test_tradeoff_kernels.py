@@ -2,6 +2,9 @@
 described GPUs without one: both where the sweeps and `auto` step the cloth differently (thread block clusters, a
 cloth in a cluster's shared memory), the faster kept and reported beside the other's median in tradeoff.h5 and
 report.md; else the scene's own kernel, once, as on the CPU."""
+from pathlib import Path
+
+import h5py
 import numpy as np
 import pytest
 import warp as wp
@@ -12,6 +15,7 @@ from experiments.tradeoff.artifact import HIGH_RES, LEARNED, LOOP, Reference, re
 from experiments.tradeoff.report import write_report
 from experiments.tradeoff.solve_timing import LowResMs, TimedSequence, faster_kernel, kernels_to_time, low_res_ms
 from experiments.tradeoff.stage import NO_LOW_RES, NOT_TIMED, NetworkMs, make_row, table_of
+from pipeline.core.errors import PipelineError
 from pipeline.core.config import resolve_scene
 from sim.xpbd import SolverSettings
 from sim.xpbd.block_frame import MAX_BLOCK_VERTICES, SHARED_VERTICES
@@ -86,3 +90,26 @@ def test_the_kernel_and_the_others_ms_are_recorded_and_reported_where_both_were_
     write_report(tmp_path / "once.md", tmp_path / "pareto.png", tmp_path / "scene.md", once, (0, 0, 0))
     text = (tmp_path / "once.md").read_text()
     assert text.count("| 6.24 |") == 2 and "(sweeps" not in text and "faster kept" not in text
+
+
+def test_a_table_from_before_the_frame_kernels_reads_as_the_sweeps(tmp_path):
+    """tradeoff.h5 files written before sim_low_kernel and ms_sim_low_other (docs/data's pants grid among them)
+    read with the values they stand for: the sweeps where a row has a low-res solve, the other kernel not timed,
+    and they report. A file with one of the two columns only is refused."""
+    table = table_of(rows(LowResMs(6.24, "sweeps")), "H100", 1, Reference(8, 75, "substep"))
+    write_tradeoff(tmp_path / "t.h5", {}, table)
+    with h5py.File(tmp_path / "t.h5", "a") as f:
+        del f["sim_low_kernel"], f["ms_sim_low_other"]
+    back = read_tradeoff(tmp_path / "t.h5")
+    assert back.columns["sim_low_kernel"].tolist() == ["sweeps", "sweeps", ""]
+    assert np.isnan(back.columns["ms_sim_low_other"]).all()
+    np.testing.assert_array_equal(back.columns["ms_total"], table.columns["ms_total"])
+    old = read_tradeoff(Path(__file__).parents[2] / "docs/data/tradeoff_pants_paper_h100.h5")
+    assert len(old) == 21 and set(old.columns["sim_low_kernel"]) == {"sweeps", ""}
+    write_report(tmp_path / "old.md", tmp_path / "old.png", tmp_path / "scene.md", old, (0, 0, 0))
+    assert "(sweeps" not in (tmp_path / "old.md").read_text()
+    write_tradeoff(tmp_path / "half.h5", {}, table)
+    with h5py.File(tmp_path / "half.h5", "a") as f:
+        del f["ms_sim_low_other"]
+    with pytest.raises(PipelineError, match="ms_sim_low_other"):
+        read_tradeoff(tmp_path / "half.h5")
