@@ -235,16 +235,20 @@ def distance_correction(i: int, world: int, xi: wp.vec3, sub: Substep, constrain
                                                        sweep)
         term_b, on_b, slot_b, lam_b = entry_correction(wp.min(b, end - 1), i, first, wi, xi, multipliers, per_entry,
                                                        constraints, sweep)
-        if on_a:
-            dx = dx + term_a
-        if slot_a >= 0:
-            sweep.lambda_out[slot_a] = lam_a
+        dx = take_entry(dx, term_a, on_a, slot_a, lam_a, sweep)
         if b < end:
-            if on_b:
-                dx = dx + term_b
-            if slot_b >= 0:
-                sweep.lambda_out[slot_b] = lam_b
+            dx = take_entry(dx, term_b, on_b, slot_b, lam_b, sweep)
         a = b + lanes
+    return dx
+
+
+@wp.func
+def take_entry(dx: wp.vec3, term: wp.vec3, active: bool, slot: int, lam: float, sweep: JacobiSweep) -> wp.vec3:
+    """An entry_correction taken: its term added to dx where active, its multiplier stored where it has a slot."""
+    if slot >= 0:
+        sweep.lambda_out[slot] = lam
+    if active:
+        return dx + term
     return dx
 
 
