@@ -310,9 +310,13 @@ def send_done(cluster_blocks: int, barrier: int):
         asm volatile("{ .reg .b64 state; mbarrier.arrive.expect_tx.shared::cta.b64 state, [%0], %1; }"
                      :: "r"(barrier), "r"(bytes) : "memory");
     unsigned int done = 0;
-    while (!done)
+    for (unsigned int tries = 0; !done; ++tries) {
         asm volatile("{ .reg .pred p; mbarrier.try_wait.parity.shared::cta.b64 p, [%1], %2; selp.u32 %0, 1, 0, p; }"
                      : "=r"(done) : "r"(barrier), "r"(parity) : "memory");
+        // bytes that never come (a count that does not match the sends) would hang the GPU: fail the launch instead
+        if (tries == (1u << 28))
+            __trap();
+    }
 #endif
 """)
 def wait_for_sweep(barrier: int, parity: int, bytes: int):
