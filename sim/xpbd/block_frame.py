@@ -34,6 +34,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, capsule_shape_at, finish_vertex, predict_near_body
+from sim.xpbd.cluster_exchange import ClusterExchange, mark_reader, mark_sweep_reads
 from sim.xpbd.contact_sweep import swept_vertex
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
@@ -255,9 +256,11 @@ def init_sweep_barriers(cluster_blocks: int, even_barrier: int, odd_barrier: int
 @wp.func_native("""
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
     if (cluster_blocks > 1) {
-        // the vertex's lanes share the sends: lane l writes blocks l, l + lanes, ...
+        // the vertex's lanes share the sends: lane l writes blocks l, l + lanes, ... of those that read it
         unsigned int own = (unsigned int)__cvta_generic_to_shared(wp::address(positions, i));
         for (int rank = lane; rank < cluster_blocks; rank += lanes) {
+            if (!((readers >> rank) & 1))
+                continue;
             unsigned int place, arrivals;
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(place) : "r"(own), "r"(rank));
             asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(arrivals) : "r"(barrier), "r"(rank));
@@ -273,9 +276,31 @@ def init_sweep_barriers(cluster_blocks: int, even_barrier: int, odd_barrier: int
         *wp::address(positions, i) = value;
 """)
 def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cluster_blocks: int, barrier: int,
-                  lane: int, lanes: int):
-    """A sweep's positions[i] = value, from every lane of vertex i (all holding `value`): in a cluster into every
-    block's copy, counted on each block's `barrier` (its sweep_barrier of this sweep); else a plain store."""
+                  lane: int, lanes: int, readers: int):
+    """A sweep's positions[i] = value, from every lane of vertex i (all holding `value`): in a cluster into the copy
+    of each block that reads it (bit r of `readers`: cluster_exchange), counted on each one's `barrier` (its
+    sweep_barrier of this sweep); else a plain store."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
+    __shared__ alignas(16) unsigned int token[4];
+    __syncthreads();   // every thread of the block is done with the sweep's input
+    if (threadIdx.x < cluster_blocks) {
+        unsigned int own = (unsigned int)__cvta_generic_to_shared(token), place, arrivals;
+        asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(place) : "r"(own), "r"(threadIdx.x));
+        asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(arrivals) : "r"(barrier), "r"(threadIdx.x));
+        asm volatile("st.async.shared::cluster.mbarrier::complete_tx::bytes.v4.b32 [%0], {%1, %1, %1, %1}, [%2];"
+                     :: "r"(place), "r"(0u), "r"(arrivals) : "memory");
+    }
+#endif
+""")
+def send_done(cluster_blocks: int, barrier: int):
+    """A cluster's block says it is done reading a sweep's input: once all its threads are (a block barrier), one
+    16-byte token to every block of the cluster, counted on its `barrier` with the positions. A block that reads
+    none of another's vertices still waits for its token, so no block writes the next sweep's results into a copy
+    that another block is still reading (sent to every block, the positions themselves said so)."""
     ...
 
 
@@ -285,9 +310,13 @@ def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cl
         asm volatile("{ .reg .b64 state; mbarrier.arrive.expect_tx.shared::cta.b64 state, [%0], %1; }"
                      :: "r"(barrier), "r"(bytes) : "memory");
     unsigned int done = 0;
-    while (!done)
+    for (unsigned int tries = 0; !done; ++tries) {
         asm volatile("{ .reg .pred p; mbarrier.try_wait.parity.shared::cta.b64 p, [%1], %2; selp.u32 %0, 1, 0, p; }"
                      : "=r"(done) : "r"(barrier), "r"(parity) : "memory");
+        // bytes that never come (a count that does not match the sends) would hang the GPU: fail the launch instead
+        if (tries == (1u << 28))
+            __trap();
+    }
 #endif
 """)
 def wait_for_sweep(barrier: int, parity: int, bytes: int):
@@ -313,17 +342,20 @@ def in_buffers(sweep: JacobiSweep, k: int, even: wp.array(dtype=wp.vec3),
 
 def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: DistanceConstraints,
                 sweeps: wp.array(dtype=JacobiSweep), sc: SelfContacts, search: WorldSearch, capsules: Capsules,
-                body_collision: int, self_collision: int, in_shared: int, cluster_blocks: int, lanes: int):
+                exchange: ClusterExchange, body_collision: int, self_collision: int, in_shared: int,
+                cluster_blocks: int, lanes: int):
     """Every substep of a frame for one world (launch_tiled over the worlds' blocks): the launches of
     ClothSolver._launch_frame without harmonic projection, each a loop of the world's threads over its vertices or
     triangles, a barrier after each that others read from. `substeps` and `sweeps` are the structs the sweep
     kernels are launched with, one per substep and per iteration; with in_shared their positions ping-pong in
     shared memory instead of the state's positions and the work array. A world is `cluster_blocks` consecutive
     blocks (a thread block cluster on CUDA, each block with a copy of the positions in shared memory); in its
-    sweeps `lanes` threads share a vertex (kernels.lane_sum_vec3), as in the sweep kernels."""
+    sweeps `lanes` threads share a vertex (kernels.lane_sum_vec3), as in the sweep kernels, and a sweep's result goes
+    only to the blocks that read it (cluster_exchange, marked once a substep after the search)."""
     block, block_thread = wp.tid()
     world = block // cluster_blocks
-    thread = (block - world * cluster_blocks) * wp.block_dim() + block_thread   # within the world
+    rank = block - world * cluster_blocks    # the block's within its world
+    thread = rank * wp.block_dim() + block_thread   # within the world
     threads = cluster_blocks * wp.block_dim()
     item, lane = lane_of(thread, lanes)
     items = threads // lanes
@@ -339,6 +371,8 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     world_barrier(cluster_blocks)   # a cluster's blocks have all started before one writes to another's memory
     for s in range(substeps.shape[0]):
         sub = substeps[s]
+        if cluster_blocks > 1 and block_thread == 0:
+            exchange.incoming[block] = 0
         for c in range(world * capsules.per_world + thread, (world + 1) * capsules.per_world, threads):
             # Read by the sweeps only, past the barrier: the end of the substep must derive its own, as a thread
             # that has finished its vertices rewrites these for the next substep with no barrier between.
@@ -349,6 +383,8 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
             else:
                 sub.x[i] = predict_vertex(i, sub, pins)
             store_position(even, i, sub.x[i], cluster_blocks)   # the first sweep's input
+            if cluster_blocks > 1:
+                exchange.readers[i] = 0
             if self_collision != 0:
                 start_vertex_list(i, sub, sc, search)
         world_barrier(cluster_blocks)
@@ -368,6 +404,14 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
             for t in range(world * faces + thread, (world + 1) * faces, threads):
                 end_face_list(t, world, sub, sc, overflow_flag)
             world_barrier(cluster_blocks)
+        incoming_bytes = int(0)
+        if cluster_blocks > 1:
+            for i in range(first + item, last, items):     # the vertices this block sweeps
+                mark_sweep_reads(i, world, n, rank, cluster_blocks, lane, lanes, constraints, sc, exchange)
+            for i in range(first + thread, last, threads):   # and those it finishes (the last sweep's results)
+                mark_reader(i, rank, world, cluster_blocks, exchange)
+            world_barrier(cluster_blocks)
+            incoming_bytes = (exchange.incoming[block] + cluster_blocks) * SLOT_BYTES   # positions and tokens
         for k in range(iterations):
             sweep = in_buffers(sweeps[k], k, even, odd)
             phase = s * iterations + k   # the sweep's number in the frame: its barrier and, per barrier, its parity
@@ -385,9 +429,10 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                     x_new = xi + lane_sum_vec3(dx, lanes)
                 # lane 0's result (the body's push is its alone) to every lane, which share the sends
                 send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barrier,
-                              lane, lanes)
+                              lane, lanes, exchange.readers[i])
             if cluster_blocks > 1:
-                wait_for_sweep(barrier, (phase // 2) % 2, n * SLOT_BYTES)
+                send_done(cluster_blocks, barrier)
+                wait_for_sweep(barrier, (phase // 2) % 2, incoming_bytes)
             else:
                 world_barrier(cluster_blocks)
         if cluster_blocks > 1:

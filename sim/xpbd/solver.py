@@ -27,7 +27,8 @@ import warp as wp
 from geometry.harmonics import lumped_mass
 from geometry.mesh import unique_edges
 from sim.solver import Solver, UnstableSimulation
-from sim.xpbd import block_frame, body_contact, contact_sweep, kernels, self_contact, world_search
+from sim.xpbd import (block_frame, body_contact, cluster_exchange, contact_sweep, kernels, self_contact,
+                      world_search)
 from sim.xpbd.constraints import HarmonicConstraint, cloth_constraints, vertex_incidence
 from sim.xpbd.model import ClothModel
 
@@ -248,6 +249,10 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         search.lower, search.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
         search.previous_count = self._zeros(self.worlds * self.world_vertices if collide else 1, int)
         self._world_search = search
+        exchange = cluster_exchange.ClusterExchange()
+        exchange.readers = self._zeros(self.worlds * self.world_vertices, int)
+        exchange.incoming = self._zeros(self.worlds * self.block_layout.cluster_blocks, int)
+        self._cluster_exchange = exchange
         self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
         self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
 
@@ -550,9 +555,9 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
             wp.launch_tiled(block_frame.frame_kernel(layout, self.device), dim=[self.worlds * layout.cluster_blocks],
                             block_dim=layout.threads, device=self.device,
                             inputs=[self._substep_array, self.pins, self.constraints, self._sweep_array,
-                                    self.contacts, self._world_search, self.capsules, int(s.body_collision),
-                                    int(s.self_collision), int(self.block_shared), layout.cluster_blocks,
-                                    layout.lanes])
+                                    self.contacts, self._world_search, self.capsules, self._cluster_exchange,
+                                    int(s.body_collision), int(s.self_collision), int(self.block_shared),
+                                    layout.cluster_blocks, layout.lanes])
             return
         n = self.state.positions.shape[0]
         dev = self.device
