@@ -7,7 +7,7 @@ each on an H100, whatever the mesh size); here a sweep costs one barrier. Each s
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
 `body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, then an exhaustive search of
 the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (chunk of triangles,
-vertex) pair a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
+vertex) pair a thread and then a candidate a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
 order), the Jacobi sweeps (`contact_sweep.swept_vertex`, `kernels.distance_correction`, `lanes` threads a vertex
 as in the sweep kernels) and the substep's end
 (`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's
@@ -40,7 +40,7 @@ from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Subste
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
 from sim.xpbd.self_contact import SelfContacts, face_bounds
 from sim.xpbd.world_search import (WorldSearch, chunk_bounds, end_face_list, end_vertex_list, search_pair,
-                                   start_vertex_list)
+                                   start_vertex_list, test_queued)
 
 # The most threads a block (one world) runs: the kernel is compiled for it (__launch_bounds__, which caps its
 # registers at 64 a thread), and a block of fewer threads takes several vertices a thread.
@@ -399,6 +399,11 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
             for p in range(thread, n * search.per_world, threads):
                 search_pair(p, world, sub, sc, search)
             world_barrier(cluster_blocks)
+            for q in range(thread, wp.min(search.queue_count[world], search.queue_room), threads):
+                test_queued(q, world, sub, sc, search)
+            world_barrier(cluster_blocks)
+            if thread == 0:
+                search.queue_count[world] = 0   # for the next substep's pairs, past the barriers between
             for i in range(first + thread, last, threads):
                 end_vertex_list(i, world, sub, sc, overflow_flag)
             for t in range(world * faces + thread, (world + 1) * faces, threads):

@@ -240,14 +240,20 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
 
     def _block_frame_arrays(self) -> None:
         """The block frame's search arrays (world_search.WorldSearch: its chunks' boxes, its vertices' previous list
-        lengths), and the structs of every substep and sweep as device arrays (the block kernel reads them in turn,
-        the same structs the sweep kernels are launched with)."""
+        lengths, its queue of candidates), and the structs of every substep and sweep as device arrays (the block
+        kernel reads them in turn, the same structs the sweep kernels are launched with)."""
         search = world_search.WorldSearch()
         search.per_world = math.ceil(len(self.model.faces) / world_search.CHUNK_FACES)
         collide = self.model.settings.self_collision
         rows = self.worlds * search.per_world if collide else 1
         search.lower, search.upper = self._zeros(rows, wp.vec3), self._zeros(rows, wp.vec3)
         search.previous_count = self._zeros(self.worlds * self.world_vertices if collide else 1, int)
+        # A queued candidate is t V + i in one int32: a world too large for that has no queue (its pairs test
+        # their own hits).
+        fits = collide and len(self.model.faces) * self.world_vertices < 2**31
+        search.queue_room = world_search.QUEUE_PER_VERTEX * self.world_vertices if fits else 0
+        search.queue = self._zeros(max(self.worlds * search.queue_room, 1), int)
+        search.queue_count = self._zeros(self.worlds, int)
         self._world_search = search
         exchange = cluster_exchange.ClusterExchange()
         exchange.readers = self._zeros(self.worlds * self.world_vertices, int)

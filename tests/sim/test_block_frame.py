@@ -17,7 +17,7 @@ from geometry.harmonics import harmonic_basis
 from scenes.grid import first_row_pins, grid_cloth
 from sim.xpbd import (ClothModel, ClothSolver, FrameInputs, SolverSettings, UnstableSimulation,
                       harmonic_constraint)
-from sim.xpbd import block_frame
+from sim.xpbd import block_frame, world_search
 from sim.xpbd import solver as solver_module
 from sim.xpbd.solver import frame_kernel_of
 from sim.xpbd.block_frame import BlockLayout
@@ -153,6 +153,19 @@ def test_threads_of_a_block_meet_at_the_barriers(threads, monkeypatch, pants_dri
     np.testing.assert_array_equal(block, pants_run(pants_drives, "sweeps")[0])
     np.testing.assert_array_equal(*(hanging_run(hanging_cloth, frame_kernel, block_layout=BlockLayout(threads))
                                     for frame_kernel in ("block", "sweeps")))
+
+
+@pytest.mark.parametrize("room", [0, 1, 4])
+def test_pairs_whose_hits_miss_the_queue_test_them_themselves(room, monkeypatch, pants_drives):
+    """The search's queue of candidates with room for `room` a vertex (the pants' vertices meet ~10 triangles'
+    boxes each): none, so every pair tests its own hits; or full partway through a substep, so the pair that
+    reaches its end leaves its slots below it empty and tests its hits itself, and the pairs after it do. In blocks
+    of 64 threads on the CPU, three worlds with their own queues, the pants step as the sweeps bit for bit."""
+    monkeypatch.setattr(world_search, "QUEUE_PER_VERTEX", room)
+    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    block, solver = pants_run(pants_drives, "block", block_layout=BlockLayout(64))
+    assert solver._world_search.queue_room == room * solver.world_vertices
+    np.testing.assert_array_equal(block, pants_run(pants_drives, "sweeps")[0])
 
 
 def test_a_blow_up_names_its_world():
