@@ -18,7 +18,8 @@ larger world's stay in global memory (a block's writes before a barrier are visi
 functions are unchanged either way: they index the Jacobi sweep's x_in and x_out, which then view shared memory.
 One multiprocessor has too few lanes for a sweep with contacts, so on a GPU with thread block clusters (compute
 capability 9.0) a world in shared memory spans a cluster of blocks, each on its own multiprocessor with its own
-copy of the positions: a sweep's results are written into every copy (distributed shared memory), the steps
+copy of the positions: a sweep's results are written into the copies of the blocks that read them (distributed
+shared memory; sim.xpbd.cluster_exchange), the steps
 between sweeps meet at cluster barriers and the sweeps at transaction barriers (see sweep_barrier). The harmonic
 projection (a reduction over the world) is not done here: a high-res run keeps the sweep kernels.
 """
@@ -215,12 +216,13 @@ def store_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, c
 
 
 # A cluster's sweeps meet at no barrier. Each block's shared memory holds two transaction barriers (mbarriers), one
-# for even sweeps and one for odd ones: a sweep's result goes to every block's copy by asynchronous remote stores
-# (st.async) that count their bytes on the receiving block's barrier of that sweep, and a block starts the next sweep
-# once all V positions have arrived (V * SLOT_BYTES bytes). A cluster barrier (barrier.cluster) would do too, but
+# for even sweeps and one for odd ones: a sweep's result goes to the copy of each block that reads it
+# (cluster_exchange) by asynchronous remote stores (st.async) that count their bytes on the receiving block's barrier
+# of that sweep, each block then sends every block a done token (send_done) on the same barrier, and a block starts
+# the next sweep once the positions it reads and every block's token have arrived. A cluster barrier (barrier.cluster) would do too, but
 # with a GPU-wide memory fence and a flush of the L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an
-# H200, stretch only). Two barriers suffice: a block sends sweep k + 1 only after receiving everyone's sweep k, so
-# no block is two sweeps ahead of another; and everyone's sweep k arrived means every block is done reading the
+# H200, stretch only). Two barriers suffice: a block sends sweep k + 1 only after receiving everyone's token of
+# sweep k, so no block is two sweeps ahead of another; and everyone's token means every block is done reading the
 # buffer that sweep k + 1 writes. Only positions cross blocks in a sweep: the multipliers are per entry (each thread
 # keeps its own, kernels.distance_correction) and the capsules' push is read after the substep's last sweep, past a
 # cluster barrier.
@@ -320,8 +322,8 @@ def send_done(cluster_blocks: int, barrier: int):
 #endif
 """)
 def wait_for_sweep(barrier: int, parity: int, bytes: int):
-    """A cluster's end of a sweep: wait until `bytes` (every vertex's position) have arrived on this block's
-    `barrier` in its phase of this `parity`."""
+    """A cluster's end of a sweep: wait until `bytes` (the positions this block reads and every block's done
+    token) have arrived on this block's `barrier` in its phase of this `parity`."""
     ...
 
 
