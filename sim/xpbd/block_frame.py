@@ -35,7 +35,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, capsule_shape_at, finish_vertex, predict_near_body
-from sim.xpbd.cluster_exchange import ClusterExchange, mark_reader, mark_sweep_reads
+from sim.xpbd.cluster_exchange import ClusterExchange, bits_set, mark_sweep_reads
 from sim.xpbd.contact_sweep import swept_vertex
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
@@ -72,8 +72,9 @@ LANE_CHOICES = (1, 2, 4, 8, 16)
 class BlockLayout:
     """How a world's frame is spread over threads: `threads` a block, `cluster_blocks` blocks a world (a thread
     block cluster on CUDA, each block keeping a copy of the world's positions in its shared memory), `lanes`
-    threads a vertex in the Jacobi sweeps (kernels.lane_sum_vec3; the other steps take a vertex or triangle a
-    thread)."""
+    threads a vertex in the Jacobi sweeps (kernels.lane_sum_vec3). A block predicts, sweeps and ends the substep of
+    its own run of the world's vertices (a vertex's first lane outside the sweeps); the search's steps take a
+    triangle, chunk, pair or candidate a thread of the world."""
     threads: int
     cluster_blocks: int = 1
     lanes: int = 1
@@ -289,7 +290,7 @@ def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cl
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
     __shared__ alignas(16) unsigned int token[4];
     __syncthreads();   // every thread of the block is done with the sweep's input
-    if (threadIdx.x < cluster_blocks) {
+    if (threadIdx.x < cluster_blocks && ((to >> threadIdx.x) & 1)) {
         unsigned int own = (unsigned int)__cvta_generic_to_shared(token), place, arrivals;
         asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(place) : "r"(own), "r"(threadIdx.x));
         asm volatile("mapa.shared::cluster.u32 %0, %1, %2;" : "=r"(arrivals) : "r"(barrier), "r"(threadIdx.x));
@@ -298,11 +299,12 @@ def send_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, cl
     }
 #endif
 """)
-def send_done(cluster_blocks: int, barrier: int):
+def send_done(cluster_blocks: int, barrier: int, to: int):
     """A cluster's block says it is done reading a sweep's input: once all its threads are (a block barrier), one
-    16-byte token to every block of the cluster, counted on its `barrier` with the positions. A block that reads
-    none of another's vertices still waits for its token, so no block writes the next sweep's results into a copy
-    that another block is still reading (sent to every block, the positions themselves said so)."""
+    16-byte token to each block of bit r of `to` (those that send it positions: ClusterExchange.senders), counted on
+    its `barrier` with the positions. A block that sends another positions waits for its token, so it never writes
+    the next sweep's results into a copy that the other is still reading; blocks that exchange nothing do not wait
+    for each other."""
     ...
 
 
@@ -359,10 +361,16 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
     rank = block - world * cluster_blocks    # the block's within its world
     thread = rank * wp.block_dim() + block_thread   # within the world
     threads = cluster_blocks * wp.block_dim()
-    item, lane = lane_of(thread, lanes)
-    items = threads // lanes
     n = substeps[0].world_vertices
     first, last = world * n, (world + 1) * n
+    # The block's own run of the world's vertices, the same size in every block (cluster_exchange.owner_block):
+    # it predicts, sweeps and finishes them, `lanes` threads a vertex (the lanes after the first idle outside the
+    # sweeps), so that a vertex's prediction, sweeps and end are one thread's (no barrier between a substep's end
+    # and the next prediction) and its neighbours mostly the block's own.
+    own_first = wp.min(first + rank * exchange.per_block, last)
+    own_last = wp.min(own_first + exchange.per_block, last)
+    item, lane = lane_of(block_thread, lanes)
+    items = wp.block_dim() // lanes
     collide = body_collision != 0 or self_collision != 0
     overflow_flag = substeps.shape[0]
     iterations = sweeps.shape[0]
@@ -375,20 +383,23 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
         sub = substeps[s]
         if cluster_blocks > 1 and block_thread == 0:
             exchange.incoming[block] = 0
+            exchange.senders[block] = 0
+            exchange.receivers[block] = 0
         for c in range(world * capsules.per_world + thread, (world + 1) * capsules.per_world, threads):
             # Read by the sweeps only, past the barrier: the end of the substep must derive its own, as a thread
             # that has finished its vertices rewrites these for the next substep with no barrier between.
             capsules.shapes[c] = capsule_shape_at(capsules, c, sub.f1)
-        for i in range(first + thread, last, threads):
-            if body_collision != 0:
-                predict_near_body(i, sub, pins, capsules)
-            else:
-                sub.x[i] = predict_vertex(i, sub, pins)
-            store_position(even, i, sub.x[i], cluster_blocks)   # the first sweep's input
-            if cluster_blocks > 1:
-                exchange.readers[i] = 0
-            if self_collision != 0:
-                start_vertex_list(i, sub, sc, search)
+        for i in range(own_first + item, own_last, items):
+            if lane == 0:
+                if body_collision != 0:
+                    predict_near_body(i, sub, pins, capsules)
+                else:
+                    sub.x[i] = predict_vertex(i, sub, pins)
+                store_position(even, i, sub.x[i], cluster_blocks)   # the first sweep's input
+                if cluster_blocks > 1:
+                    exchange.readers[i] = 0
+                if self_collision != 0:
+                    start_vertex_list(i, sub, sc, search)
         world_barrier(cluster_blocks)
         if self_collision != 0:
             faces = sc.world_faces
@@ -412,13 +423,16 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 end_face_list(t, world, sub, sc, overflow_flag)
             world_barrier(cluster_blocks)
         incoming_bytes = int(0)
+        token_to = int(0)
         if cluster_blocks > 1:
-            for i in range(first + item, last, items):     # the vertices this block sweeps
+            for i in range(own_first + item, own_last, items):
                 mark_sweep_reads(i, world, n, rank, cluster_blocks, lane, lanes, constraints, sc, exchange)
-            for i in range(first + thread, last, threads):   # and those it finishes (the last sweep's results)
-                mark_reader(i, rank, world, cluster_blocks, exchange)
             world_barrier(cluster_blocks)
-            incoming_bytes = (exchange.incoming[block] + cluster_blocks) * SLOT_BYTES   # positions and tokens
+            # the positions it reads, and a done token from each block it sends to; its own tokens go to the
+            # blocks that send to it
+            tokens = bits_set(exchange.receivers[block], cluster_blocks)
+            incoming_bytes = (exchange.incoming[block] + tokens) * SLOT_BYTES
+            token_to = exchange.senders[block]
         for k in range(iterations):
             sweep = in_buffers(sweeps[k], k, even, odd)
             phase = s * iterations + k   # the sweep's number in the frame: its barrier and, per barrier, its parity
@@ -426,7 +440,7 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
             barrier = even_barrier
             if phase % 2 == 1:
                 barrier = odd_barrier
-            for i in range(first + item, last, items):   # a vertex's lanes take the same turns
+            for i in range(own_first + item, own_last, items):   # a vertex's lanes take the same turns
                 xi = sweep.x_in[i]
                 x_new = xi
                 if collide:
@@ -438,7 +452,7 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
                 send_position(sweep.x_out, i, lane_first_vec3(x_new, lanes), cluster_blocks, barrier,
                               lane, lanes, exchange.readers[i])
             if cluster_blocks > 1:
-                send_done(cluster_blocks, barrier)
+                send_done(cluster_blocks, barrier, token_to)
                 wait_for_sweep(barrier, (phase // 2) % 2, incoming_bytes)
             else:
                 world_barrier(cluster_blocks)
@@ -448,11 +462,12 @@ def _step_frame(substeps: wp.array(dtype=Substep), pins: PinDrive, constraints: 
         # writes vertex i into every block's copy, but the others read only their own vertices there until the next
         # barrier).
         solved = in_buffers(sweeps[iterations - 1], iterations - 1, even, odd).x_out
-        for i in range(first + thread, last, threads):
-            if collide:
-                finish_vertex(i, sub, solved, capsules, 1)
-            else:
-                store_state(i, solved[i], sub)
+        for i in range(own_first + item, own_last, items):
+            if lane == 0:
+                if collide:
+                    finish_vertex(i, sub, solved, capsules, 1)
+                else:
+                    store_state(i, solved[i], sub)
 
 
 @functools.cache

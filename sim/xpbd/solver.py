@@ -257,7 +257,9 @@ class ClothSolver(Solver[ClothModel, ClothState, FrameInputs]):
         self._world_search = search
         exchange = cluster_exchange.ClusterExchange()
         exchange.readers = self._zeros(self.worlds * self.world_vertices, int)
-        exchange.incoming = self._zeros(self.worlds * self.block_layout.cluster_blocks, int)
+        blocks = self.worlds * self.block_layout.cluster_blocks
+        exchange.incoming, exchange.senders, exchange.receivers = (self._zeros(blocks, int) for _ in range(3))
+        exchange.per_block = cluster_exchange.vertices_a_block(self.world_vertices, self.block_layout.cluster_blocks)
         self._cluster_exchange = exchange
         self._substep_array = wp.array(self._substeps, dtype=kernels.Substep, device=self.device)
         self._sweep_array = wp.array(self._sweeps, dtype=kernels.JacobiSweep, device=self.device)
