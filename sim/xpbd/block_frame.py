@@ -35,7 +35,7 @@ import warp as wp
 wp.set_module_options({"fast_math": True, "enable_backward": False})
 
 from sim.xpbd.body_contact import Capsules, capsule_shape_at, finish_vertex, predict_near_body
-from sim.xpbd.cluster_exchange import ClusterExchange, bits_set, mark_sweep_reads
+from sim.xpbd.cluster_exchange import ClusterExchange, bits_set, mark_sweep_reads, vertices_a_block
 from sim.xpbd.contact_sweep import swept_vertex
 from sim.xpbd.kernels import (DistanceConstraints, JacobiSweep, PinDrive, Substep, distance_correction,
                               lane_first_vec3, lane_of, lane_sum_vec3, predict_vertex, store_state)
@@ -46,6 +46,7 @@ from sim.xpbd.world_search import (WorldSearch, chunk_bounds, end_face_list, end
 # The most threads a block (one world) runs: the kernel is compiled for it (__launch_bounds__, which caps its
 # registers at 64 a thread), and a block of fewer threads takes several vertices a thread.
 MAX_BLOCK_THREADS = 1024
+WARP_THREADS = 32   # a block's threads are scheduled (and meet its barriers) a warp at a time
 # The most vertices a world may have to be stepped in one block (a few per thread); larger cloths keep the sweep
 # kernels, which spread a sweep over the whole GPU.
 MAX_BLOCK_VERTICES = 4096
@@ -92,12 +93,12 @@ class BlockLayout:
 
 
 # A cluster's blocks and lanes by default: on an H200, the 757-vertex pants at 8 x 75 with body and self-contact
-# step fastest with 16 blocks of 512 threads, 8 lanes a vertex (a vertex a group): 3.2 ms a frame against 3.85 with
-# 256 threads and 4 lanes and 4.5 with 256 threads and 8 (ba5082b; 384 threads, the run's 48 vertices x 8 lanes, as
-# fast in one run), the best of the 14 layouts timed before the gather took two entries a turn
-# (docs/performance.md, "One launch a frame"). 8 lanes where they fit blocks of CLUSTER_LANES_THREADS threads
-# (a vertex a group), else 4: at 1,024 threads a block a thread may have 64 registers, and the frame spills more.
-CLUSTER_THREADS = 256
+# step fastest with 16 blocks, 8 lanes a vertex (a vertex a group) and the block's threads fitted to its run of
+# vertices (48 x 8 = 384: no idle warp at the block's barriers): 3.2 ms a frame against 3.85 with 256 threads and 4
+# lanes and 4.5 with 256 threads and 8 (ba5082b), the best of the 14 layouts timed before the gather took two
+# entries a turn (docs/performance.md, "One launch a frame"). 8 lanes where they fit blocks of
+# CLUSTER_LANES_THREADS threads (a vertex a group), else 4: at 1,024 threads a block a thread may have 64
+# registers, and the frame spills more.
 CLUSTER_LANES = (8, 4)
 CLUSTER_LANES_THREADS = 512
 
@@ -112,8 +113,9 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device) -> Block
     """One thread a block on the CPU (Warp's fibers take turns only with enable_cpu_blocks). On CUDA, a world in
     shared memory on a GPU with clusters: a cluster a world, as many blocks as fill the multiprocessors once (a
     power of two, at most MAX_CLUSTER_BLOCKS, PORTABLE_CLUSTER_BLOCKS but on Hopper and Blackwell's data-centre
-    parts) of CLUSTER_THREADS threads or more, the first of CLUSTER_LANES lanes a vertex whose groups fit blocks of
-    CLUSTER_LANES_THREADS (the last if none does); else one block of a thread a vertex (up to MAX_BLOCK_THREADS)."""
+    parts), the first of CLUSTER_LANES lanes a vertex whose groups fit blocks of CLUSTER_LANES_THREADS (the last if
+    none does), and threads enough for a block's run of vertices (cluster_exchange.vertices_a_block) in whole warps,
+    up to MAX_BLOCK_THREADS; else one block of a thread a vertex (up to MAX_BLOCK_THREADS)."""
     if not device.is_cuda:
         return BlockLayout(threads=1)
     if clusters_serve(device, world_vertices):
@@ -123,10 +125,8 @@ def default_layout(world_vertices: int, worlds: int, device: wp.Device) -> Block
             blocks *= 2
         lanes = next((lanes for lanes in CLUSTER_LANES if world_vertices * lanes <= blocks * CLUSTER_LANES_THREADS),
                      CLUSTER_LANES[-1])
-        threads = CLUSTER_THREADS
-        while threads < MAX_BLOCK_THREADS and blocks * threads < world_vertices * lanes:
-            threads *= 2
-        return BlockLayout(threads, blocks, lanes)
+        group_threads = vertices_a_block(world_vertices, blocks) * lanes
+        return BlockLayout(min(MAX_BLOCK_THREADS, WARP_THREADS * -(-group_threads // WARP_THREADS)), blocks, lanes)
     return BlockLayout(threads=min(MAX_BLOCK_THREADS, 32 * -(-world_vertices // 32)))
 
 

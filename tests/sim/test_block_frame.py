@@ -222,12 +222,14 @@ def test_the_setting_and_the_cloth_choose_the_kernels(monkeypatch):
 
 def test_the_default_layout_fills_the_gpu_once():
     hopper = FakeGpu(90)
-    assert block_frame.default_layout(757, 1, hopper) == BlockLayout(512, 16, 8)   # a vertex a group
+    # a block's threads: its run of vertices (48 of 757) times the lanes, in whole warps
+    assert block_frame.default_layout(757, 1, hopper) == BlockLayout(384, 16, 8)   # a vertex a group
     assert block_frame.default_layout(1024, 1, hopper) == BlockLayout(512, 16, 8)
-    assert block_frame.default_layout(1025, 1, hopper) == BlockLayout(512, 16, 4)  # 8 lanes would need 1,024
-    assert block_frame.default_layout(block_frame.SHARED_VERTICES, 1, hopper) == BlockLayout(512, 16, 4)
-    assert block_frame.default_layout(757, 3, hopper) == BlockLayout(512, 16, 8)   # 48 of 132 SMs
-    assert block_frame.default_layout(757, 9, hopper) == BlockLayout(512, 8, 4)
+    assert block_frame.default_layout(1025, 1, hopper) == BlockLayout(288, 16, 4)  # 8 lanes would need 520
+    assert block_frame.default_layout(block_frame.SHARED_VERTICES, 1, hopper) == BlockLayout(352, 16, 4)
+    assert block_frame.default_layout(757, 3, hopper) == BlockLayout(384, 16, 8)   # 48 of 132 SMs
+    assert block_frame.default_layout(757, 9, hopper) == BlockLayout(384, 8, 4)    # 95 x 4 = 380
+    assert block_frame.default_layout(20, 1, hopper) == BlockLayout(32, 16, 8)
     assert block_frame.default_layout(757, 64, hopper) == BlockLayout(1024, 2, 4)
     assert block_frame.default_layout(757, 512, hopper) == BlockLayout(1024, 1, 4)
     assert block_frame.default_layout(757, 1, FakeGpu(120, 84)).cluster_blocks == 8   # portable size
