@@ -42,7 +42,7 @@ class SolverSettings:
                                          # sweeps. "block": the one launch wherever the cloth fits
                                          # (block_frame.MAX_BLOCK_VERTICES), the CPU too. The sweeps stay the
                                          # default: on an H200 the clusters step one 757-vertex pants with body
-                                         # and self-contact ~1.7x faster at 8 x 75, 1.10x at 1 x 20, but the
+                                         # and self-contact 1.6x faster at 8 x 75, 1.10x at 1 x 20, but the
                                          # simulate stage's batches are faster with the sweeps, and the key's
                                          # absence in settings written before it existed means sweeps
                                          # (docs/performance.md, "One launch a frame")
