@@ -7,11 +7,11 @@ each on an H100, whatever the mesh size); here a sweep costs one barrier. Each s
 (per-triangle) function, in the same order, on the same arrays: the prediction (`kernels.predict_vertex`,
 `body_contact.predict_near_body`), the self-contact search (`self_contact.face_bounds`, then an exhaustive search of
 the world's triangles whose boxes overlap the vertex's box, spread over the world's threads a (chunk of triangles,
-vertex) pair a thread and then a candidate a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query finds, in the same sorted
-order), the Jacobi sweeps (`contact_sweep.swept_vertex`, `kernels.distance_correction`, `lanes` threads a vertex
-as in the sweep kernels) and the substep's end
-(`body_contact.finish_vertex`, `kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's
-(bit for bit on the CPU, where a block is one thread).
+vertex) pair a thread and then a candidate a thread: `sim.xpbd.world_search`; it lists the candidates the BVH query
+finds, in the same sorted order), the Jacobi sweeps (`contact_sweep.swept_vertex`, `kernels.distance_correction`,
+`lanes` threads a vertex as in the sweep kernels) and the substep's end (`body_contact.finish_vertex`,
+`kernels.store_state`). So with one lane a vertex the arithmetic is the sweep path's (bit for bit on the CPU, where a
+block is one thread).
 The sweeps' positions live in shared memory where the world fits (SHARED_VERTICES; a sweep's gather is a chain of
 dependent loads, each ~30 cycles there against several hundred from L2, where the last sweep's writes went); a
 larger world's stay in global memory (a block's writes before a barrier are visible to the block after it). The
@@ -221,14 +221,16 @@ def store_position(positions: wp.array(dtype=wp.vec3), i: int, value: wp.vec3, c
 # A cluster's sweeps meet at no barrier. Each block's shared memory holds two transaction barriers (mbarriers), one
 # for even sweeps and one for odd ones: a sweep's result goes to the copy of each block that reads it
 # (cluster_exchange) by asynchronous remote stores (st.async) that count their bytes on the receiving block's barrier
-# of that sweep, each block then sends every block a done token (send_done) on the same barrier, and a block starts
-# the next sweep once the positions it reads and every block's token have arrived. A cluster barrier (barrier.cluster) would do too, but
-# with a GPU-wide memory fence and a flush of the L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an
-# H200, stretch only). Two barriers suffice: a block sends sweep k + 1 only after receiving everyone's token of
-# sweep k, so no block is two sweeps ahead of another; and everyone's token means every block is done reading the
-# buffer that sweep k + 1 writes. Only positions cross blocks in a sweep: the multipliers are per entry (each thread
-# keeps its own, kernels.distance_correction) and the capsules' push is read after the substep's last sweep, past a
-# cluster barrier.
+# of that sweep, each block then sends a done token (send_done) on the same barrier to each block that sends it
+# positions, and a block starts the next sweep once the positions it reads and the tokens of the blocks it sends to
+# have arrived. A cluster barrier (barrier.cluster) would do too, but with a GPU-wide memory fence and a flush of the
+# L1 cache every sweep (~4.6 µs a sweep for the 757-vertex pants on an H200, stretch only). Two barriers suffice: a
+# block sends sweep k + 1 to another only after that one's token of sweep k, which means it is done reading the
+# buffer that sweep k + 1 writes and has finished waiting on its barrier of sweep k - 1 (the same parity); a token
+# of sweep k comes after its sender's wait for sweep k - 1, which needed the positions of sweep k - 1 that its
+# receiver sent after finishing its own wait for sweep k - 2. Only positions cross blocks in a sweep: the
+# multipliers are per entry (each thread keeps its own, kernels.distance_correction) and the capsules' push is read
+# after the substep's last sweep, past a cluster barrier.
 @wp.func_native("""
 #if defined(__CUDA_ARCH__) && __CUDA_ARCH__ >= 900
     __shared__ alignas(8) unsigned long long barriers[2];
@@ -326,8 +328,8 @@ def send_done(cluster_blocks: int, barrier: int, to: int):
 #endif
 """)
 def wait_for_sweep(barrier: int, parity: int, bytes: int):
-    """A cluster's end of a sweep: wait until `bytes` (the positions this block reads and every block's done
-    token) have arrived on this block's `barrier` in its phase of this `parity`."""
+    """A cluster's end of a sweep: wait until `bytes` (the positions this block reads and the done tokens of the
+    blocks it sends to) have arrived on this block's `barrier` in its phase of this `parity`."""
     ...
 
 

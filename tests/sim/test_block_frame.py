@@ -271,7 +271,7 @@ def test_the_cluster_kernel_compiles_for_a_hopper_gpu_without_one(tmp_path, thre
     (ptx,) = wp.compile_aot_module(kernel.module, arch=90, module_dir=tmp_path / "ptx", use_ptx=True)
     text = ptx.read_text()
     assert ".reqnctapercluster 16, 1, 1" in text and f".maxntid {threads}, 1, 1" in text
-    # a vertex's slot, to the blocks that read it, and a block's done token, to every block
+    # a vertex's slot, to the blocks that read it, and a block's done token, to the blocks that send it positions
     assert text.count("st.async.shared::cluster.mbarrier::complete_tx::bytes.v4.b32") == 2
     assert "mbarrier.try_wait.parity" in text and "barrier.cluster.arrive.release" in text
 

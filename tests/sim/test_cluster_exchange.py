@@ -8,7 +8,7 @@ runs hold them, its receivers the blocks that read its run (the done tokens' par
 import numpy as np
 import warp as wp
 
-from sim.xpbd import cluster_exchange, contact_sweep, kernels
+from sim.xpbd import contact_sweep, kernels
 from sim.xpbd.cluster_exchange import ClusterExchange, mark_sweep_reads, owner_block, vertices_a_block
 from sim.xpbd.kernels import DistanceConstraints
 from sim.xpbd.self_contact import SelfContacts
