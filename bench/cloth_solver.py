@@ -11,12 +11,13 @@ per sweep, or the whole frame in one launch of a block per world where the cloth
 default: the simulate stage's, SolverSettings' frame_kernel); each row names the one that ran, its
 cloth-frames/s and its speed over the sweeps of the same variant. `--block-layouts 1024,128x8x4` times the block
 frame with each of those layouts (threads a block x blocks a world, a cluster x lanes a vertex:
-block_frame.BlockLayout; default: the solver's). `pants-paper` is the paper profile's low-res pants (max_edge 0.08,
+block_frame.BlockLayout; default: the solver's). `--variants body+self` times the garments' variants named only
+(default: all four). `pants-paper` is the paper profile's low-res pants (max_edge 0.08,
 757 vertices).
 Usage:
   python bench/cloth_solver.py [--devices cpu,cuda:0] [--cases flag,15k,pants,pants-paper,tshirt] [--frames 10]
   [--warmup 3] [--substeps 8] [--iterations 75] [--lanes 1,4] [--frame-kernels sweeps,block]
-  [--block-layouts 1024,128x8x4] [--out table.md]
+  [--block-layouts 1024,128x8x4] [--variants body+self] [--out table.md]
 e.g. the collision cases on a GPU: python bench/cloth_solver.py --devices cuda:0 --cases pants,tshirt
 and the one-block frame against the sweeps: python bench/cloth_solver.py --devices cuda:0 --cases pants-paper
   --frame-kernels sweeps,block --skip-high
@@ -107,6 +108,11 @@ def time_garment(model, device, targets, capsules, frames, warmup, lanes, layout
     return float(np.median(times[warmup:])), solver
 
 
+# A garment's variants in turn, each adding to the one before: their names are --variants' values.
+GARMENT_VARIANTS = {"stretch only": dict(bending=False), "no collision": {}, "body": dict(body_collision=True),
+                    "body+self": dict(body_collision=True, self_collision=True)}
+
+
 def garment_rows(case: str, args) -> list[str]:
     levels, pins, targets, capsules, radii = garment_inputs(case, args.warmup + args.frames + 1)
     rows = []
@@ -116,9 +122,9 @@ def garment_rows(case: str, args) -> list[str]:
                 continue
             base = dict(substeps=args.substeps, iterations=args.iterations)
             baseline = None
-            for name, switches in (("stretch only", dict(bending=False)), ("no collision", {}),
-                                   ("body", dict(body_collision=True)),
-                                   ("body+self", dict(body_collision=True, self_collision=True))):
+            for name, switches in GARMENT_VARIANTS.items():
+                if name not in args.variants.split(","):
+                    continue
                 sweeps_ms = None
                 for lanes, kernel, layout in run_variants(device, args):
                     settings = SolverSettings(**base, **switches, frame_kernel=kernel)
@@ -213,8 +219,13 @@ def main():
                         help="ways to launch a frame, e.g. sweeps,block (default: the solver's)")
     parser.add_argument("--block-layouts", default="",
                         help="the block frame's layouts, THREADSxCLUSTER_BLOCKSxLANES, e.g. 1024,128x8x4")
+    parser.add_argument("--variants", default=",".join(GARMENT_VARIANTS),
+                        help=f"the garments' variants to time, of {','.join(GARMENT_VARIANTS)} (default: all)")
     parser.add_argument("--out", help="also write the table here")
     args = parser.parse_args()
+    unknown = set(args.variants.split(",")) - set(GARMENT_VARIANTS)
+    if unknown:
+        parser.error(f"--variants: unknown {', '.join(sorted(unknown))}; choose from {','.join(GARMENT_VARIANTS)}")
     rows = ["| mesh | level | V | K | device | launch | variant | ms/frame | cloth-frames/s | x first row | "
             "speed over sweeps |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for case in args.cases.split(","):
