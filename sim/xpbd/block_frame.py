@@ -94,7 +94,8 @@ class BlockLayout:
 
 # A cluster's blocks and lanes by default: on an H200, the 757-vertex pants at 8 x 75 with body and self-contact
 # step fastest with 16 blocks, 8 lanes a vertex (a vertex a group) and the block's threads fitted to its run of
-# vertices (48 x 8 = 384: no idle warp at the block's barriers; 512 threads measured the same with self-contact,
+# vertices (48 x 8 = 384: no idle warp at the block's barriers, and a thread may keep 162 registers and no stack,
+# where 512 threads cap it at 128 with an 80-byte stack, sm_90; 512 threads measured the same with self-contact,
 # 3-5 % slower without): 3.2 ms a frame against 3.85 with 256 threads and 4 lanes and 4.5 with 256 threads and 8
 # (ba5082b, 913a93f), the best of the 14 layouts timed before the gather took two
 # entries a turn (docs/performance.md, "One launch a frame"). 8 lanes where they fit blocks of
