@@ -105,16 +105,17 @@ def search_pair(p: int, world: int, sub: Substep, sc: SelfContacts, search: Worl
                     hits = hits | (1 << k)
                     count += 1
             if count > 0:
-                slot = world * search.queue_room + wp.atomic_add(search.queue_count, world, count)
+                slot = wp.atomic_add(search.queue_count, world, count)
                 room = (world + 1) * search.queue_room
-                if slot + count <= room:
-                    for k in range(CHUNK_FACES):
-                        if (hits >> k) & 1 != 0:
+                slot += world * search.queue_room
+                for k in range(CHUNK_FACES):
+                    if (hits >> k) & 1 != 0:
+                        if slot < room:
                             search.queue[slot] = (chunk * CHUNK_FACES + k) * V + i - world * V
-                            slot += 1
-                else:
+                        slot += 1
+                if slot > room:
                     # Past the room: the slots it took below the room stay empty, and the pair tests its hits.
-                    for q in range(slot, wp.min(slot + count, room)):
+                    for q in range(slot - count, room):
                         search.queue[q] = -1
                     test_hits(i, start, hits, sub, sc, search)
 
